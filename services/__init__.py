@@ -1,0 +1,1 @@
+"""The shell: Zenoh nodes, the timed loop, telemetry, persistence, studies and the CLI."""

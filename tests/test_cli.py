@@ -1,0 +1,46 @@
+"""The command line's own conventions: help, unknown ids, JSON on the last line."""
+
+import json
+import subprocess
+import sys
+
+from services.cli import main
+from services.output import atomic_output
+
+
+def test_help_lists_core_commands(capsys):
+    try:
+        main(["--help"])
+    except SystemExit as exc:
+        assert exc.code == 0
+    out = capsys.readouterr().out
+    for cmd in ("sim", "bench", "reproduce"):
+        assert cmd in out
+
+
+def test_reproduce_unknown_id_is_a_clear_error(capsys):
+    code = main(["reproduce", "R99.9", "--json"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "R99.9" in err and err.startswith("error:")
+
+
+def test_console_script_entry_point_runs():
+    proc = subprocess.run([sys.executable, "-m", "services.cli", "reproduce", "list"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_atomic_output_leaves_no_partial_file(tmp_path):
+    target = tmp_path / "run.csv"
+    try:
+        with atomic_output(target) as fh:
+            fh.write("half,")
+            raise RuntimeError("boom")
+    except RuntimeError:
+        pass
+    assert not target.exists()
+    assert list(tmp_path.iterdir()) == []
+    with atomic_output(target) as fh:
+        fh.write(json.dumps({"a": 1}))
+    assert json.loads(target.read_text()) == {"a": 1}
