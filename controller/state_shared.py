@@ -1,0 +1,671 @@
+"""The state-shared model of seed chapter 3 (eq. 3.10-3.16).
+
+All models share one non-minimal state ``n = [n1; n2]`` driven by the measured
+inputs and outputs (eq. 3.10)::
+
+    n1' = F n1 + G u,     n2' = F n2 + G y,     y_j = Theta_j^T n + b_j
+
+``(F, G)`` is the designer's block-companion pair built from a Hurwitz
+polynomial ``omega(s) = s^n + a_n s^(n-1) + ... + a_2 s + a_1`` (eq. 3.12-3.13);
+each model j is only a measurement matrix ``Theta_j`` (2nm x m), which follows
+uniquely from model j's left MFD ``H_j(s) = d_j(s)^-1 N_j(s)`` (eq. 3.14-3.16).
+
+**Extension of the seed: the bias b_j.** The seed's models are deviation
+models about one point. Here each linearization holds about its own operating
+point (u_j*, y_j*) while the shared state is driven by absolute u and y, so
+every model carries an affine offset ``b_j = y_j* - Theta_j^T n_ss(u_j*, y_j*)``,
+with ``n_ss`` the steady shared state for constant (u, y). At its own steady
+state each model then reproduces y_j* exactly.
+
+**Sampling.** The state is advanced once per sample of length ``dt`` with u
+and y held over the sample (zero-order hold): ``n1 <- Fd n1 + Gd u``,
+``n2 <- Fd n2 + Gd y`` with ``(Fd, Gd)`` the exact ZOH discretization of
+``(F, G)``. After ``update(u_k, y_k)`` the state is ``n(t_(k+1))``, so
+``estimates()`` are the models' values of y at the *next* sample; compare them
+with ``y_(k+1)`` (call :meth:`errors` before the next update).
+
+Coefficient vectors are **lowest power first**: ``a = (a1, ..., an)`` with a1
+the constant term, as printed in the seed.
+
+Numerical note: companion forms of high degree are badly conditioned (the
+coefficients of (s+1)^40 reach 1.4e11); see ``docs`` of
+:func:`companion_pair` and the ch. 3 study for the limits measured.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import ArrayLike
+
+from controller.linear.mfd import LeftMFD, left_mfd
+
+__all__ = [
+    "companion_pair",
+    "companion_block",
+    "designer_polynomial",
+    "LeftMFD",
+    "left_mfd",
+    "theta_from_mfd",
+    "mfd_from_theta",
+    "ModelSpec",
+    "PredictionForm",
+    "StateSharedModel",
+    "MODEL_KINDS",
+]
+
+MODEL_KINDS = ("fixed", "adaptive")
+
+
+def _vector(value: ArrayLike, n: int | None, field: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{field}: not a numeric vector ({exc})") from exc
+    if n is not None and arr.size != n:
+        raise ValueError(f"{field}: expected length {n}, got {arr.size}")
+    if not np.all(np.isfinite(arr)):
+        bad = [int(i) for i in np.flatnonzero(~np.isfinite(arr))]
+        raise ValueError(f"{field}: non-finite value at index {bad}")
+    return arr
+
+
+def _hurwitz_coefficients(a: ArrayLike, field: str = "a") -> np.ndarray:
+    """Validate omega's coefficients (a1..an, lowest power first); return them."""
+    a = _vector(a, None, field)
+    if a.size == 0:
+        raise ValueError(f"{field}: the designer polynomial needs degree >= 1 (empty)")
+    roots = np.roots(np.concatenate(([1.0], a[::-1])))
+    if not np.all(roots.real < 0):
+        worst = roots[np.argmax(roots.real)]
+        raise ValueError(
+            f"{field}: omega(s) = s^{a.size} + ... is not Hurwitz (root {worst:.6g} "
+            "not in the open left half plane); F must be asymptotically stable"
+        )
+    return a
+
+
+def designer_polynomial(roots: ArrayLike) -> np.ndarray:
+    """Coefficients ``a = (a1, ..., an)`` (lowest power first) of prod (s - r_i).
+
+    Complex roots must come in conjugate pairs. Convenience for choosing omega.
+    """
+    r = np.atleast_1d(np.asarray(roots, dtype=complex))
+    c = np.poly(r)
+    if np.max(np.abs(c.imag)) > 1e-9 * max(1.0, np.max(np.abs(c.real))):
+        raise ValueError("roots: complex roots must come in conjugate pairs")
+    return _hurwitz_coefficients(c.real[1:][::-1], "roots")
+
+
+def companion_block(a: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """One companion block (F_i, g_i) of eq. 3.12-3.13, shapes (n, n) and (n,).
+
+    ``F_i`` has ones on the superdiagonal and last row ``-(a1, ..., an)``;
+    ``g_i = e_n``. Then ``(sI - F_i)^-1 g_i = [1, s, ..., s^(n-1)]^T / omega(s)``.
+    """
+    a = _hurwitz_coefficients(a)
+    n = a.size
+    Fb = np.zeros((n, n))
+    Fb[np.arange(n - 1), np.arange(1, n)] = 1.0
+    Fb[-1, :] = -a
+    gb = np.zeros(n)
+    gb[-1] = 1.0
+    return Fb, gb
+
+
+def companion_pair(a: ArrayLike, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """The designer's pair (F, G) of eq. 3.12-3.13.
+
+    Parameters
+    ----------
+    a : array_like, shape (n,)
+        ``(a1, ..., an)``: ``omega(s) = s^n + a_n s^(n-1) + ... + a_2 s + a_1``
+        (lowest power first). Must be Hurwitz.
+    m : int
+        Number of inputs = number of outputs.
+
+    Returns
+    -------
+    F : ndarray, shape (n m, n m)
+        blockdiag of m companion blocks.
+    G : ndarray, shape (n m, m)
+        blockdiag of m columns e_n.
+
+    Raises
+    ------
+    ValueError
+        If omega is not Hurwitz, ``a`` is empty or non-finite, or ``m < 1``.
+    """
+    m = _positive_int(m, "m")
+    Fb, gb = companion_block(a)
+    return np.kron(np.eye(m), Fb), np.kron(np.eye(m), gb[:, None])
+
+
+def _positive_int(value, field: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+        raise ValueError(f"{field}: must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def theta_from_mfd(mfd: LeftMFD, a: ArrayLike, *, pad_root: float | None = None) -> np.ndarray:
+    """Theta (2nm x m) of eq. 3.16 from a left MFD ``d(s)^-1 N(s)`` (eq. 3.14-3.15).
+
+    ``Theta = [Theta1; Theta2]``. Theta1 (nm x m) holds the numerator
+    coefficients: ``Theta1[j n + k, i] = N[i, j, k]`` (output i, input j, power
+    s^k). Theta2 (nm x m) is block diagonal with the same column
+    ``a - d[:n]`` (``theta2_i = a_i - d_i``) in every block.
+
+    Parameters
+    ----------
+    mfd : LeftMFD
+        Square (m x m), strictly proper (D0 = 0), degree of d at most n.
+    a : array_like, shape (n,)
+        Designer polynomial coefficients (lowest power first).
+    pad_root : float, optional
+        When deg d < n, multiply d and N by ``(s + pad_root)^(n - deg d)``
+        (a stable pole-zero cancellation) to reach degree n. Without it a
+        lower degree is an error.
+
+    Raises
+    ------
+    ValueError
+        Non-square MFD, nonzero feedthrough, degree above n (or below without
+        ``pad_root``), non-Hurwitz omega.
+    """
+    a = _hurwitz_coefficients(a)
+    n = a.size
+    if not isinstance(mfd, LeftMFD):
+        raise ValueError(f"mfd: expected a LeftMFD, got {type(mfd).__name__}")
+    p, m = mfd.shape
+    if p != m:
+        raise ValueError(
+            f"mfd: the state-shared form needs a square model (as many outputs as "
+            f"inputs); got {p} outputs x {m} inputs"
+        )
+    if np.any(mfd.D0 != 0):
+        raise ValueError("mfd.D0: the state-shared form needs a strictly proper model (D = 0)")
+    d, N = mfd.d, mfd.N
+    deg = mfd.degree
+    if deg > n:
+        raise ValueError(
+            f"mfd.d: degree {deg} exceeds the designer polynomial's degree n = {n}; "
+            "choose n >= the McMillan degree of every model"
+        )
+    if deg < n:
+        if pad_root is None:
+            raise ValueError(
+                f"mfd.d: degree {deg} is below n = {n}; pass pad_root > 0 to pad with "
+                "a stable cancelling factor"
+            )
+        if not (math.isfinite(pad_root) and pad_root > 0):
+            raise ValueError(f"pad_root: must be finite and > 0, got {pad_root}")
+        q = np.array([1.0])
+        for _ in range(n - deg):
+            q = np.convolve(q, [pad_root, 1.0])  # (s + r), lowest power first
+        d = np.convolve(d, q)
+        Np = np.zeros((m, m, n))
+        for i in range(m):
+            for j in range(m):
+                Np[i, j] = np.convolve(np.concatenate((N[i, j], [0.0])), q)[:n]
+        N = Np
+    theta = np.zeros((2 * n * m, m))
+    # Theta1[j*n + k, i] = N[i, j, k]
+    theta[: n * m, :] = N.transpose(1, 2, 0).reshape(n * m, m)
+    t2 = a - d[:n]
+    for i in range(m):
+        theta[n * m + i * n : n * m + (i + 1) * n, i] = t2
+    return theta
+
+
+def mfd_from_theta(theta: ArrayLike, a: ArrayLike, m: int) -> LeftMFD:
+    """Inverse of :func:`theta_from_mfd` for a structured Theta (eq. 3.16 read backwards)."""
+    a = _hurwitz_coefficients(a)
+    n = a.size
+    m = _positive_int(m, "m")
+    theta = _theta_matrix(theta, n, m, "theta")
+    t2 = _theta2_column(theta, n, m, "theta")
+    d = np.concatenate((a - t2, [1.0]))
+    N = theta[: n * m].reshape(m, n, m).transpose(2, 0, 1)
+    return LeftMFD(d, N, np.zeros((m, m)))
+
+
+def _theta_matrix(theta, n: int, m: int, field: str) -> np.ndarray:
+    try:
+        th = np.array(theta, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{field}: not a numeric matrix ({exc})") from exc
+    if th.shape != (2 * n * m, m):
+        raise ValueError(f"{field}: expected shape {(2 * n * m, m)} (2nm x m), got {th.shape}")
+    if not np.all(np.isfinite(th)):
+        raise ValueError(f"{field}: non-finite entries")
+    return th
+
+
+def _theta2_column(theta: np.ndarray, n: int, m: int, field: str) -> np.ndarray:
+    """The n distinct entries of Theta2; raise if Theta2 lacks the D = dI structure."""
+    t2 = theta[n * m :]
+    col = t2[0:n, 0].copy()
+    expected = np.kron(np.eye(m), col[:, None])
+    scale = max(1.0, float(np.max(np.abs(col))) if col.size else 1.0)
+    if np.max(np.abs(t2 - expected)) > 1e-12 * scale:
+        raise ValueError(
+            f"{field}: Theta2 must be block diagonal with the same n-vector in every "
+            "block (D(s) = d(s) I, eq. 3.16)"
+        )
+    return col
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """One model of the state-shared set: ``y = Theta^T n + bias``.
+
+    Parameters
+    ----------
+    name : str
+    theta : ndarray, shape (2nm, m)
+        Measurement matrix (eq. 3.16).
+    bias : ndarray, shape (m,)
+        Affine offset (see module notes); zero for deviation models.
+    kind : {"fixed", "adaptive"}
+    """
+
+    name: str
+    theta: np.ndarray
+    bias: np.ndarray | None = None
+    kind: str = "fixed"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError("name: must be a non-empty string")
+        if self.kind not in MODEL_KINDS:
+            raise ValueError(f"kind: must be one of {MODEL_KINDS}, got {self.kind!r}")
+        try:
+            th = np.array(self.theta, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"theta: not a numeric matrix ({exc})") from exc
+        if th.ndim != 2 or th.shape[0] % (2 * max(th.shape[1], 1)) or th.shape[1] < 1:
+            raise ValueError(f"theta: expected shape (2nm, m), got {th.shape}")
+        if not np.all(np.isfinite(th)):
+            raise ValueError("theta: non-finite entries")
+        m = th.shape[1]
+        b = np.zeros(m) if self.bias is None else _vector(self.bias, m, "bias")
+        th.setflags(write=False)
+        b.setflags(write=False)
+        object.__setattr__(self, "theta", th)
+        object.__setattr__(self, "bias", b)
+
+
+class PredictionForm(tuple):
+    """``(Phi, Gamma, C, b)`` of one model on the shared state; unpacks as a 4-tuple.
+
+    ``n(k+1) = Phi n(k) + Gamma u(k) + f``, ``y(k) = C n(k) + b``.
+
+    The attribute ``f`` (shape (2nm,)) is the constant state increment per
+    sample caused by the bias (``f = 0`` when ``b = 0``): model j's output feeds
+    n2 through ``G y = G (C n + b)``, so the bias enters the dynamics too.
+    **Use f in predictions** unless the model has zero bias.
+    """
+
+    def __new__(cls, Phi, Gamma, C, b, f):
+        obj = super().__new__(cls, (Phi, Gamma, C, b))
+        obj.f = f
+        return obj
+
+    @property
+    def Phi(self) -> np.ndarray:
+        return self[0]
+
+    @property
+    def Gamma(self) -> np.ndarray:
+        return self[1]
+
+    @property
+    def C(self) -> np.ndarray:
+        return self[2]
+
+    @property
+    def b(self) -> np.ndarray:
+        return self[3]
+
+
+@dataclass
+class _Slot:
+    spec: ModelSpec
+    prediction: PredictionForm | None = field(default=None)
+
+
+class StateSharedModel:
+    """Shared state and the measurement matrices of all models (eq. 3.10).
+
+    Parameters
+    ----------
+    a : array_like, shape (n,)
+        Designer polynomial ``omega`` (lowest power first), Hurwitz.
+    m : int
+        Inputs = outputs.
+    dt : float
+        Sample time, > 0, in the models' time unit.
+    models : sequence of ModelSpec, optional
+
+    Attributes
+    ----------
+    n : ndarray, shape (2nm,)
+        The shared state [n1; n2] (a copy; use :meth:`set_state` to change it).
+    F, G : ndarray
+        Continuous pair (nm x nm, nm x m).
+    Fd, Gd : ndarray
+        Exact ZOH discretization of (F, G) for dt.
+    n_params : int
+        ``n (m^2 + 1)``: free parameters of one structured model (without bias).
+    order : int
+        ``2 n m``.
+    """
+
+    def __init__(self, a: ArrayLike, m: int, dt: float,
+                 models: Sequence[ModelSpec] | None = None) -> None:
+        self.a = _hurwitz_coefficients(a)
+        self.a.setflags(write=False)
+        self.m = _positive_int(m, "m")
+        try:
+            dt = float(dt)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"dt: not a number ({dt!r})") from exc
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt: must be finite and > 0, got {dt}")
+        self.dt = dt
+        self.n_deg = self.a.size
+        n, m = self.n_deg, self.m
+        self.Fb, self.gb = companion_block(self.a)
+        self.F = np.kron(np.eye(m), self.Fb)
+        self.G = np.kron(np.eye(m), self.gb[:, None])
+        self.Fbd, self.gbd = _zoh_block(self.Fb, self.gb, dt)
+        self.Fd = np.kron(np.eye(m), self.Fbd)
+        self.Gd = np.kron(np.eye(m), self.gbd[:, None])
+        self._FbdT = np.ascontiguousarray(self.Fbd.T)
+        self.order = 2 * n * m
+        self.n_params = n * (m * m + 1)
+        # shared state as a (2m, n) matrix: rows 0..m-1 = n1 blocks, m..2m-1 = n2 blocks
+        self._N = np.zeros((2 * m, n))
+        self._slots: list[_Slot] = []
+        self._T = np.zeros((0, self.order))  # stacked Theta_j^T, (k m, 2nm)
+        self._B = np.zeros((0, m))
+        for spec in models or ():
+            self.add_model(spec)
+
+    # -- models ------------------------------------------------------------------
+    @property
+    def n(self) -> np.ndarray:
+        return self._N.reshape(-1).copy()
+
+    @property
+    def k(self) -> int:
+        """Number of models."""
+        return len(self._slots)
+
+    @property
+    def names(self) -> list[str]:
+        return [s.spec.name for s in self._slots]
+
+    @property
+    def kinds(self) -> list[str]:
+        return [s.spec.kind for s in self._slots]
+
+    def model(self, j: int) -> ModelSpec:
+        return self._slots[self._index(j)].spec
+
+    def theta(self, j: int) -> np.ndarray:
+        return self.model(j).theta
+
+    def bias(self, j: int) -> np.ndarray:
+        return self.model(j).bias
+
+    def _index(self, j) -> int:
+        if isinstance(j, bool) or not isinstance(j, int | np.integer) or not 0 <= j < self.k:
+            raise ValueError(f"j: model index must be in 0..{self.k - 1}, got {j!r}")
+        return int(j)
+
+    def _check_spec(self, spec: ModelSpec) -> None:
+        if not isinstance(spec, ModelSpec):
+            raise ValueError(f"spec: expected a ModelSpec, got {type(spec).__name__}")
+        if spec.theta.shape != (self.order, self.m):
+            raise ValueError(
+                f"theta of model {spec.name!r}: expected shape {(self.order, self.m)} "
+                f"(2nm x m with n={self.n_deg}, m={self.m}), got {spec.theta.shape}"
+            )
+
+    def add_model(self, spec: ModelSpec) -> int:
+        """Append a model; returns its index."""
+        self._check_spec(spec)
+        if spec.name in self.names:
+            raise ValueError(f"name: a model named {spec.name!r} already exists")
+        self._slots.append(_Slot(spec))
+        self._restack()
+        return self.k - 1
+
+    def _restack(self) -> None:
+        if self._slots:
+            self._T = np.ascontiguousarray(
+                np.concatenate([s.spec.theta.T for s in self._slots], axis=0))
+            self._B = np.stack([s.spec.bias for s in self._slots])
+        else:
+            self._T = np.zeros((0, self.order))
+            self._B = np.zeros((0, self.m))
+
+    def set_theta(self, j: int, theta: ArrayLike, bias: ArrayLike | None = None) -> None:
+        """Replace model j's Theta (and bias; kept when None). The shared state is untouched."""
+        j = self._index(j)
+        old = self._slots[j].spec
+        spec = ModelSpec(old.name, theta, old.bias if bias is None else bias, old.kind)
+        self._check_spec(spec)
+        self._slots[j] = _Slot(spec)
+        self._T[j * self.m : (j + 1) * self.m] = spec.theta.T
+        self._B[j] = spec.bias
+
+    def set_params(self, j: int, p: ArrayLike) -> None:
+        """Set model j from a structured parameter vector (see :meth:`params_from_theta`)."""
+        theta, bias = self.theta_from_params(p)
+        self.set_theta(j, theta, bias)
+
+    @staticmethod
+    def model_from_linear(name: str, A, B, C, u_op: ArrayLike, y_op: ArrayLike, a: ArrayLike,
+                          kind: str = "fixed", *, pad_root: float | None = None) -> ModelSpec:
+        """A ModelSpec from a linearization about (u_op, y_op).
+
+        ``(A, B, C)`` is the deviation model ``dx' = A dx + B du``, ``dy = C dx``
+        (D = 0). Theta follows from its left MFD (eq. 3.16) and the bias makes
+        the model hold about its own point: ``b = y_op - Theta^T n_ss(u_op, y_op)``.
+        """
+        mfd = left_mfd(A, B, C)
+        theta = theta_from_mfd(mfd, a, pad_root=pad_root)
+        a = np.asarray(a, dtype=float).reshape(-1)
+        m = theta.shape[1]
+        u_op = _vector(u_op, m, "u_op")
+        y_op = _vector(y_op, m, "y_op")
+        n_ss = _steady_state(a, u_op, y_op)
+        return ModelSpec(name, theta, y_op - theta.T @ n_ss, kind)
+
+    # -- parameter vector -------------------------------------------------------------
+    def params_from_theta(self, theta: ArrayLike, bias: ArrayLike | None = None) -> np.ndarray:
+        """Structured parameter vector ``p = [vec Theta1^T; theta2; bias]``, length N_theta + m.
+
+        ``p[i*nm:(i+1)*nm]`` = Theta1[:, i] (output i's numerator coefficients),
+        then the n entries ``theta2 = a - d`` (eq. 3.16), then the m biases.
+        Raises if Theta2 lacks the block structure of D(s) = d(s) I.
+        """
+        n, m = self.n_deg, self.m
+        th = _theta_matrix(theta, n, m, "theta")
+        t2 = _theta2_column(th, n, m, "theta")
+        b = np.zeros(m) if bias is None else _vector(bias, m, "bias")
+        return np.concatenate((th[: n * m].T.reshape(-1), t2, b))
+
+    def theta_from_params(self, p: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """Inverse of :meth:`params_from_theta`: (Theta (2nm, m), bias (m,))."""
+        n, m = self.n_deg, self.m
+        p = _vector(p, self.n_params + m, "p")
+        nm = n * m
+        theta = np.zeros((2 * nm, m))
+        theta[:nm] = p[: nm * m].reshape(m, nm).T
+        t2 = p[nm * m : nm * m + n]
+        for i in range(m):
+            theta[nm + i * n : nm + (i + 1) * n, i] = t2
+        return theta, p[nm * m + n :].copy()
+
+    def regressor(self) -> np.ndarray:
+        """W (m, N_theta + m) with ``y_j = W @ p_j`` for every structured model j."""
+        n, m = self.n_deg, self.m
+        nm = n * m
+        W = np.zeros((m, self.n_params + m))
+        n1 = self._N[:m].reshape(-1)
+        for i in range(m):
+            W[i, i * nm : (i + 1) * nm] = n1
+        W[:, nm * m : nm * m + n] = self._N[m:]
+        W[np.arange(m), nm * m + n + np.arange(m)] = 1.0
+        return W
+
+    # -- state ---------------------------------------------------------------------------
+    def _uy(self, u, y) -> np.ndarray:
+        u = _vector(u, self.m, "u")
+        y = _vector(y, self.m, "y")
+        return np.concatenate((u, y))
+
+    def initialize(self, u: ArrayLike, y: ArrayLike) -> None:
+        """Set n to the steady state for constant u and y (``F n1 + G u = 0`` etc.)."""
+        uy = self._uy(u, y)
+        self._N[:] = 0.0
+        self._N[:, 0] = uy / self.a[0]
+
+    def set_state(self, n: ArrayLike) -> None:
+        """Overwrite the shared state, shape (2nm,)."""
+        self._N[:] = _vector(n, self.order, "n").reshape(2 * self.m, self.n_deg)
+
+    def update(self, u: ArrayLike, y: ArrayLike) -> None:
+        """Advance one sample with u and y held (ZOH): exact for piecewise-constant signals.
+
+        Raises ValueError (state untouched) for wrong lengths or NaN/inf.
+        """
+        uy = self._uy(u, y)
+        self._N = self._N @ self._FbdT + np.multiply.outer(uy, self.gbd)
+
+    def estimates(self) -> np.ndarray:
+        """All models' outputs ``y_j = Theta_j^T n + b_j``, shape (k, m)."""
+        return (self._T @ self._N.reshape(-1)).reshape(-1, self.m) + self._B
+
+    def errors(self, y: ArrayLike) -> np.ndarray:
+        """``y - y_j`` for every model, shape (k, m)."""
+        return _vector(y, self.m, "y")[None, :] - self.estimates()
+
+    # -- prediction form ---------------------------------------------------------------
+    def continuous_form(self, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                np.ndarray]:
+        """Model j as a continuous system on the shared state: (A, B, C, b, f_c).
+
+        ``n' = A n + B u + f_c``, ``y = C n + b`` with
+        ``A = [[F, 0], [G Th1^T, F + G Th2^T]]``, ``B = [G; 0]``,
+        ``f_c = [0; G b]``, ``C = [Th1^T, Th2^T]``.
+        """
+        spec = self.model(j)
+        nm = self.n_deg * self.m
+        th1, th2 = spec.theta[:nm], spec.theta[nm:]
+        A = np.zeros((2 * nm, 2 * nm))
+        A[:nm, :nm] = self.F
+        A[nm:, :nm] = self.G @ th1.T
+        A[nm:, nm:] = self.F + self.G @ th2.T
+        B = np.zeros((2 * nm, self.m))
+        B[:nm] = self.G
+        f = np.zeros(2 * nm)
+        f[nm:] = self.G @ spec.bias
+        return A, B, spec.theta.T.copy(), spec.bias.copy(), f
+
+    def prediction_form(self, j: int) -> PredictionForm:
+        """Discrete (Phi, Gamma, C, b) of model j on the shared state, for MPC.
+
+        Exact ZOH discretization of :meth:`continuous_form` with dt:
+        ``n(k+1) = Phi n(k) + Gamma u(k) + f``, ``y(k) = C n(k) + b``; the
+        returned tuple also carries ``.f`` (zero when the bias is zero). Cached
+        per model until its Theta changes.
+        """
+        slot = self._slots[self._index(j)]
+        if slot.prediction is None:
+            A, B, C, b, fc = self.continuous_form(j)
+            Phi, Gam, fd = _zoh_affine(A, B, fc, self.dt)
+            for arr in (Phi, Gam, C, b, fd):
+                arr.setflags(write=False)
+            slot.prediction = PredictionForm(Phi, Gam, C, b, fd)
+        return slot.prediction
+
+    # -- persistence ----------------------------------------------------------------
+    def checkpoint(self) -> dict:
+        """JSON-serialisable snapshot (plain lists/floats); :meth:`restore` is exact."""
+        return {
+            "a": self.a.tolist(),
+            "m": self.m,
+            "dt": self.dt,
+            "n": self._N.reshape(-1).tolist(),
+            "models": [
+                {"name": s.spec.name, "kind": s.spec.kind, "theta": s.spec.theta.tolist(),
+                 "bias": s.spec.bias.tolist()}
+                for s in self._slots
+            ],
+        }
+
+    def restore(self, state: dict) -> None:
+        """Restore state and models from :meth:`checkpoint` (same a, m, dt required)."""
+        if not isinstance(state, dict):
+            raise ValueError("state: expected a dict from checkpoint()")
+        for key in ("a", "m", "dt", "n", "models"):
+            if key not in state:
+                raise ValueError(f"state: missing key {key!r}")
+        a = _vector(state["a"], None, "state.a")
+        if a.shape != self.a.shape or np.any(a != self.a):
+            raise ValueError("state.a: designer polynomial differs from this model's")
+        if state["m"] != self.m:
+            raise ValueError(f"state.m: expected {self.m}, got {state['m']!r}")
+        if float(state["dt"]) != self.dt:
+            raise ValueError(f"state.dt: expected {self.dt}, got {state['dt']!r}")
+        n = _vector(state["n"], self.order, "state.n")
+        specs = [ModelSpec(d["name"], d["theta"], d["bias"], d["kind"]) for d in state["models"]]
+        for s in specs:
+            self._check_spec(s)
+        self._N = n.reshape(2 * self.m, self.n_deg).copy()
+        self._slots = [_Slot(s) for s in specs]
+        self._restack()
+
+    @classmethod
+    def from_checkpoint(cls, state: dict) -> StateSharedModel:
+        """A new model from :meth:`checkpoint` output."""
+        obj = cls(state["a"], state["m"], state["dt"])
+        obj.restore(state)
+        return obj
+
+
+def _steady_state(a: np.ndarray, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Shared state in equilibrium with constant u and y: first entry of each block = v/a1."""
+    n, m = a.size, u.size
+    N = np.zeros((2 * m, n))
+    N[:, 0] = np.concatenate((u, y)) / a[0]
+    return N.reshape(-1)
+
+
+def _zoh_block(Fb: np.ndarray, gb: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact ZOH of one companion block via expm of the augmented matrix."""
+    n = Fb.shape[0]
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n] = Fb * dt
+    M[:n, n] = gb * dt
+    E = scipy.linalg.expm(M)
+    return E[:n, :n].copy(), E[:n, n].copy()
+
+
+def _zoh_affine(A: np.ndarray, B: np.ndarray, f: np.ndarray, dt: float):
+    """Exact ZOH of ``x' = A x + B u + f``: (Phi, Gamma, f_d)."""
+    nx, nu = B.shape
+    M = np.zeros((nx + nu + 1, nx + nu + 1))
+    M[:nx, :nx] = A * dt
+    M[:nx, nx : nx + nu] = B * dt
+    M[:nx, -1] = f * dt
+    E = scipy.linalg.expm(M)
+    return E[:nx, :nx].copy(), E[:nx, nx : nx + nu].copy(), E[:nx, -1].copy()
