@@ -1,0 +1,330 @@
+"""Normalized least-squares parameter adaptation (seed eq. 4.1) with covariance bounds.
+
+The seed's law (after Goodwin & Mayne and Ioannou & Sun) is written in continuous
+time for a SISO identifier ``y = p' w``:
+
+    e     = y - p' w
+    dp/dt = g P w e / (1 + gamma w' P w)
+    dP/dt = -g P w w' P / (1 + gamma w' P w)
+
+with the covariance initialized to ``kappa I`` and reset when its smallest
+eigenvalue falls to a threshold (seed §5.1.3: kappa = 10, lambda_min(P) > 1).
+
+Here it is used in the discrete-time, multi-output form for ``y = W p`` with a
+measurement matrix ``W`` of shape ``(m, N)`` (one row per output), stepped once
+per sample with the per-sample gain ``g_d = g * dt``:
+
+    S  = I_m + gamma W P W'                    (m x m normalization)
+    K  = P W' S^-1
+    p <- p + g_d K e
+    P <- P - g_d K W P
+
+For ``g_d = gamma`` this is exactly recursive least squares with the data scaled
+by ``sqrt(gamma)``; for ``g_d < gamma`` it is a damped version. ``g_d > gamma``
+would make ``P`` indefinite, so it is rejected.
+
+Covariance resetting: a cheap lower bound on ``lambda_min(P)`` is carried from
+sample to sample (each update lowers it by at most ``g_d trace(K W P)``); only
+when the bound reaches the floor is the exact smallest eigenvalue computed (for
+``N`` up to :attr:`NLSSettings.exact_check_max_params`; larger problems reset on
+the bound alone). A covariance that is not finite, not symmetric positive
+definite, or a singular ``S`` also triggers a reset. Every reset is counted.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["AdaptiveKind", "NLSSettings", "NLSStep", "NormalizedLeastSquares"]
+
+
+class AdaptiveKind(enum.Enum):
+    """The three adaptive models of seed §4 (after Narendra & Balakrishnan, ref. [19]).
+
+    ``FIXED`` is a non-adapted model. At a *restart event* (see
+    :class:`controller.multimodel.MultiModelController`): a ``CONVENTIONAL``
+    model starts again from its initial parameters, a ``FREE_RUNNING`` model
+    continues from its current ones, and a ``REINITIALIZED`` model takes the
+    parameters of the fixed model with the smallest performance index.
+    """
+
+    FIXED = "fixed"
+    CONVENTIONAL = "conventional"
+    FREE_RUNNING = "free-running"
+    REINITIALIZED = "re-initialized"
+
+    @property
+    def adaptive(self) -> bool:
+        return self is not AdaptiveKind.FIXED
+
+    @classmethod
+    def parse(cls, value: AdaptiveKind | str) -> AdaptiveKind:
+        """Accept an enum member or its value/name (``"free-running"``, ``"FREE_RUNNING"``)."""
+        if isinstance(value, cls):
+            return value
+        text = str(value).strip()
+        for member in cls:
+            if text in (member.value, member.name, member.name.lower()):
+                return member
+        known = ", ".join(m.value for m in cls)
+        raise ValueError(f"kind: unknown adaptive kind {value!r}; known: {known}")
+
+
+@dataclass(frozen=True)
+class NLSSettings:
+    """Tuning of the normalized least-squares law (eq. 4.1).
+
+    Parameters
+    ----------
+    kappa : float
+        Initial covariance ``P(0) = kappa I`` (seed: 10).
+    gain : float
+        Adaptive gain ``g`` in 1/(time unit) (seed: ``0 < g < 100``). The
+        per-sample gain is ``g * dt`` and must not exceed ``rate``.
+    rate : float
+        Adaptive rate ``gamma`` of the normalization ``1 + gamma w'Pw`` (seed: 1).
+    eig_floor : float
+        Reset the covariance when its smallest eigenvalue falls to this value
+        (seed: lambda_min(P) > 1).
+    reset_value : float or None
+        Covariance after a reset, ``reset_value * I``; None means ``kappa``.
+        Must exceed ``eig_floor``.
+    exact_check_max_params : int
+        Largest parameter count for which the exact smallest eigenvalue is
+        computed when the cheap bound reaches the floor; above it the bound alone
+        triggers the reset (an eigen-decomposition of a 1000 x 1000 matrix would
+        cost more than a sample).
+    max_abs_param : float
+        A parameter larger than this in magnitude is treated as divergence: the
+        update is rejected and the covariance reset (counted).
+    """
+
+    kappa: float = 10.0
+    gain: float = 10.0
+    rate: float = 1.0
+    eig_floor: float = 1.0
+    reset_value: float | None = None
+    exact_check_max_params: int = 64
+    max_abs_param: float = 1e8
+
+    def __post_init__(self) -> None:
+        for name in ("kappa", "gain", "rate", "eig_floor", "max_abs_param"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
+        if self.reset_value is not None and not (
+            math.isfinite(self.reset_value) and self.reset_value > self.eig_floor
+        ):
+            raise ValueError(
+                f"reset_value: must be finite and > eig_floor ({self.eig_floor}), "
+                f"got {self.reset_value!r}"
+            )
+        if self.reset_value is None and self.kappa <= self.eig_floor:
+            raise ValueError(
+                f"kappa: must exceed eig_floor ({self.eig_floor}) when reset_value is None, "
+                f"got {self.kappa}"
+            )
+        if int(self.exact_check_max_params) < 0:
+            raise ValueError("exact_check_max_params: must be >= 0")
+
+    @property
+    def reset_to(self) -> float:
+        """Covariance scale after a reset."""
+        return float(self.kappa if self.reset_value is None else self.reset_value)
+
+    def per_sample_gain(self, dt: float) -> float:
+        """``g * dt``, checked against ``gamma`` (else P would lose definiteness)."""
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
+        g_d = self.gain * dt
+        if g_d > self.rate * (1.0 + 1e-12):
+            raise ValueError(
+                f"gain: per-sample gain gain*dt = {g_d:g} exceeds rate = {self.rate:g}; "
+                f"the covariance update would lose positive definiteness "
+                f"(use gain <= {self.rate / dt:g} at dt = {dt:g})"
+            )
+        return g_d
+
+
+@dataclass(frozen=True)
+class NLSStep:
+    """What one update did.
+
+    Attributes
+    ----------
+    error : ndarray, shape (m,)
+        Prediction error ``y - W p`` before the update.
+    updated : bool
+        False when the sample was skipped (invalid data or frozen).
+    reset : bool
+        True when the covariance was reset at this sample.
+    reason : str
+        ``""``, ``"floor"``, ``"singular"``, ``"nonfinite"``, ``"diverged"``,
+        ``"invalid_data"`` or ``"frozen"``.
+    """
+
+    error: np.ndarray
+    updated: bool
+    reset: bool = False
+    reason: str = ""
+
+
+class NormalizedLeastSquares:
+    """Discrete normalized least squares for ``y = W p`` (eq. 4.1, MIMO form).
+
+    Parameters
+    ----------
+    settings : NLSSettings
+        Tuning.
+    p0 : array_like, shape (N,)
+        Initial parameter vector.
+    dt : float
+        Sample time (same time unit as ``settings.gain``).
+
+    Attributes
+    ----------
+    p : ndarray, shape (N,)
+        Current parameters.
+    P : ndarray, shape (N, N)
+        Current covariance.
+    n_updates, n_resets, n_skipped : int
+        Counters: updates applied, covariance resets, samples skipped.
+    """
+
+    def __init__(self, settings: NLSSettings, p0, dt: float) -> None:
+        self.settings = settings
+        p0 = np.asarray(p0, dtype=float).reshape(-1)
+        if p0.size == 0 or not np.all(np.isfinite(p0)):
+            raise ValueError("p0: must be a non-empty finite vector")
+        self.dt = float(dt)
+        self.g_d = settings.per_sample_gain(self.dt)
+        self.p = p0.copy()
+        self.P = settings.kappa * np.eye(p0.size)
+        self._lower = float(settings.kappa)  # lower bound on lambda_min(P)
+        self.n_updates = 0
+        self.n_resets = 0
+        self.n_skipped = 0
+        self.reset_reasons: dict[str, int] = {}
+
+    @property
+    def n_params(self) -> int:
+        return self.p.size
+
+    def reset_covariance(self, reason: str = "requested") -> None:
+        """Set ``P = reset_value I`` and count the reset under ``reason``."""
+        value = self.settings.reset_to
+        self.P = value * np.eye(self.p.size)
+        self._lower = value
+        self.n_resets += 1
+        self.reset_reasons[reason] = self.reset_reasons.get(reason, 0) + 1
+
+    def set_params(self, p, *, reset_covariance: bool = True) -> None:
+        """Replace the parameters (re-initialization); optionally reset ``P`` (not counted)."""
+        p = np.asarray(p, dtype=float).reshape(-1)
+        if p.shape != self.p.shape or not np.all(np.isfinite(p)):
+            raise ValueError(f"p: expected a finite vector of length {self.p.size}")
+        self.p = p.copy()
+        if reset_covariance:
+            self.P = self.settings.reset_to * np.eye(self.p.size)
+            self._lower = self.settings.reset_to
+
+    def error(self, W, y) -> np.ndarray:
+        """Prediction error ``y - W p``, shape ``(m,)``."""
+        W = np.atleast_2d(np.asarray(W, dtype=float))
+        return np.asarray(y, dtype=float).reshape(-1) - W @ self.p
+
+    def update(self, W, y, *, freeze: bool = False) -> NLSStep:
+        """One adaptation step with measurement matrix ``W`` (m, N) and output ``y`` (m,).
+
+        Invalid data (NaN/inf in ``W`` or ``y``, wrong shapes) skips the step
+        (counted) and leaves ``p`` and ``P`` untouched. ``freeze=True`` computes
+        the error but does not adapt.
+        """
+        W = np.atleast_2d(np.asarray(W, dtype=float))
+        y = np.asarray(y, dtype=float).reshape(-1)
+        m = y.size
+        if W.shape != (m, self.p.size) or not (np.all(np.isfinite(W)) and np.all(np.isfinite(y))):
+            self.n_skipped += 1
+            return NLSStep(np.full(m, np.nan), False, reason="invalid_data")
+        if not np.all(np.isfinite(self.P)):
+            self.reset_covariance("nonfinite")
+        e = y - W @ self.p
+        if freeze:
+            self.n_skipped += 1
+            return NLSStep(e, False, reason="frozen")
+        PWt = self.P @ W.T  # (N, m)
+        S = np.eye(m) + self.settings.rate * (W @ PWt)
+        try:
+            K = np.linalg.solve(S, PWt.T).T  # P W' S^-1, (N, m)
+        except np.linalg.LinAlgError:
+            self.reset_covariance("singular")
+            return NLSStep(e, False, True, "singular")
+        p_new = self.p + self.g_d * (K @ e)
+        if not np.all(np.isfinite(p_new)) or np.max(np.abs(p_new)) > self.settings.max_abs_param:
+            self.reset_covariance("diverged")
+            return NLSStep(e, False, True, "diverged")
+        dP = self.g_d * (K @ PWt.T)
+        P_new = self.P - dP
+        P_new = 0.5 * (P_new + P_new.T)
+        self.p = p_new
+        self.n_updates += 1
+        if not np.all(np.isfinite(P_new)):
+            self.reset_covariance("nonfinite")
+            return NLSStep(e, True, True, "nonfinite")
+        self.P = P_new
+        # trace of the PSD decrement bounds its largest eigenvalue
+        self._lower -= float(np.trace(dP))
+        if self._lower <= self.settings.eig_floor:
+            if self.p.size <= self.settings.exact_check_max_params:
+                lam = float(np.linalg.eigvalsh(self.P)[0])
+                if not math.isfinite(lam) or lam <= self.settings.eig_floor:
+                    reason = "floor" if math.isfinite(lam) and lam > 0 else "singular"
+                    self.reset_covariance(reason)
+                    return NLSStep(e, True, True, reason)
+                self._lower = lam
+            else:
+                self.reset_covariance("floor")
+                return NLSStep(e, True, True, "floor")
+        return NLSStep(e, True)
+
+    def smallest_eigenvalue(self) -> float:
+        """Exact ``lambda_min(P)`` (costly for large N; for diagnostics and tests)."""
+        return float(np.linalg.eigvalsh(self.P)[0])
+
+    def counters(self) -> dict[str, int]:
+        return {"updates": self.n_updates, "resets": self.n_resets, "skipped": self.n_skipped}
+
+    def checkpoint(self) -> dict[str, Any]:
+        """JSON-serialisable state (parameters, covariance, bound, counters)."""
+        return {
+            "p": self.p.tolist(),
+            "P": self.P.tolist(),
+            "lower": self._lower,
+            "n_updates": self.n_updates,
+            "n_resets": self.n_resets,
+            "n_skipped": self.n_skipped,
+            "reset_reasons": dict(self.reset_reasons),
+        }
+
+    def restore(self, state: dict[str, Any]) -> None:
+        p = np.asarray(state["p"], dtype=float).reshape(-1)
+        P = np.asarray(state["P"], dtype=float)
+        if p.shape != self.p.shape or P.shape != (p.size, p.size):
+            raise ValueError(f"state: parameter size {p.size} does not match {self.p.size}")
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(P))):
+            raise ValueError("state: non-finite parameters or covariance")
+        self.p = p.copy()
+        self.P = 0.5 * (P + P.T)
+        if p.size <= self.settings.exact_check_max_params:
+            self._lower = self.smallest_eigenvalue()  # never trust a stored bound when cheap
+        else:
+            self._lower = float(state.get("lower", -math.inf))
+        self.n_updates = int(state.get("n_updates", 0))
+        self.n_resets = int(state.get("n_resets", 0))
+        self.n_skipped = int(state.get("n_skipped", 0))
+        self.reset_reasons = {str(k): int(v) for k, v in state.get("reset_reasons", {}).items()}

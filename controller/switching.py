@@ -1,0 +1,243 @@
+"""Performance index (seed eq. 4.6) and model switching with a minimum dwell time.
+
+The seed's index for model j is
+
+    J_j(t) = mu e_j(t)^2 + nu * integral_0^t exp(-lambda (t - tau)) e_j(tau)^2 dtau
+
+with ``e_j`` the output error of model j. Sampled every ``dt`` with the
+integral by the rectangle rule it becomes the recursion
+
+    I_j(k) = exp(-lambda dt) I_j(k-1) + dt |e_j(k)|^2
+    J_j(k) = mu |e_j(k)|^2 + nu I_j(k)
+
+where ``|e|^2`` is the (optionally weighted) squared norm for several outputs.
+The model with the smallest J wins, but a new model is taken only after the
+current one has been active for at least ``min_dwell`` time units (the seed:
+"a nonzero lower bound ... but too small a value will result in chattering").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["IndexSettings", "PerformanceIndex", "ModelSwitcher", "SwitchDecision"]
+
+
+@dataclass(frozen=True)
+class IndexSettings:
+    """Weights of the performance index (eq. 4.6) and the dwell time.
+
+    Parameters
+    ----------
+    mu : float
+        Weight of the instantaneous squared error (seed: 1), >= 0.
+    nu : float
+        Weight of the discounted integral of the squared error (seed: 0.1), >= 0.
+    forgetting : float
+        Exponential forgetting rate lambda in 1/(time unit), >= 0 (lost in the
+        seed's OCR; 0.5 here, so errors older than a few time units fade).
+    min_dwell : float
+        Minimum time a model stays active after a switch, > 0, in time units.
+    output_weights : tuple of float or None
+        Weights of each output's squared error (MIMO); None means all 1.
+    """
+
+    mu: float = 1.0
+    nu: float = 0.1
+    forgetting: float = 0.5
+    min_dwell: float = 0.5
+    output_weights: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("mu", "nu", "forgetting"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name}: must be a finite number >= 0, got {v!r}")
+        if self.mu == 0 and self.nu == 0:
+            raise ValueError("mu, nu: at least one must be > 0")
+        if not (isinstance(self.min_dwell, int | float) and math.isfinite(self.min_dwell)
+                and self.min_dwell > 0):
+            raise ValueError(f"min_dwell: must be a finite number > 0, got {self.min_dwell!r}")
+        if self.output_weights is not None:
+            w = np.asarray(self.output_weights, dtype=float)
+            if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w)) or np.any(w < 0):
+                raise ValueError("output_weights: must be a non-empty vector of finite values >= 0")
+
+
+class PerformanceIndex:
+    """Discrete eq. 4.6 for ``n_models`` models.
+
+    Parameters
+    ----------
+    settings : IndexSettings
+    n_models : int
+    dt : float
+        Sample time.
+
+    Attributes
+    ----------
+    J : ndarray, shape (n_models,)
+        Index after the last update.
+    integral : ndarray, shape (n_models,)
+        Discounted integral of the squared errors.
+    """
+
+    def __init__(self, settings: IndexSettings, n_models: int, dt: float) -> None:
+        if n_models < 1:
+            raise ValueError(f"n_models: must be >= 1, got {n_models}")
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
+        self.settings = settings
+        self.dt = float(dt)
+        self.decay = math.exp(-settings.forgetting * self.dt)
+        self.J = np.zeros(n_models)
+        self.integral = np.zeros(n_models)
+        self._w = (None if settings.output_weights is None
+                   else np.asarray(settings.output_weights, dtype=float))
+
+    @property
+    def n_models(self) -> int:
+        return self.J.size
+
+    def squared_errors(self, errors) -> np.ndarray:
+        """``|e_j|^2`` per model from errors of shape ``(n_models,)`` or ``(n_models, m)``."""
+        e = np.asarray(errors, dtype=float)
+        if e.ndim == 1:
+            e = e[:, None]
+        if e.shape[0] != self.n_models:
+            raise ValueError(f"errors: expected {self.n_models} rows, got {e.shape[0]}")
+        if self._w is None:
+            return np.einsum("ij,ij->i", e, e)
+        if self._w.size != e.shape[1]:
+            raise ValueError(f"errors: {e.shape[1]} outputs but {self._w.size} output_weights")
+        return (e * e) @ self._w
+
+    def update(self, errors) -> np.ndarray:
+        """Advance one sample with the model errors; returns ``J`` (n_models,).
+
+        Non-finite errors are not allowed here (the caller skips such samples).
+        """
+        e2 = self.squared_errors(errors)
+        if not np.all(np.isfinite(e2)):
+            raise ValueError("errors: non-finite model error (skip the sample instead)")
+        self.integral = self.decay * self.integral + self.dt * e2
+        self.J = self.settings.mu * e2 + self.settings.nu * self.integral
+        return self.J
+
+    def copy_model(self, source: int, target: int) -> None:
+        """Give model ``target`` the index history of ``source`` (re-initialization)."""
+        self.integral[target] = self.integral[source]
+        self.J[target] = self.J[source]
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {"J": self.J.tolist(), "integral": self.integral.tolist()}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        J = np.asarray(state["J"], dtype=float)
+        integral = np.asarray(state["integral"], dtype=float)
+        if J.shape != self.J.shape or integral.shape != self.J.shape:
+            raise ValueError(f"state: expected {self.n_models} models")
+        self.J, self.integral = J.copy(), integral.copy()
+
+
+@dataclass(frozen=True)
+class SwitchDecision:
+    """Result of one switching step.
+
+    Attributes
+    ----------
+    active : int
+        Model in use after this sample.
+    best : int
+        Model with the smallest J at this sample (may differ from ``active``
+        while the dwell time holds the current one).
+    switched : bool
+        True when ``active`` changed at this sample.
+    held : bool
+        True when a better model was waiting for the dwell time.
+    """
+
+    active: int
+    best: int
+    switched: bool
+    held: bool
+
+
+class ModelSwitcher:
+    """Smallest-J switching with a minimum dwell time.
+
+    Parameters
+    ----------
+    n_models : int
+    min_dwell : float
+        Minimum active time after a switch (time units), > 0.
+    dt : float
+        Sample time.
+    initial : int
+        Model active at the start.
+    allowed : sequence of bool or None
+        Models that may be selected (e.g. exclude one whose controller failed).
+    """
+
+    def __init__(self, n_models: int, min_dwell: float, dt: float, initial: int = 0) -> None:
+        if not 0 <= initial < n_models:
+            raise ValueError(f"initial: must be in [0, {n_models}), got {initial}")
+        if not (math.isfinite(min_dwell) and min_dwell > 0):
+            raise ValueError(f"min_dwell: must be a finite number > 0, got {min_dwell!r}")
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
+        self.n_models = int(n_models)
+        # at least one sample, rounding the dwell time up to whole samples
+        self.dwell_samples = max(1, math.ceil(min_dwell / dt - 1e-9))
+        self.active = int(initial)
+        self.since_switch = self.dwell_samples  # free to switch at the first sample
+        self.n_switches = 0
+        self.n_held = 0
+
+    def step(self, J, allowed=None) -> SwitchDecision:
+        """Choose the model for this sample from the index values ``J`` (n_models,)."""
+        J = np.asarray(J, dtype=float).reshape(-1)
+        if J.size != self.n_models:
+            raise ValueError(f"J: expected {self.n_models} values, got {J.size}")
+        masked = np.where(np.isfinite(J), J, np.inf)
+        if allowed is not None:
+            masked = np.where(np.asarray(allowed, dtype=bool), masked, np.inf)
+        self.since_switch += 1
+        if not np.any(np.isfinite(masked)):
+            return SwitchDecision(self.active, self.active, False, False)
+        best = int(np.argmin(masked))
+        if best == self.active or masked[best] >= masked[self.active]:
+            return SwitchDecision(self.active, best, False, False)
+        if self.since_switch < self.dwell_samples:
+            self.n_held += 1
+            return SwitchDecision(self.active, best, False, True)
+        self.active = best
+        self.since_switch = 0
+        self.n_switches += 1
+        return SwitchDecision(self.active, best, True, False)
+
+    def force(self, model: int) -> None:
+        """Make ``model`` active now (operator command); restarts the dwell timer."""
+        if not 0 <= model < self.n_models:
+            raise ValueError(f"model: must be in [0, {self.n_models}), got {model}")
+        if model != self.active:
+            self.active = int(model)
+            self.since_switch = 0
+            self.n_switches += 1
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {"active": self.active, "since_switch": self.since_switch,
+                "n_switches": self.n_switches, "n_held": self.n_held}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        active = int(state["active"])
+        if not 0 <= active < self.n_models:
+            raise ValueError(f"state: active model {active} out of range")
+        self.active = active
+        self.since_switch = int(state["since_switch"])
+        self.n_switches = int(state.get("n_switches", 0))
+        self.n_held = int(state.get("n_held", 0))
