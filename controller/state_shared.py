@@ -385,18 +385,25 @@ class StateSharedModel:
         self.Fbd, self.gbd = _zoh_block(self.Fb, self.gb, dt)
         self.Fd = np.kron(np.eye(m), self.Fbd)
         self.Gd = np.kron(np.eye(m), self.gbd[:, None])
-        self._FbdT = np.ascontiguousarray(self.Fbd.T)
         self.order = 2 * n * m
         self.n_params = n * (m * m + 1)
-        # shared state as a (2m, n) matrix: rows 0..m-1 = n1 blocks, m..2m-1 = n2 blocks
-        self._N = np.zeros((2 * m, n))
+        # Shared state as a (2m, n) matrix (rows 0..m-1 = n1 blocks, m..2m-1 = n2 blocks),
+        # stored with one extra column holding the latest [u; y] so that one sample is a
+        # single matmul: Z[:, :n] <- Z @ [Fbd^T; gbd^T].
+        self._Z = np.zeros((2 * m, n + 1))
+        self._M = np.vstack((self.Fbd.T, self.gbd[None, :]))
         self._slots: list[_Slot] = []
         self._T = np.zeros((0, self.order))  # stacked Theta_j^T, (k m, 2nm)
+        self._Taug = np.zeros((0, 2 * m * (n + 1)))  # the same with zeros at the [u; y] column
         self._B = np.zeros((0, m))
         for spec in models or ():
             self.add_model(spec)
 
     # -- models ------------------------------------------------------------------
+    @property
+    def _N(self) -> np.ndarray:
+        return self._Z[:, : self.n_deg]
+
     @property
     def n(self) -> np.ndarray:
         return self._N.reshape(-1).copy()
@@ -454,6 +461,10 @@ class StateSharedModel:
         else:
             self._T = np.zeros((0, self.order))
             self._B = np.zeros((0, self.m))
+        km, n = self._T.shape[0], self.n_deg
+        self._Taug = np.zeros((km, 2 * self.m, n + 1))
+        self._Taug[:, :, :n] = self._T.reshape(km, 2 * self.m, n)
+        self._Taug = self._Taug.reshape(km, -1)
 
     def set_theta(self, j: int, theta: ArrayLike, bias: ArrayLike | None = None) -> None:
         """Replace model j's Theta (and bias; kept when None). The shared state is untouched."""
@@ -462,7 +473,10 @@ class StateSharedModel:
         spec = ModelSpec(old.name, theta, old.bias if bias is None else bias, old.kind)
         self._check_spec(spec)
         self._slots[j] = _Slot(spec)
-        self._T[j * self.m : (j + 1) * self.m] = spec.theta.T
+        rows = slice(j * self.m, (j + 1) * self.m)
+        self._T[rows] = spec.theta.T
+        self._Taug.reshape(-1, 2 * self.m, self.n_deg + 1)[rows, :, : self.n_deg] = (
+            spec.theta.T.reshape(self.m, 2 * self.m, self.n_deg))
         self._B[j] = spec.bias
 
     def set_params(self, j: int, p: ArrayLike) -> None:
@@ -528,15 +542,22 @@ class StateSharedModel:
 
     # -- state ---------------------------------------------------------------------------
     def _uy(self, u, y) -> np.ndarray:
-        u = _vector(u, self.m, "u")
-        y = _vector(y, self.m, "y")
-        return np.concatenate((u, y))
+        try:
+            uy = np.concatenate((np.asarray(u, dtype=float).reshape(-1),
+                                 np.asarray(y, dtype=float).reshape(-1)))
+            fast = uy.size == 2 * self.m and np.isfinite(uy).all()
+        except (TypeError, ValueError):
+            fast = False
+        if fast and np.size(u) == self.m:
+            return uy
+        # slow path: precise messages naming the field
+        return np.concatenate((_vector(u, self.m, "u"), _vector(y, self.m, "y")))
 
     def initialize(self, u: ArrayLike, y: ArrayLike) -> None:
         """Set n to the steady state for constant u and y (``F n1 + G u = 0`` etc.)."""
         uy = self._uy(u, y)
-        self._N[:] = 0.0
-        self._N[:, 0] = uy / self.a[0]
+        self._Z[:] = 0.0
+        self._Z[:, 0] = uy / self.a[0]
 
     def set_state(self, n: ArrayLike) -> None:
         """Overwrite the shared state, shape (2nm,)."""
@@ -548,11 +569,13 @@ class StateSharedModel:
         Raises ValueError (state untouched) for wrong lengths or NaN/inf.
         """
         uy = self._uy(u, y)
-        self._N = self._N @ self._FbdT + np.multiply.outer(uy, self.gbd)
+        Z = self._Z
+        Z[:, -1] = uy
+        Z[:, :-1] = Z @ self._M
 
     def estimates(self) -> np.ndarray:
         """All models' outputs ``y_j = Theta_j^T n + b_j``, shape (k, m)."""
-        return (self._T @ self._N.reshape(-1)).reshape(-1, self.m) + self._B
+        return (self._Taug @ self._Z.reshape(-1)).reshape(-1, self.m) + self._B
 
     def errors(self, y: ArrayLike) -> np.ndarray:
         """``y - y_j`` for every model, shape (k, m)."""
@@ -630,7 +653,7 @@ class StateSharedModel:
         specs = [ModelSpec(d["name"], d["theta"], d["bias"], d["kind"]) for d in state["models"]]
         for s in specs:
             self._check_spec(s)
-        self._N = n.reshape(2 * self.m, self.n_deg).copy()
+        self._Z[:, : self.n_deg] = n.reshape(2 * self.m, self.n_deg)
         self._slots = [_Slot(s) for s in specs]
         self._restack()
 
