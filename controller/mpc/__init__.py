@@ -1,0 +1,28 @@
+"""Δu model predictive control on the selected model (seed chapter 6, eq. 6.3–6.10).
+
+Modules: :mod:`~controller.mpc.settings` (tuning and limits),
+:mod:`~controller.mpc.formulation` (augmented model, prediction matrices, condensed QP),
+:mod:`~controller.mpc.qp` (one QP interface, DAQP and proxsuite backends),
+:mod:`~controller.mpc.filters` (first-order measurement filter, §6.1.2) and
+:mod:`~controller.mpc.controller` (deadline-safe per-sample controller).
+"""
+
+from controller.mpc.controller import LinearModelState, ModelView, MPCController, StateSource
+from controller.mpc.filters import FirstOrderFilter
+from controller.mpc.formulation import (
+    DeltaUFormulation,
+    FormulationCache,
+    QPVectors,
+    augment,
+    build_formulation,
+    prediction_matrices,
+)
+from controller.mpc.qp import DAQPBackend, ProxsuiteBackend, QPResult, QPSolver, make_solver
+from controller.mpc.settings import BACKENDS, MPCSettings, MPCSettingsError
+
+__all__ = [
+    "BACKENDS", "DAQPBackend", "DeltaUFormulation", "FirstOrderFilter", "FormulationCache",
+    "LinearModelState", "MPCController", "MPCSettings", "MPCSettingsError", "ModelView",
+    "ProxsuiteBackend", "QPResult", "QPSolver", "QPVectors", "StateSource", "augment",
+    "build_formulation", "make_solver", "prediction_matrices",
+]

@@ -1,0 +1,348 @@
+"""Deadline-safe Δu MPC stepped once per sample (seed §6.1, eq. 6.3–6.10).
+
+:class:`MPCController` follows :class:`controller.interfaces.SampleController`. Each
+:meth:`MPCController.step`:
+
+1. validates the measurement and the reference (a NaN is a safe action, not an error);
+2. filters the measurement (§6.1.2 first-order filter);
+3. asks its :class:`StateSource` for the model state and the active model's discrete
+   prediction form (Φ, Γ, C) — a state-shared model, or :class:`LinearModelState`;
+4. takes the cached condensed QP of that model (built once per model), forms the
+   vectors from ``x_a = [x(k) − x(k−1); y_f(k)]`` and solves it with an iteration limit;
+5. applies ``u(k) = u(k−1) + Δu(k)`` when the solve is optimal and inside the budget;
+   otherwise the next move of the previous optimal plan (or a hold), flagged and
+   counted. Nothing raises out of :meth:`step`.
+
+Because the Δu model starts from measured outputs and state increments, a model
+switch needs no state reset (bumpless).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Hashable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from controller.interfaces import ControlDecision
+from controller.mpc.filters import FirstOrderFilter
+from controller.mpc.formulation import DeltaUFormulation, FormulationCache
+from controller.mpc.qp import QPResult, QPSolver, make_solver
+from controller.mpc.settings import MPCSettings
+
+__all__ = ["ModelView", "StateSource", "LinearModelState", "MPCController"]
+
+
+@dataclass(frozen=True)
+class ModelView:
+    """What the MPC needs from the model at one sample.
+
+    Attributes
+    ----------
+    key : hashable
+        Identity of the active model (its formulation is cached under this key).
+    x, x_prev : ndarray, shape (n,)
+        Model state now and one sample ago (their difference is Δx of eq. 6.3).
+    Phi, Gamma, C : ndarray
+        Discrete prediction form of the active model, shapes (n, n), (n, nu), (ny, n).
+    index : int
+        Active model index for reporting (-1 if none).
+    J : ndarray
+        Performance-index values of all models (eq. 4.6), for reporting.
+    names : tuple of str
+        Model names aligned with ``J``.
+    """
+
+    key: Hashable
+    x: np.ndarray
+    x_prev: np.ndarray
+    Phi: np.ndarray
+    Gamma: np.ndarray
+    C: np.ndarray
+    index: int = -1
+    J: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    names: tuple[str, ...] = ()
+
+
+@runtime_checkable
+class StateSource(Protocol):
+    """Supplies the model state and the active model to :class:`MPCController`."""
+
+    def observe(self, u_prev: np.ndarray, y: np.ndarray) -> ModelView:
+        """Advance with the inputs applied over the last sample and the new
+        (filtered) measurement, and return the view at this sample."""
+        ...
+
+
+class LinearModelState:
+    """Model states of fixed discrete models, each run open loop on the applied inputs.
+
+    ``x_j(k) = Φ_j x_j(k−1) + Γ_j u(k−1)`` for every model j, so each model has its own
+    Δx and switching between them (:meth:`select`) is bumpless. The Δu formulation
+    corrects the open-loop prediction with the measured output, so no observer is needed
+    for stable models.
+
+    Parameters
+    ----------
+    models : mapping key -> (Phi, Gamma, C) or sequence of such tuples
+        Deviation models around an operating point; the model input is ``u − u_ref``.
+    u_ref : array_like, shape (nu,), optional
+        Input about which the models are linear (default zero). A constant offset
+        cancels in Δx.
+    active : key, optional
+        Initially active model (default: the first).
+    """
+
+    def __init__(self, models, u_ref=None, active=None) -> None:
+        if isinstance(models, Mapping):
+            items = list(models.items())
+        else:
+            items = list(enumerate(models))
+        if not items:
+            raise ValueError("models: at least one model is required")
+        self.models = {k: tuple(np.asarray(m, dtype=float) for m in v[:3]) for k, v in items}
+        self.keys = [k for k, _ in items]
+        nu = self.models[self.keys[0]][1].shape[1]
+        self.u_ref = np.zeros(nu) if u_ref is None else np.asarray(u_ref, dtype=float)
+        self.x = {k: np.zeros(m[0].shape[0]) for k, m in self.models.items()}
+        self.x_prev = {k: v.copy() for k, v in self.x.items()}
+        self.active = self.keys[0] if active is None else active
+        if self.active not in self.models:
+            raise ValueError(f"active: unknown model {active!r}")
+        self._started = False
+
+    def select(self, key) -> None:
+        """Make ``key`` the active model (no state reset)."""
+        if key not in self.models:
+            raise ValueError(f"key: unknown model {key!r}")
+        self.active = key
+
+    def observe(self, u_prev, y) -> ModelView:
+        du = np.asarray(u_prev, dtype=float) - self.u_ref
+        for k, (Phi, Gamma, _C) in self.models.items():
+            self.x_prev[k] = self.x[k]
+            if self._started:
+                self.x[k] = Phi @ self.x[k] + Gamma @ du
+        self._started = True
+        Phi, Gamma, C = self.models[self.active]
+        return ModelView(self.active, self.x[self.active], self.x_prev[self.active], Phi, Gamma,
+                         C, index=self.keys.index(self.active),
+                         names=tuple(str(k) for k in self.keys))
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {"x": {str(k): v.tolist() for k, v in self.x.items()},
+                "active": self.keys.index(self.active), "started": self._started}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        for k in self.keys:
+            self.x[k] = np.asarray(state["x"][str(k)], dtype=float)
+            self.x_prev[k] = self.x[k].copy()
+        self.active = self.keys[int(state["active"])]
+        self._started = bool(state["started"])
+
+
+class MPCController:
+    """Δu MPC on the active model of a :class:`StateSource`, deadline-safe.
+
+    Parameters
+    ----------
+    settings : MPCSettings
+    source : StateSource
+        Model state and active prediction form per sample.
+    u0 : array_like, shape (nu,)
+        Inputs applied before the first sample.
+    terminal_weight : ndarray, optional
+        Terminal weight on the augmented state (see
+        :func:`controller.mpc.formulation.build_formulation`).
+    clock : callable, optional
+        Time source in seconds (default ``time.perf_counter``); tests may inject one.
+
+    Attributes
+    ----------
+    counters : dict
+        ``steps``, ``solved``, ``fallback``, ``deadline``, ``solver_failure``,
+        ``invalid_measurement``, ``invalid_reference``, ``error``, ``rebuilds``.
+    """
+
+    def __init__(self, settings: MPCSettings, source: StateSource, u0, *,
+                 terminal_weight=None, clock=time.perf_counter) -> None:
+        self.settings = settings
+        self.source = source
+        u0 = np.asarray(u0, dtype=float).reshape(-1)
+        if u0.size != settings.nu or not np.all(np.isfinite(u0)):
+            raise ValueError(f"u0: expected {settings.nu} finite values, got {u0.tolist()}")
+        self.u = u0.copy()
+        self.filter = FirstOrderFilter(settings.filter_alpha)
+        self.cache = FormulationCache(settings, terminal_weight)
+        self._solvers: dict[Hashable, tuple[DeltaUFormulation, QPSolver]] = {}
+        self.plan: np.ndarray | None = None  # (M, nu) moves of the last optimal solve
+        self.plan_index = 0
+        self.clock = clock
+        self.counters = {k: 0 for k in ("steps", "solved", "fallback", "deadline",
+                                        "solver_failure", "invalid_measurement",
+                                        "invalid_reference", "error", "rebuilds")}
+        self.last_result: QPResult | None = None
+
+    # -- preparation ---------------------------------------------------------------
+    def prepare(self, key: Hashable, Phi, Gamma, C) -> DeltaUFormulation:
+        """Build (or fetch) the formulation and solver of one model ahead of use."""
+        form, built = self.cache.get(key, Phi, Gamma, C)
+        entry = self._solvers.get(key)
+        if built or entry is None or entry[0] is not form:
+            s = self.settings
+            solver = make_solver(s.backend, form.H, form.A, s.max_iter, s.warm_start)
+            self._solvers[key] = (form, solver)
+            if built:
+                self.counters["rebuilds"] += 1
+        return form
+
+    # -- helpers -------------------------------------------------------------------
+    def _reference(self, reference) -> np.ndarray | None:
+        s = self.settings
+        R = np.asarray(reference, dtype=float)
+        if R.ndim == 1:
+            if R.size != s.ny:
+                return None
+            R = np.broadcast_to(R, (s.P, s.ny))
+        if R.ndim != 2 or R.shape[1] != s.ny or R.shape[0] == 0:
+            return None
+        if R.shape[0] < s.P:
+            R = np.vstack([R, np.repeat(R[-1:], s.P - R.shape[0], axis=0)])
+        R = R[:s.P]
+        if not np.all(np.isfinite(R)):
+            return None
+        return R
+
+    def _fallback_move(self) -> tuple[np.ndarray, str]:
+        """Next move of the previous optimal plan (or zero), kept inside the hard limits."""
+        s = self.settings
+        du = np.zeros(s.nu)
+        how = "hold"
+        if s.fallback == "shift" and self.plan is not None and self.plan_index + 1 < s.M:
+            self.plan_index += 1
+            du = self.plan[self.plan_index].copy()
+            how = "shift"
+        elif self.plan is not None:
+            self.plan_index = s.M  # plan used up: hold from now on
+        du = np.clip(du, -s.du_max, s.du_max)
+        u = np.clip(self.u + du, s.u_min, s.u_max)
+        return u, how
+
+    def _decision(self, u, view, *, fallback, status, solve_ms, alarms=(), extra=None):
+        self.u = u
+        self.counters["steps"] += 1
+        if fallback:
+            self.counters["fallback"] += 1
+        return ControlDecision(
+            u=u.copy(),
+            active_model=int(view.index) if view is not None else -1,
+            model_names=tuple(view.names) if view is not None else (),
+            J=np.asarray(view.J) if view is not None else np.zeros(0),
+            solve_ms=float(solve_ms), fallback=fallback, status=status,
+            alarms=tuple(alarms), extra=extra or {},
+        )
+
+    # -- the step ------------------------------------------------------------------
+    def step(self, k: int, t: float, y, reference) -> ControlDecision:
+        """One sample: see the module docstring. Never raises."""
+        t0 = self.clock()
+        view = None
+        try:
+            s = self.settings
+            y = np.asarray(y, dtype=float).reshape(-1)
+            if y.size != s.ny or not np.all(np.isfinite(y)):
+                self.counters["invalid_measurement"] += 1
+                u, how = self._fallback_move()
+                return self._decision(u, None, fallback=True, status="invalid_measurement",
+                                      solve_ms=0.0, alarms=(
+                                          f"sample {k}: invalid measurement {y.tolist()}; "
+                                          f"{how}",),
+                                      extra={"fallback_move": how})
+            R = self._reference(reference)
+            y_f = self.filter.update(y)
+            view = self.source.observe(self.u, y_f)
+            t_pre = self.clock()
+            if R is None:
+                self.counters["invalid_reference"] += 1
+                u, how = self._fallback_move()
+                return self._decision(u, view, fallback=True, status="invalid_reference",
+                                      solve_ms=0.0, alarms=(
+                                          f"sample {k}: invalid reference; {how}",),
+                                      extra={"fallback_move": how, "y_filtered": y_f})
+            form = self.prepare(view.key, view.Phi, view.Gamma, view.C)
+            solver = self._solvers[view.key][1]
+            t_build = self.clock()
+            x_a = np.concatenate([np.asarray(view.x) - np.asarray(view.x_prev), y_f])
+            vec = form.qp_vectors(x_a, self.u, R)
+            res = solver.solve(vec)
+            self.last_result = res
+            # The budget covers the sample's work except a one-off (re)build of a
+            # model's matrices, which prepare() can do ahead of time.
+            elapsed_ms = (self.clock() - t_build + t_pre - t0) * 1e3
+            extra = {"iterations": res.iterations, "y_filtered": y_f,
+                     "elapsed_ms": elapsed_ms, "backend": res.backend}
+            if res.ok and elapsed_ms <= s.budget_ms:
+                z = res.x
+                plan = z[:form.n_moves].reshape(s.M, s.nu)
+                self.plan, self.plan_index = plan.copy(), 0
+                u = np.clip(self.u + np.clip(plan[0], -s.du_max, s.du_max), s.u_min, s.u_max)
+                if form.has_slack:
+                    extra["slack"] = float(z[-1])
+                extra["predicted"] = form.predict(x_a, z[:form.n_moves])
+                self.counters["solved"] += 1
+                return self._decision(u, view, fallback=False, status="solved",
+                                      solve_ms=res.solve_ms, extra=extra)
+            # Failure or overrun: the previous plan, and a cold start next time.
+            solver.reset()
+            if res.ok:
+                status = "deadline"
+                self.counters["deadline"] += 1
+                alarm = (f"sample {k}: MPC step took {elapsed_ms:.3f} ms > budget "
+                         f"{s.budget_ms} ms")
+            else:
+                status = res.status
+                self.counters["solver_failure"] += 1
+                alarm = f"sample {k}: QP {res.status} ({res.backend} {res.raw_status})"
+            u, how = self._fallback_move()
+            extra["fallback_move"] = how
+            return self._decision(u, view, fallback=True, status=status,
+                                  solve_ms=res.solve_ms, alarms=(f"{alarm}; {how}",),
+                                  extra=extra)
+        except Exception as exc:  # never out of the control step
+            self.counters["error"] += 1
+            try:
+                u, how = self._fallback_move()
+            except Exception:
+                u, how = self.u.copy(), "hold"
+            return self._decision(u, view, fallback=True, status="error",
+                                  solve_ms=(self.clock() - t0) * 1e3,
+                                  alarms=(f"sample {k}: controller error "
+                                          f"{type(exc).__name__}: {exc}; {how}",),
+                                  extra={"fallback_move": how})
+
+    # -- restart -------------------------------------------------------------------
+    def checkpoint(self) -> dict[str, Any]:
+        """JSON-serialisable state: applied inputs, filter, plan, counters, source."""
+        src = getattr(self.source, "checkpoint", None)
+        return {
+            "u": self.u.tolist(),
+            "filter": None if self.filter.state is None else self.filter.state.tolist(),
+            "plan": None if self.plan is None else self.plan.tolist(),
+            "plan_index": self.plan_index,
+            "counters": dict(self.counters),
+            "source": src() if callable(src) else None,
+        }
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.u = np.asarray(state["u"], dtype=float)
+        self.filter.reset(state["filter"])
+        self.plan = None if state["plan"] is None else np.asarray(state["plan"], dtype=float)
+        self.plan_index = int(state["plan_index"])
+        self.counters.update(state.get("counters", {}))
+        src = getattr(self.source, "restore", None)
+        if callable(src) and state.get("source") is not None:
+            src(state["source"])
+        for _, solver in self._solvers.values():
+            solver.reset()

@@ -1,0 +1,344 @@
+"""The augmented Δu prediction model and its condensed QP (seed eq. 6.3–6.10).
+
+For a discrete model ``x(k+1) = Φ x(k) + Γ u(k)``, ``y(k) = C x(k) (+ offset)`` the
+augmented state ``x_a = [Δx; y]`` obeys (eq. 6.3)::
+
+    x_a(k+1) = Φ_a x_a(k) + Ψ_a Δu(k),   y(k) = C_a x_a(k)
+    Φ_a = [[Φ, 0], [CΦ, I]],  Ψ_a = [Γ; CΓ],  C_a = [0 I]
+
+Stacking ``P`` predictions with ``M`` moves gives ``Y = S_x x_a + S_u ΔU`` (eq. 6.4–6.5).
+The cost ``Σ‖Y − R‖²_Ξ + ‖ΔU‖²_Λ`` (eq. 6.6), halved, is the QP (eq. 6.10)::
+
+    min ½ zᵀ H z + fᵀ z,   z = [ΔU; ε]
+    -du_max <= Δu <= du_max,  0 <= ε                     (simple bounds)
+    u_min - u(k-1) <= Σ_{j<=i} Δu(k+j) <= u_max - u(k-1)  (eq. 6.9)
+    S_u ΔU - s ε <= y_max - S_x x_a,  S_u ΔU + s ε >= y_min - S_x x_a
+
+with one shared slack ε ≥ 0 on the soft output limits (exact penalty ρ ε plus a small
+quadratic term). Everything that depends only on the model and the settings is built
+once in :func:`build_formulation`; a sample only forms the vectors
+(:meth:`DeltaUFormulation.qp_vectors`). :class:`FormulationCache` keeps one
+formulation per model so a model switch costs a dictionary look-up.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Hashable
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.mpc.settings import MPCSettings
+
+__all__ = [
+    "augment",
+    "prediction_matrices",
+    "DeltaUFormulation",
+    "QPVectors",
+    "build_formulation",
+    "FormulationCache",
+]
+
+
+def augment(Phi, Gamma, C):
+    """Augmented Δu model of eq. 6.3.
+
+    Parameters
+    ----------
+    Phi : ndarray, shape (n, n)
+    Gamma : ndarray, shape (n, nu)
+    C : ndarray, shape (ny, n)
+
+    Returns
+    -------
+    Phi_a : ndarray, shape (n+ny, n+ny)
+    Psi_a : ndarray, shape (n+ny, nu)
+    C_a : ndarray, shape (ny, n+ny)
+    """
+    Phi = np.atleast_2d(np.asarray(Phi, dtype=float))
+    Gamma = np.asarray(Gamma, dtype=float).reshape(Phi.shape[0], -1)
+    C = np.atleast_2d(np.asarray(C, dtype=float))
+    n, ny = Phi.shape[0], C.shape[0]
+    if Phi.shape != (n, n):
+        raise ValueError(f"Phi: must be square, got shape {Phi.shape}")
+    if C.shape[1] != n:
+        raise ValueError(f"C: expected {n} columns, got {C.shape[1]}")
+    Phi_a = np.zeros((n + ny, n + ny))
+    Phi_a[:n, :n] = Phi
+    Phi_a[n:, :n] = C @ Phi
+    Phi_a[n:, n:] = np.eye(ny)
+    Psi_a = np.vstack([Gamma, C @ Gamma])
+    C_a = np.hstack([np.zeros((ny, n)), np.eye(ny)])
+    return Phi_a, Psi_a, C_a
+
+
+def prediction_matrices(Phi_a, Psi_a, C_a, P: int, M: int):
+    """Stacked prediction ``Y = S_x x_a + S_u ΔU`` (eq. 6.5) and the horizon-end state.
+
+    Returns
+    -------
+    S_x : ndarray, shape (P*ny, na)
+    S_u : ndarray, shape (P*ny, M*nu)
+        Block (i, j) is ``C_a Φ_a^(i-j) Ψ_a`` for ``j <= i``, ``j < M`` (i = 0 is y(k+1)).
+    T_x : ndarray, shape (na, na)
+        ``Φ_a^P``: the state at ``k+P`` is ``T_x x_a + T_u ΔU``.
+    T_u : ndarray, shape (na, M*nu)
+    """
+    na, nu = Psi_a.shape
+    ny = C_a.shape[0]
+    S_x = np.zeros((P * ny, na))
+    S_u = np.zeros((P * ny, M * nu))
+    # Markov-like blocks C_a Φ_a^d Ψ_a, d = 0..P-1, and the powers Φ_a^(d+1).
+    blocks = []
+    pw = np.eye(na)
+    pw_psi = []
+    for d in range(P):
+        blocks.append(C_a @ pw @ Psi_a)
+        pw_psi.append(pw @ Psi_a)
+        pw = Phi_a @ pw
+        S_x[d * ny:(d + 1) * ny] = C_a @ pw
+    T_x = pw
+    for i in range(P):
+        for j in range(min(i + 1, M)):
+            S_u[i * ny:(i + 1) * ny, j * nu:(j + 1) * nu] = blocks[i - j]
+    T_u = np.zeros((na, M * nu))
+    for j in range(M):
+        T_u[:, j * nu:(j + 1) * nu] = pw_psi[P - 1 - j]
+    return S_x, S_u, T_x, T_u
+
+
+@dataclass(frozen=True)
+class QPVectors:
+    """The per-sample data of the QP: ``min ½zᵀHz + fᵀz`` s.t. ``lb <= z <= ub``,
+    ``bl <= A z <= bu``."""
+
+    f: np.ndarray
+    lb: np.ndarray
+    ub: np.ndarray
+    bl: np.ndarray
+    bu: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class DeltaUFormulation:
+    """Condensed QP of one model under one :class:`MPCSettings` (built once).
+
+    Attributes
+    ----------
+    settings : MPCSettings
+    Phi, Gamma, C : ndarray
+        The model it was built from (kept to detect a changed model).
+    Phi_a, Psi_a, C_a : ndarray
+        Augmented model, eq. 6.3.
+    S_x, S_u : ndarray
+        Prediction matrices, eq. 6.5.
+    H : ndarray, shape (nz, nz)
+        Hessian of the halved cost, ``S_uᵀ Ξ S_u + Λ (+ T_uᵀ W T_u)``, slack last.
+    A : ndarray, shape (m, nz)
+        General constraint rows (input limits, then soft output limits).
+    nz : int
+        Number of variables, ``M*nu`` plus one slack when there are output limits.
+    """
+
+    settings: MPCSettings
+    Phi: np.ndarray
+    Gamma: np.ndarray
+    C: np.ndarray
+    Phi_a: np.ndarray
+    Psi_a: np.ndarray
+    C_a: np.ndarray
+    S_x: np.ndarray
+    S_u: np.ndarray
+    H: np.ndarray
+    A: np.ndarray
+    F_x: np.ndarray
+    F_r: np.ndarray
+    nz: int
+    n_moves: int
+    has_slack: bool
+    input_rows: np.ndarray
+    ymax_rows: np.ndarray
+    ymin_rows: np.ndarray
+    lb0: np.ndarray
+    ub0: np.ndarray
+
+    def __post_init__(self) -> None:
+        s = self.settings
+        object.__setattr__(self, "_ymax_tiled", np.tile(s.y_max, s.P))
+        object.__setattr__(self, "_ymin_tiled", np.tile(s.y_min, s.P))
+
+    @property
+    def n_rows(self) -> int:
+        """Number of general constraint rows."""
+        return self.A.shape[0]
+
+    def augmented_state(self, dx, y) -> np.ndarray:
+        """``x_a = [Δx; y]``, shape ``(n+ny,)``."""
+        return np.concatenate([np.asarray(dx, dtype=float).ravel(),
+                               np.asarray(y, dtype=float).ravel()])
+
+    def qp_vectors(self, x_a, u_prev, reference) -> QPVectors:
+        """QP vectors at one sample.
+
+        Parameters
+        ----------
+        x_a : ndarray, shape (n+ny,)
+            Augmented state ``[Δx(k); y(k)]``.
+        u_prev : ndarray, shape (nu,)
+            Inputs applied over the last sample, ``u(k-1)``.
+        reference : ndarray, shape (P, ny) or (ny,)
+            Reference for ``y(k+1) … y(k+P)``; a single row is held over the horizon.
+        """
+        s = self.settings
+        R = np.asarray(reference, dtype=float)
+        if R.ndim == 1:
+            R = np.broadcast_to(R, (s.P, s.ny))
+        f = np.zeros(self.nz)
+        f[:self.n_moves] = self.F_x @ x_a - self.F_r @ R.reshape(-1)
+        if self.has_slack:
+            f[-1] = s.slack_linear
+        parts = []
+        if self.input_rows.size:
+            parts.append((np.tile(s.u_min - u_prev, s.M)[self.input_rows],
+                          np.tile(s.u_max - u_prev, s.M)[self.input_rows]))
+        if self.has_slack:
+            free = self.S_x @ x_a
+            hi_max = (self._ymax_tiled - free)[self.ymax_rows]
+            lo_min = (self._ymin_tiled - free)[self.ymin_rows]
+            parts.append((np.full(hi_max.size, -np.inf), hi_max))
+            parts.append((lo_min, np.full(lo_min.size, np.inf)))
+        if parts:
+            bl = np.concatenate([a for a, _ in parts])
+            bu = np.concatenate([b for _, b in parts])
+        else:
+            bl = bu = np.zeros(0)
+        return QPVectors(f=f, lb=self.lb0, ub=self.ub0, bl=bl, bu=bu)
+
+    def predict(self, x_a, dU) -> np.ndarray:
+        """Predicted outputs ``y(k+1) … y(k+P)`` for the moves ``dU``, shape (P, ny)."""
+        s = self.settings
+        return (self.S_x @ x_a + self.S_u @ np.asarray(dU, dtype=float).ravel()).reshape(
+            s.P, s.ny)
+
+
+def build_formulation(Phi, Gamma, C, settings: MPCSettings,
+                      terminal_weight=None) -> DeltaUFormulation:
+    """Build the condensed QP of eq. 6.10 for one model.
+
+    Parameters
+    ----------
+    Phi, Gamma, C : array_like
+        Discrete model ``x(k+1) = Φ x + Γ u``, ``y = C x``; shapes (n, n), (n, nu), (ny, n).
+    settings : MPCSettings
+    terminal_weight : ndarray, shape (n+ny, n+ny), optional
+        Extra weight W on the augmented state at ``k+P`` (``½ x_a(k+P)ᵀ W x_a(k+P)``
+        in the halved cost). With ``M = P`` and ``W = X − C_aᵀΞC_a``, X the solution
+        of the Riccati equation, the MPC is the LQR of the augmented model.
+
+    Raises
+    ------
+    ValueError
+        If the model shapes do not agree with ``settings.nu``/``settings.ny`` or hold
+        non-finite values.
+    """
+    s = settings
+    Phi_a, Psi_a, C_a = augment(Phi, Gamma, C)
+    Phi = np.atleast_2d(np.asarray(Phi, dtype=float))
+    Gamma = np.asarray(Gamma, dtype=float).reshape(Phi.shape[0], -1)
+    C = np.atleast_2d(np.asarray(C, dtype=float))
+    if Gamma.shape[1] != s.nu:
+        raise ValueError(f"Gamma: expected {s.nu} input columns, got {Gamma.shape[1]}")
+    if C.shape[0] != s.ny:
+        raise ValueError(f"C: expected {s.ny} output rows, got {C.shape[0]}")
+    for name, m in (("Phi", Phi), ("Gamma", Gamma), ("C", C)):
+        if not np.all(np.isfinite(m)):
+            raise ValueError(f"{name}: non-finite entries")
+    S_x, S_u, T_x, T_u = prediction_matrices(Phi_a, Psi_a, C_a, s.P, s.M)
+    nmv = s.M * s.nu
+    Xi_bar = np.tile(s.Xi, s.P)
+    SuT_Xi = S_u.T * Xi_bar
+    Hu = SuT_Xi @ S_u + np.diag(np.tile(s.Lambda, s.M))
+    F_x = SuT_Xi @ S_x
+    F_r = SuT_Xi
+    if terminal_weight is not None:
+        W = np.asarray(terminal_weight, dtype=float)
+        na = Phi_a.shape[0]
+        if W.shape != (na, na):
+            raise ValueError(f"terminal_weight: expected shape {(na, na)}, got {W.shape}")
+        Hu = Hu + T_u.T @ W @ T_u
+        F_x = F_x + T_u.T @ W @ T_x
+    Hu = 0.5 * (Hu + Hu.T)
+
+    has_slack = s.has_output_limits
+    nz = nmv + (1 if has_slack else 0)
+    H = np.zeros((nz, nz))
+    H[:nmv, :nmv] = Hu
+    if has_slack:
+        H[-1, -1] = s.slack_quadratic
+
+    # Simple bounds: rates on the moves, ε >= 0.
+    lb0 = np.full(nz, -np.inf)
+    ub0 = np.full(nz, np.inf)
+    lb0[:nmv] = -np.tile(s.du_max, s.M)
+    ub0[:nmv] = np.tile(s.du_max, s.M)
+    if has_slack:
+        lb0[-1] = 0.0
+
+    blocks = []
+    # Input limits (eq. 6.9): lower block-triangular sums of the moves.
+    finite_u = np.isfinite(np.tile(s.u_min, s.M)) | np.isfinite(np.tile(s.u_max, s.M))
+    input_rows = np.flatnonzero(finite_u)
+    if input_rows.size:
+        T = np.kron(np.tril(np.ones((s.M, s.M))), np.eye(s.nu))
+        blocks.append(np.hstack([T[input_rows], np.zeros((input_rows.size, nz - nmv))]))
+    ymax_rows = np.flatnonzero(np.isfinite(np.tile(s.y_max, s.P)))
+    ymin_rows = np.flatnonzero(np.isfinite(np.tile(s.y_min, s.P)))
+    if has_slack:
+        scale = np.tile(s.slack_scale, s.P)
+        blocks.append(np.hstack([S_u[ymax_rows], -scale[ymax_rows, None]]))
+        blocks.append(np.hstack([S_u[ymin_rows], scale[ymin_rows, None]]))
+    A = np.vstack(blocks) if blocks else np.zeros((0, nz))
+    for arr in (Phi, Gamma, C, Phi_a, Psi_a, C_a, S_x, S_u, H, A, F_x, F_r, lb0, ub0):
+        arr.setflags(write=False)
+    return DeltaUFormulation(
+        settings=s, Phi=Phi, Gamma=Gamma, C=C, Phi_a=Phi_a, Psi_a=Psi_a, C_a=C_a,
+        S_x=S_x, S_u=S_u, H=H, A=np.ascontiguousarray(A), F_x=F_x, F_r=F_r, nz=nz,
+        n_moves=nmv, has_slack=has_slack, input_rows=input_rows, ymax_rows=ymax_rows,
+        ymin_rows=ymin_rows, lb0=lb0, ub0=ub0,
+    )
+
+
+class FormulationCache:
+    """One :class:`DeltaUFormulation` per model key, rebuilt only when the model changes.
+
+    A look-up compares the stored (Φ, Γ, C) with the given ones (a few µs for the
+    sizes here), so an adapted model is rebuilt and a fixed one never is.
+    """
+
+    def __init__(self, settings: MPCSettings, terminal_weight=None) -> None:
+        self.settings = settings
+        self.terminal_weight = terminal_weight
+        self._store: dict[Hashable, DeltaUFormulation] = {}
+        self.builds = 0
+
+    def get(self, key: Hashable, Phi, Gamma, C) -> tuple[DeltaUFormulation, bool]:
+        """The formulation for ``key``; the flag is True when it was (re)built now."""
+        form = self._store.get(key)
+        if form is not None and _same(form.Phi, Phi) and _same(form.Gamma, Gamma) and _same(
+                form.C, C):
+            return form, False
+        form = build_formulation(Phi, Gamma, C, self.settings, self.terminal_weight)
+        self._store[key] = form
+        self.builds += 1
+        return form, True
+
+    def __contains__(self, key) -> bool:
+        return key in self._store
+
+    def __len__(self) -> int:
+        return len(self._store)
+
+
+def _same(a: np.ndarray, b) -> bool:
+    b = np.asarray(b)
+    return a is b or (a.size == b.size and np.array_equal(a, b.reshape(a.shape)))
