@@ -1,0 +1,469 @@
+"""Seed chapter 3 (state-shared model structure): results R3.0-R3.11.
+
+Two-phase reactor (sec. 3.6.1, Ricker's plant in :mod:`plant_sim.two_phase_reactor`):
+
+- Manipulated variables: **x1 (feed-1 valve), x2 (feed-2 valve), x3 (purge valve)**.
+  The seed's model (eq. 3.24) is ``y = C x`` with no feedthrough; the fourth
+  valve signal, the product-valve bias x4bar, moves F4 instantly (D != 0) and
+  could not be put in the strictly proper state-shared form, so it is held at
+  its nominal value. facts §1.7 lists (x1, x2, x3) as one of the two candidate
+  sets.
+- Outputs P (kPa), yA3 (mol %), F4 (kmol/h), time in h.
+- OPII is the low-confidence reconstruction of facts §1.4 (F4 = 130 kmol/h).
+
+Perturbation protocol for the ARe tables (R3.3, R3.6): zero-mean Gaussian
+perturbations of the three MVs, standard deviation 3 % of each nominal value
+(seed text), 1200 samples over 10 h (30 s sampling: the seed's plots span 0-10 h),
+each random value held for 0.1 h. The hold is our inference: the seed does not
+say, and with a new value every 30 s the plant responses are ~3x smaller than
+the ranges plotted in Figs. 3.4-3.9 (F4 98-101.5 kmol/h, yA3 46.85-47.25 %),
+while a 0.1 h hold reproduces those ranges and the NL-FL row of Table 3.3.
+ARe is averaged over 5 seeds (``ctx.seed`` .. ``ctx.seed + 4``).
+
+Calcium (sec. 3.6.2): needs :mod:`plant_sim.calcium` (a reconstruction, facts
+§2.6); R3.7-R3.10 report that plant's numbers against the seed's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from controller.linear import (
+    Realization,
+    average_relative_error,
+    balanced_truncation,
+    left_mfd,
+    zoh,
+)
+from controller.state_shared import (
+    ModelSpec,
+    StateSharedModel,
+    companion_pair,
+    designer_polynomial,
+    theta_from_mfd,
+)
+from services.reproduce import ReproduceResult, Row, StudyContext
+
+REACTOR_INPUTS = ("x1", "x2", "x3")
+REACTOR_A = (1.0, 1.0)  # R3.4: a1 = a2 = 1
+REACTOR_ORDER = 2  # R3.2
+CALCIUM_A = (1.0, 2.0, 3.0)  # R3.11
+N_SAMPLES = 1200
+HORIZON_H = 10.0
+SAMPLE_H = HORIZON_H / N_SAMPLES
+HOLD_H = 0.1
+PERTURBATION = 0.03
+N_SEEDS = 5
+
+
+# -- shared helpers ----------------------------------------------------------------------
+def _verdict(ok: bool, why_ok: str, why_not: str) -> tuple[str, str]:
+    return ("reproduced", why_ok) if ok else ("differs", why_not)
+
+
+def _within(ours: float, seed: float, rel: float) -> bool:
+    return abs(ours - seed) <= rel * abs(seed)
+
+
+@dataclass(frozen=True)
+class ReactorModels:
+    """Linear models of the two-phase reactor at one operating point."""
+
+    op: str
+    x_op: np.ndarray
+    u_full: np.ndarray  # all four plant inputs at the point
+    u_op: np.ndarray  # the three MVs
+    y_op: np.ndarray
+    full: Realization
+    reduced: Realization
+    hsv: np.ndarray
+    Re: float
+    output_names: tuple[str, ...]
+    output_units: tuple[str, ...]
+
+
+@lru_cache(maxsize=4)
+def reactor_models(op: str) -> ReactorModels:
+    from plant_sim import get_plant
+    from plant_sim.linearize import linearize
+
+    plant = get_plant("two_phase_reactor")
+    point = plant.operating_point(op)
+    lm = linearize(plant, point).select(inputs=REACTOR_INPUTS)
+    full = Realization(lm.A, lm.B, lm.C, None)
+    bt = balanced_truncation(full, order=REACTOR_ORDER)
+    return ReactorModels(op, point.x, point.u, lm.u_op, lm.y_op, full, bt.reduced, bt.hsv,
+                         bt.Re, lm.output_names, lm.output_units)
+
+
+def reactor_state_shared(dt: float = SAMPLE_H) -> StateSharedModel:
+    """The two-phase reactor's state-shared model: order-2 models at OPI and OPII."""
+    ssm = StateSharedModel(REACTOR_A, 3, dt)
+    for op in ("OPI", "OPII"):
+        mod = reactor_models(op)
+        r = mod.reduced
+        ssm.add_model(StateSharedModel.model_from_linear(op, r.A, r.B, r.C, mod.u_op,
+                                                         mod.y_op, REACTOR_A))
+    return ssm
+
+
+def _linear_response(sys: Realization, du: np.ndarray, dt: float) -> np.ndarray:
+    """Deviation outputs at samples 1..K of a ZOH-driven linear model from rest."""
+    d = zoh(sys, dt=dt)
+    x = np.zeros(sys.order)
+    out = np.empty((du.shape[0], sys.n_outputs))
+    for k in range(du.shape[0]):
+        x = d.Phi @ x + d.Gamma @ du[k]
+        out[k] = sys.C @ x
+    return out
+
+
+@lru_cache(maxsize=32)
+def reactor_perturbation_run(op: str, seed: int, hold_h: float = HOLD_H) -> dict[str, np.ndarray]:
+    """Responses (absolute units, samples 1..K) of NL, FL, RE and SS to one perturbation."""
+    from plant_sim import get_plant
+    from plant_sim.integrate import PiecewiseConstant, simulate
+
+    mod = reactor_models(op)
+    rng = np.random.default_rng(seed)
+    hold = max(1, round(hold_h / SAMPLE_H))
+    n_values = -(-N_SAMPLES // hold)
+    du = np.repeat(PERTURBATION * mod.u_op * rng.standard_normal((n_values, 3)), hold,
+                   axis=0)[:N_SAMPLES]
+    U = np.tile(mod.u_full, (N_SAMPLES, 1))
+    U[:, :3] = mod.u_op + du
+    t = np.arange(N_SAMPLES) * SAMPLE_H
+    sim = simulate(get_plant("two_phase_reactor"), mod.x_op, PiecewiseConstant(t, U),
+                   N_SAMPLES * SAMPLE_H, SAMPLE_H)
+    y_nl = sim.y
+    ssm = reactor_state_shared()
+    ssm.initialize(mod.u_op, mod.y_op)
+    j = ssm.names.index(op)
+    y_ss = np.empty((N_SAMPLES, 3))
+    for k in range(N_SAMPLES):
+        ssm.update(U[k, :3], y_nl[k])  # after the update: estimates of y at sample k+1
+        y_ss[k] = ssm.estimates()[j]
+    return {
+        "t": sim.t[1:],
+        "NL": y_nl[1:],
+        "FL": mod.y_op + _linear_response(mod.full, du, SAMPLE_H),
+        "RE": mod.y_op + _linear_response(mod.reduced, du, SAMPLE_H),
+        "SS": y_ss,
+    }
+
+
+def reactor_are(op: str, seed0: int, hold_h: float = HOLD_H) -> dict[str, np.ndarray]:
+    """ARe (%) per output for the pairs of Table 3.3 and SS-NL, averaged over N_SEEDS."""
+    pairs = {"NL-FL": ("NL", "FL"), "FL-RE": ("FL", "RE"), "NL-RE": ("NL", "RE"),
+             "SS-NL": ("NL", "SS"), "SS-RE": ("RE", "SS")}
+    y_op = reactor_models(op).y_op
+    acc = {k: [] for k in pairs}
+    for s in range(seed0, seed0 + N_SEEDS):
+        run = reactor_perturbation_run(op, s, hold_h)
+        for k, (a, b) in pairs.items():
+            acc[k].append(average_relative_error(run[a], run[b], y_op))
+    return {k: np.mean(v, axis=0) for k, v in acc.items()}
+
+
+def _reactor_figures(ctx: StudyContext, which: str) -> list[str]:
+    if ctx.plot_dir is None:
+        return []
+    from services.studies.ch3_figures import plot_responses
+
+    figs = []
+    mod = reactor_models("OPI")
+    names, units = mod.output_names, mod.output_units
+    run = reactor_perturbation_run("OPI", ctx.seed)
+    if which in ("linear", "all"):
+        figs.append(plot_responses(ctx.plot_dir / "fig3_04-3_09_reactor_OPI_NL_FL_RE.png",
+                                   run["t"], {k: run[k] for k in ("NL", "FL", "RE")}, names,
+                                   units, "Figs. 3.4-3.9: two-phase reactor near OPI"))
+        run2 = reactor_perturbation_run("OPII", ctx.seed)
+        figs.append(plot_responses(ctx.plot_dir / "fig3_10-3_12_reactor_OPII_NL_FL_RE.png",
+                                   run2["t"], {k: run2[k] for k in ("NL", "FL", "RE")}, names,
+                                   units, "Figs. 3.10-3.12: two-phase reactor near OPII "
+                                   "(reconstructed point)"))
+    if which in ("ss", "all"):
+        figs.append(plot_responses(ctx.plot_dir / "fig3_13-3_15_reactor_OPI_NL_SS.png",
+                                   run["t"], {k: run[k] for k in ("NL", "SS")}, names, units,
+                                   "Figs. 3.13-3.15: state-shared model vs nonlinear, OPI"))
+    return figs
+
+
+# -- R3.0 ----------------------------------------------------------------------------------
+def r3_0(ctx: StudyContext) -> ReproduceResult:
+    """Structural facts: parameter counts, Theta uniqueness/exactness, truncation stability."""
+    rng = np.random.default_rng(ctx.seed)
+    worst_tf, stable = 0.0, True
+    n, m = 4, 3
+    a = designer_polynomial(-np.array([0.5, 1.0, 2.0, 4.0]))
+    for _ in range(10):
+        poles = -rng.uniform(0.2, 5.0, n)
+        Q, _r = np.linalg.qr(rng.standard_normal((n, n)))
+        sys = Realization(Q @ np.diag(poles) @ Q.T, rng.standard_normal((n, m)),
+                          rng.standard_normal((m, n)), None)
+        ssm = StateSharedModel(a, m, 0.1, [ModelSpec("M", theta_from_mfd(left_mfd(sys), a))])
+        A, B, C, _b, _f = ssm.continuous_form(0)
+        big = Realization(A, B, C, None)
+        w = np.logspace(-3, 3, 61)
+        ref = sys.frequency_response(w)
+        err = np.max(np.abs(big.frequency_response(w) - ref)) / np.max(np.abs(ref))
+        worst_tf = max(worst_tf, float(err))
+        stable &= balanced_truncation(sys, order=2).reduced.is_stable()
+    counts = [(1, 2, None), (3, 2, 20.0), (3, 3, 30.0), (5, 40, 1040.0)]
+    rows = []
+    for m_, n_, printed in counts:
+        ssm = StateSharedModel(designer_polynomial(-np.geomspace(0.5, 5.0, n_)), m_, 1.0)
+        label = "2n for m=1" if printed is None else f"m={m_}, n={n_}"
+        rows.append(Row(f"N_theta = n(m^2+1), {label}", "-", printed, float(ssm.n_params)))
+    rows.append(Row("state-shared order 2nm, n=40, m=5 (R7.15)", "-", 400.0, float(2 * 40 * 5)))
+    rows.append(Row("max relative |H_ss - H| over 10 random 3x3 order-4 models", "-", None,
+                    worst_tf))
+    rows.append(Row("balanced truncations to order 2 stable (1 = all)", "-", None,
+                    float(stable)))
+    ok = (all(r.seed == r.ours for r in rows if r.seed is not None) and rows[0].ours == 4
+          and worst_tf <= 1e-9 and stable)
+    verdict, why = _verdict(ok, "exact: counts n(m^2+1), Theta of eq. 3.16 reproduces H(s) to "
+                            f"{worst_tf:.1e}, truncations stable",
+                            "a structural check failed (see rows)")
+    return ReproduceResult("R3.0", rows, verdict, why)
+
+
+# -- R3.1 ----------------------------------------------------------------------------------
+R31_SEED = {"OPI": (-3.6077, -1.2647, -0.0745, -0.0659),
+            "OPII": (-4.4591, -1.3009, -0.1107, -0.1001)}
+
+
+def r3_1(ctx: StudyContext) -> ReproduceResult:
+    import control
+
+    rows, ok, worst = [], True, ("", 0.0)
+    for op, seed_ev in R31_SEED.items():
+        mod = reactor_models(op)
+        ev = np.sort(np.linalg.eigvals(mod.full.A).real)
+        for i, (s, o) in enumerate(zip(seed_ev, ev)):
+            rows.append(Row(f"{op} eigenvalue {i + 1}", "1/h", s, float(o)))
+            rel = abs(o - s) / abs(s)
+            ok &= rel <= 0.02
+            if rel > worst[1]:
+                worst = (f"{op} eigenvalue {s}", rel)
+        rc = np.linalg.matrix_rank(control.ctrb(mod.full.A, mod.full.B))
+        ro = np.linalg.matrix_rank(control.obsv(mod.full.A, mod.full.C))
+        rows.append(Row(f"{op} rank of controllability matrix", "-", 4.0, float(rc)))
+        rows.append(Row(f"{op} rank of observability matrix", "-", 4.0, float(ro)))
+        ok &= rc == 4 and ro == 4
+    why_not = (f"largest deviation {100 * worst[1]:.1f} % ({worst[0]}); facts §1.7: the "
+               "constants reproduce Ricker's base case exactly, yet the slow OPI composition "
+               "mode is 6.5 % off the seed's and no single parameter change fixes all four "
+               "modes (the seed linearized at a slightly different point); OPII is a "
+               "low-confidence reconstruction (facts §1.4)")
+    verdict, why = _verdict(ok, "all eigenvalues within 2 %, ranks 4", why_not)
+    return ReproduceResult("R3.1", rows, verdict, why)
+
+
+# -- R3.2 ----------------------------------------------------------------------------------
+R32_C = {"OPI": [[3.2755, -7.3066], [-0.1357, -0.0391], [-0.0114, -0.2008]],
+         "OPII": [[2.2572, -6.8873], [-0.1252, -0.1170], [0.0187, -0.2578]]}
+R32_POLES_DERIVED = (-0.0660, -3.6822)  # from the printed Theta (R3.5), not printed
+
+
+def _sign_aligned(C: np.ndarray, printed: np.ndarray) -> np.ndarray:
+    """C with each column's sign chosen to agree best with the printed matrix (the
+    balanced realization is unique only up to a sign per state)."""
+    signs = np.where(np.sum(C * printed, axis=0) < 0, -1.0, 1.0)
+    return C * signs
+
+
+def r3_2(ctx: StudyContext) -> ReproduceResult:
+    rows = []
+    opi = reactor_models("OPI")
+    opii = reactor_models("OPII")
+    rows.append(Row("OPI order-2 Re (eq. 3.22; seed 7.7e-?, exponent lost)", "-", None,
+                    opi.Re))
+    rows.append(Row("OPII order-2 Re", "-", None, opii.Re))
+    poles = np.sort(np.linalg.eigvals(opi.reduced.A).real)[::-1]
+    for p, d in zip(poles, R32_POLES_DERIVED):
+        rows.append(Row(f"OPI order-2 pole (derived from printed Theta: {d})", "1/h", None,
+                        float(p)))
+    for op, mod in (("OPI", opi), ("OPII", opii)):
+        C = _sign_aligned(mod.reduced.C, np.array(R32_C[op]))
+        for i in range(3):
+            for j in range(2):
+                rows.append(Row(f"{op} C[{i},{j}] of the order-2 model (column sign aligned)",
+                                "-", R32_C[op][i][j], float(C[i, j])))
+    re_ok = opi.Re <= 0.077
+    poles_ok = all(_within(p, d, 0.05) for p, d in zip(poles, R32_POLES_DERIVED))
+    c_match = all(_within(r.ours, r.seed, 0.05) for r in rows if r.seed is not None)
+    ok = re_ok and poles_ok
+    pole_dev = max(abs(p - d) / abs(d) for p, d in zip(poles, R32_POLES_DERIVED))
+    why_c = ("C entries match the print" if c_match else
+             "C entries do not match the print (the balanced basis depends on input/output "
+             "scaling the seed does not give, facts §1.7; only the P row's ratio agrees)")
+    why_ok = (f"order-2 Re at OPI {opi.Re:.3g} <= 0.077 (catalogue bound), order-2 poles within "
+              f"{100 * pole_dev:.1f} % of those implied by the printed Theta; {why_c}")
+    why_not = (f"order-2 Re at OPI {opi.Re:.3g} ({'<=' if re_ok else '>'} 0.077); order-2 poles "
+               f"{100 * pole_dev:.2f} % from the values implied by the printed Theta (tolerance "
+               "5 %): our full-order slow mode is already 6.5 % off the seed's (R3.1, facts "
+               f"§1.7) and the reduced model inherits it; {why_c}")
+    verdict, why = _verdict(ok, why_ok, why_not)
+    return ReproduceResult("R3.2", rows, verdict, why, _reactor_figures(ctx, "linear"))
+
+
+# -- R3.3 ----------------------------------------------------------------------------------
+R33 = {  # pair -> OPI (P, yA3, F4), OPII (P, yA3, F4), printed Table 3.3
+    "NL-FL": ((0.001, 0.001, 0.002), (0.002, 0.004, 0.025)),
+    "FL-RE": ((0.003, 0.086, 0.270), (0.000, 0.016, 0.010)),
+    "NL-RE": ((0.004, 0.086, 0.270), (0.002, 0.017, 0.022)),
+}
+
+
+def _are_ok(ours: float, printed: float) -> bool:
+    """Catalogue check: <= 2x printed, or <= 0.01 % absolute where printed <= 0.005."""
+    return ours <= 2 * printed or (printed <= 0.005 and ours <= 0.01)
+
+
+def r3_3(ctx: StudyContext) -> ReproduceResult:
+    rows, fails = [], []
+    res = {op: reactor_are(op, ctx.seed) for op in ("OPI", "OPII")}
+    names = reactor_models("OPI").output_names
+    for pair, printed in R33.items():
+        for op, vals in zip(("OPI", "OPII"), printed):
+            for i, name in enumerate(names):
+                ours = float(res[op][pair][i])
+                rows.append(Row(f"ARe {pair} {op} {name}", "%", vals[i], ours))
+                if not _are_ok(ours, vals[i]):
+                    fails.append(f"{pair} {op} {name} {ours:.3g} vs {vals[i]}")
+    order_ok = all(np.all(res[op]["NL-FL"] <= res[op]["NL-RE"]) for op in res)
+    better = sum(r.ours < r.seed for r in rows if r.seed)
+    if not fails and order_ok:
+        verdict, why = "reproduced", (
+            f"all 18 ARe within the catalogue's tolerance and NL-FL <= NL-RE; {better} of 18 "
+            "below the printed value")
+    else:
+        verdict = "differs"
+        why = ("outside 2x: " + "; ".join(fails) + ". Our order-2 models are not the seed's "
+               "(printed C matrices differ, R3.2; our slow mode is 6.5 % off, R3.1) and "
+               "OPII is a low-confidence reconstruction (facts §1.4: the seed's Fig. 3.11 "
+               "shows yA3 near 47 %, ours is 63.5 %); the perturbation hold time is inferred")
+        if not order_ok:
+            why += "; ordering NL-FL <= NL-RE violated"
+    return ReproduceResult("R3.3", rows, verdict, why, _reactor_figures(ctx, "linear"))
+
+
+# -- R3.4, R3.5, R3.6 ------------------------------------------------------------------------
+def r3_4(ctx: StudyContext) -> ReproduceResult:
+    F, G = companion_pair(REACTOR_A, 3)
+    ssm = StateSharedModel(REACTOR_A, 3, SAMPLE_H)
+    ev = np.linalg.eigvals(F[:2, :2])
+    rows = [
+        Row("F rows (nm)", "-", 6.0, float(F.shape[0])),
+        Row("G columns (m)", "-", 3.0, float(G.shape[1])),
+        Row("adaptable parameters n(m^2+1)", "-", 20.0, float(ssm.n_params)),
+        Row("state-shared order 2nm", "-", None, float(ssm.order)),
+        Row("F block eigenvalue real part (-1/2)", "-", None, float(ev[0].real)),
+        Row("F block eigenvalue |imag| (sqrt(3)/2)", "-", None, float(abs(ev[0].imag))),
+    ]
+    ok = (F.shape == (6, 6) and G.shape == (6, 3) and ssm.n_params == 20
+          and abs(ev[0].real + 0.5) < 1e-12 and abs(abs(ev[0].imag) - np.sqrt(3) / 2) < 1e-12)
+    verdict, why = _verdict(ok, "exact", "structure differs (see rows)")
+    return ReproduceResult("R3.4", rows, verdict, why)
+
+
+def r3_5(ctx: StudyContext) -> ReproduceResult:
+    mod = reactor_models("OPI")
+    theta = theta_from_mfd(left_mfd(mod.reduced), REACTOR_A)
+    t2 = theta[6:8, 0]
+    rows = [Row("Theta2 entry a1 - d1 (OPI)", "-", 0.7569, float(t2[0])),
+            Row("Theta2 entry a2 - d2 (OPI)", "-", -2.7482, float(t2[1]))]
+    tight = all(abs(r.ours - r.seed) <= 0.02 for r in rows)
+    loose = all(_within(r.ours, r.seed, 0.05) for r in rows)
+    if tight:
+        verdict, why = "reproduced", "both entries within 0.02 of the print"
+    elif loose:
+        verdict, why = "reproduced", (
+            "both entries within 5 % (the catalogue's tolerance when the plant differs "
+            "slightly: our slow mode is 6.5 % off the seed's, R3.1); not within 0.02")
+    else:
+        verdict, why = "differs", "entries more than 5 % from the print; see R3.1/R3.2"
+    return ReproduceResult("R3.5", rows, verdict, why)
+
+
+R36 = (0.079, 0.097, 0.290)
+
+
+def _error_filter_peak(reduced: Realization) -> tuple[float, float]:
+    """(max |d(jw) / omega(jw)|, its w in rad/h) for the reactor's (F, G) and a reduced model."""
+    d = left_mfd(reduced).d
+    a = np.concatenate((REACTOR_A, [1.0]))
+    w = np.logspace(-3, 3, 2001)
+    pw = (1j * w)[:, None] ** np.arange(d.size)[None, :]
+    mag = np.abs((pw @ d) / (pw @ a))
+    return float(mag.max()), float(w[np.argmax(mag)])
+
+
+def r3_6(ctx: StudyContext) -> ReproduceResult:
+    res = reactor_are("OPI", ctx.seed)
+    names = reactor_models("OPI").output_names
+    rows = [Row(f"ARe SS-NL OPI {n}", "%", s, float(o))
+            for n, s, o in zip(names, R36, res["SS-NL"])]
+    rows += [Row(f"ARe SS-RE OPI {n} (not printed)", "%", None, float(o))
+             for n, o in zip(names, res["SS-RE"])]
+    fast = reactor_are("OPI", ctx.seed, SAMPLE_H)["SS-NL"]
+    rows += [Row(f"ARe SS-NL OPI {n}, new perturbation every 30 s (sensitivity)", "%", None,
+                 float(o)) for n, o in zip(names, fast)]
+    gain, w_peak = _error_filter_peak(reactor_models("OPI").reduced)
+    rows.append(Row("peak |d(jw)/omega(jw)|: SS error = (d/omega) x RE error", "-", None, gain))
+    fails = [r for r in rows[:3] if r.ours > 2 * r.seed]
+    if fails:
+        verdict = "differs"
+        why = ("above 2x printed: " + ", ".join(r.name for r in fails) + ". Driven by the "
+               "measured y, each state-shared output error is (d/omega) times the reduced "
+               "model's error (y - y_ss = d/omega (y - y_re) for diagonal Theta2), and with "
+               f"the seed's a1 = a2 = 1 the filter d/omega peaks at {gain:.2f} at "
+               f"{w_peak:.2f} rad/h, "
+               "so the SS error exceeds the RE error when the perturbation has content there "
+               "(our 0.1 h hold, inferred). With a new perturbation every 30 s the same model "
+               "gives " + ", ".join(f"{o:.3g}" for o in fast) + " %, within the print.")
+    else:
+        below = all(r.ours < r.seed for r in rows[:3])
+        verdict = "beaten" if below else "reproduced"
+        why = ("state-shared model (order-2 OPI/OPII models, a1 = a2 = 1, exact ZOH, driven "
+               "by sampled u and y) within 2x of the printed ARe"
+               + ("; all three below the print" if below else ""))
+    return ReproduceResult("R3.6", rows, verdict, why, _reactor_figures(ctx, "ss"))
+
+
+# -- R3.11 ---------------------------------------------------------------------------------
+def r3_11(ctx: StudyContext) -> ReproduceResult:
+    F, G = companion_pair(CALCIUM_A, 3)
+    ssm = StateSharedModel(CALCIUM_A, 3, 0.01)
+    ev = np.linalg.eigvals(F[:3, :3])
+    ev = ev[np.argsort(ev.real)]
+    rows = [
+        Row("state-shared order 2nm", "-", 18.0, float(ssm.order)),
+        Row("F rows", "-", None, float(F.shape[0])),
+        Row("G columns", "-", None, float(G.shape[1])),
+        Row("adaptable parameters n(m^2+1)", "-", 30.0, float(ssm.n_params)),
+        Row("root of s^3+3s^2+2s+1 (real)", "-", None, float(ev[0].real)),
+        Row("complex root, real part", "-", None, float(ev[1].real)),
+        Row("complex root, |imag|", "-", None, float(abs(ev[1].imag))),
+    ]
+    ok = ssm.order == 18 and ssm.n_params == 30 and F.shape == (9, 9) and G.shape == (9, 3)
+    verdict, why = _verdict(ok, "exact (roots -2.3247, -0.3376 +- 0.5623j as derived in the "
+                            "catalogue)", "structure differs")
+    return ReproduceResult("R3.11", rows, verdict, why)
+
+
+RESULTS = {
+    "R3.0": r3_0,
+    "R3.1": r3_1,
+    "R3.2": r3_2,
+    "R3.3": r3_3,
+    "R3.4": r3_4,
+    "R3.5": r3_5,
+    "R3.6": r3_6,
+    "R3.11": r3_11,
+}
