@@ -366,3 +366,25 @@ def test_checkpoint_round_trip_is_exact():
     np.testing.assert_array_equal(other.n, ssm.n)
     with pytest.raises(ValueError, match="state.m"):
         StateSharedModel(a, 3, 0.1).restore(state)
+
+
+# -- numerical limits (documented in the module) ---------------------------------------
+CONDITIONING_TOL = 1e-9
+
+
+def test_te_sized_io_with_order_ten_is_exact():
+    # m = 5 (TE's CVs), n = 10 with poles spread over a decade: still exact to 1e-9.
+    rng = np.random.default_rng(40)
+    n, m = 10, 5
+    poles = -np.geomspace(1 / np.sqrt(10), np.sqrt(10), n)
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    A = Q @ np.diag(poles) @ Q.T
+    B, C = rng.standard_normal((n, m)), rng.standard_normal((m, n))
+    a = designer_polynomial(1.1 * poles)
+    ssm = StateSharedModel(a, m, 0.05, [ModelSpec("M", theta_from_mfd(left_mfd(A, B, C), a))])
+    Ac, Bc, Cc, _, _ = ssm.continuous_form(0)
+    w = np.logspace(-2, 2, 41)
+    ref = control.ss(A, B, C, np.zeros((m, m))).frequency_response(w).complex
+    ours = control.ss(Ac, Bc, Cc, np.zeros((m, m))).frequency_response(w).complex
+    assert np.max(np.abs(np.asarray(ours) - np.asarray(ref))) <= CONDITIONING_TOL * np.max(
+        np.abs(ref))
