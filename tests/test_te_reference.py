@@ -6,10 +6,13 @@ printed in te.md), never from this code.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from plant_sim.tennessee_eastman import TESimulator
 from plant_sim.tennessee_eastman import constants as C
@@ -92,3 +95,11 @@ def test_step_by_step_equals_run_steps():
         np.testing.assert_array_equal(xm, rows[k, 1:42])
     np.testing.assert_array_equal(a.x, b.x)
     assert a.generator_state == b.generator_state
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(min_value=0, max_value=2**36))
+def test_floor_form_of_generator_is_bit_identical_to_fmod(g):
+    # te.md 7: the original computes DMOD(G*9228907, 2**32) in double precision
+    expected = math.fmod(float(g) * 9228907.0, 4294967296.0)
+    assert sequence(float(g), 1)[0] == expected

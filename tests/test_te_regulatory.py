@@ -1,0 +1,61 @@
+"""TE regulatory layer (seed Table 7.10, R7.11)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from plant_sim.base import PlantInputError
+from plant_sim.tennessee_eastman import TESimulator
+from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop, RegulatoryLayer
+
+LEVEL_BAND = 2.0  # R7.11: levels within +-2 % for 24 h
+MODE0_SP = (120.4, 75.0, 50.0, 50.0)  # seed Table 7.3, mode 0: Tr degC, reactor/sep/strip level %
+STEPS_PER_H = 2000
+
+
+def test_table_7_10_loops_hold_mode0_levels_for_24_h():
+    sim = TESimulator()
+    reg = RegulatoryLayer(sim, setpoints=MODE0_SP)
+    rows = reg.run_steps(24 * STEPS_PER_H, record_every=20, stop_on_trip=True)
+    assert sim.shutdown is None  # open loop, the same plant trips at 4.06 h
+    assert rows[-1, 0] == pytest.approx(24.0 - 0.01)
+    for col, sp in ((8, 75.0), (12, 50.0), (15, 50.0)):
+        assert np.max(np.abs(rows[:, col] - sp)) <= LEVEL_BAND
+
+
+def test_first_pi_move_is_the_integral_action_only():
+    sim = TESimulator()
+    e0 = 2.0
+    sp = sim.initial_xmeas[[8, 7, 11, 14]].copy()
+    sp[3] += e0  # stripper level 2 % above its measurement
+    reg = RegulatoryLayer(sim, setpoints=sp)
+    xmv8 = sim.xmv[7]
+    reg.run_steps(1)
+    gain, ti = -1.5, 1.0  # Table 7.10, stripper loop
+    expected = xmv8 + gain * (sim.dt_h / ti * e0)
+    assert sim.xmv[7] == pytest.approx(expected, abs=1e-12)
+
+
+def test_saturated_output_leaves_the_limit_when_the_error_turns():
+    sim = TESimulator()
+    loop = (PILoop("stripper level", cv=15, mv=8, gain=-100.0, ti_h=1.0),)
+    reg = RegulatoryLayer(sim, loops=loop, setpoints=[0.0])  # level far above set point
+    reg.run_steps(200)
+    assert sim.xmv[7] == 100.0
+    reg.set_setpoints([100.0])
+    reg.run_steps(1)
+    assert sim.xmv[7] < 100.0  # no wind-up to unwind
+
+
+def test_bad_loop_settings_are_rejected():
+    with pytest.raises(PlantInputError, match="ti_h"):
+        PILoop("x", cv=8, mv=1, gain=1.0, ti_h=0.0)
+    with pytest.raises(PlantInputError, match="cv"):
+        PILoop("x", cv=42, mv=1, gain=1.0, ti_h=1.0)
+    reg = RegulatoryLayer(TESimulator())
+    with pytest.raises(PlantInputError, match="reactor level"):
+        reg.set_setpoints([120.0, math.nan, 50.0, 50.0])
+    assert len(TABLE_7_10) == 4
