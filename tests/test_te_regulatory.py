@@ -40,14 +40,16 @@ def test_first_pi_move_is_the_integral_action_only():
 
 
 def test_saturated_output_leaves_the_limit_when_the_error_turns():
+    # a loop whose MV (agitator) barely moves its CV (reactor temperature): the
+    # integral drives the output into the 100 % limit, where it must not wind up
     sim = TESimulator()
-    loop = (PILoop("stripper level", cv=15, mv=8, gain=-100.0, ti_h=1.0),)
-    reg = RegulatoryLayer(sim, loops=loop, setpoints=[0.0])  # level far above set point
-    reg.run_steps(200)
-    assert sim.xmv[7] == 100.0
-    reg.set_setpoints([100.0])
+    loop = (PILoop("test", cv=9, mv=12, gain=-1.0, ti_h=1.0),)
+    reg = RegulatoryLayer(sim, loops=loop, setpoints=[0.0])  # e = -120 degC
+    reg.run_steps(2000)
+    assert sim.xmv[11] == 100.0
+    reg.set_setpoints([sim.xmeas[8] + 0.5])  # error turns positive
     reg.run_steps(1)
-    assert sim.xmv[7] < 100.0  # no wind-up to unwind
+    assert sim.xmv[11] < 100.0  # no wound-up integral to unwind first
 
 
 def test_bad_loop_settings_are_rejected():
