@@ -200,3 +200,24 @@ def test_are_closed_form():
         average_relative_error(y_ref, y_est, [1.0, 0.0])
     with pytest.raises(ValueError, match="y_est"):
         average_relative_error(y_ref, y_est[:2], nominal)
+
+
+def test_unstable_part_kept_matches_slycot_ab09md():
+    rng = np.random.default_rng(40)
+    n = 8
+    A = rng.standard_normal((n, n))
+    ev = np.sort(np.linalg.eigvals(A).real)
+    A -= 0.5 * (ev[-3] + ev[-2]) * np.eye(n)  # two modes in the right half plane
+    sys = Realization(A, rng.standard_normal((n, 2)), rng.standard_normal((2, n)), None)
+    n_unstable = int(np.sum(np.linalg.eigvals(A).real > 0))
+    assert n_unstable >= 1
+    with pytest.raises(ValueError, match="stable"):
+        balanced_truncation(sys, order=5)
+    ours = balanced_truncation(sys, order=5, unstable="keep")
+    ref = control.balred(sys.to_control(), 5)
+    refr = Realization(ref.A, ref.B, ref.C, ref.D)
+    peak = np.max(np.abs(fr(sys, W)))
+    assert np.max(np.abs(ours.reduced.frequency_response(W) - fr(refr, W))) <= FREQ_ATOL_REL * peak
+    assert int(np.sum(ours.reduced.poles().real > 0)) == n_unstable
+    with pytest.raises(ValueError, match="unstable modes"):
+        balanced_truncation(sys, order=n_unstable, unstable="keep")

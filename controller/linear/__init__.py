@@ -9,6 +9,7 @@ from controller.linear.balanced import (
     hankel_singular_values,
     relative_error,
     select_order,
+    stable_unstable_split,
 )
 from controller.linear.discretize import DiscreteRealization, zoh, zoh_matrices
 from controller.linear.errors import average_relative_error
@@ -21,6 +22,7 @@ __all__ = [
     "hankel_singular_values",
     "relative_error",
     "select_order",
+    "stable_unstable_split",
     "DiscreteRealization",
     "zoh",
     "zoh_matrices",

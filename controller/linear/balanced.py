@@ -26,6 +26,7 @@ from numpy.typing import ArrayLike
 from controller.linear.realization import Realization, as_realization
 
 __all__ = [
+    "stable_unstable_split",
     "BalancedTruncation",
     "balanced_truncation",
     "hankel_singular_values",
@@ -123,9 +124,28 @@ class BalancedTruncation:
         return 100.0 * self.Re
 
 
+def stable_unstable_split(sys: Realization) -> tuple[Realization, Realization]:
+    """Additive split ``G = G_s + G_u`` (real Schur form, then a Sylvester equation).
+
+    Returns (stable part with the feedthrough, unstable part with D = 0); the
+    unstable part holds every eigenvalue with real part >= 0.
+    """
+    T, Z, n_s = scipy.linalg.schur(sys.A, output="real", sort="lhp")
+    A11, A12, A22 = T[:n_s, :n_s], T[:n_s, n_s:], T[n_s:, n_s:]
+    # [I X; 0 I] decouples the blocks when A11 X - X A22 + A12 = 0
+    X = scipy.linalg.solve_sylvester(A11, -A22, -A12)
+    Bz, Cz = Z.T @ sys.B, sys.C @ Z
+    Bs = Bz[:n_s] - X @ Bz[n_s:]
+    Cu = Cz[:, n_s:] + Cz[:, :n_s] @ X
+    stable = Realization(A11, Bs, Cz[:, :n_s], sys.D)
+    unstable = Realization(A22, Bz[n_s:], Cu, np.zeros_like(sys.D))
+    return stable, unstable
+
+
 def balanced_truncation(A, B=None, C=None, D=None, *, order: int | None = None,
                         re_threshold: float | None = None,
-                        method: str = "truncate") -> BalancedTruncation:
+                        method: str = "truncate",
+                        unstable: str = "error") -> BalancedTruncation:
     """Reduce a stable model by balanced truncation.
 
     Parameters
@@ -136,16 +156,40 @@ def balanced_truncation(A, B=None, C=None, D=None, *, order: int | None = None,
     re_threshold : float, optional
         Instead of ``order``: the smallest k with Re(k) < re_threshold (fraction).
     method : {"truncate", "matchdc"}
+    unstable : {"error", "keep"}
+        With "keep", a model with eigenvalues in the closed right half plane is
+        split additively into stable and unstable parts; the stable part is
+        reduced and the unstable part kept whole (as SLICOT AB09MD does). Then
+        ``order`` counts both parts and hsv/Re refer to the stable part.
 
     Raises
     ------
     ValueError
-        Unstable model, neither or both of order/re_threshold, k out of range,
-        or k above the number of nonzero Hankel singular values.
+        Unstable model (unless ``unstable="keep"``), neither or both of
+        order/re_threshold, k out of range, or k above the number of nonzero
+        Hankel singular values.
     """
     sys = as_realization(A, B, C, D)
     if method not in METHODS:
         raise ValueError(f"method: must be one of {METHODS}, got {method!r}")
+    if unstable not in ("error", "keep"):
+        raise ValueError(f"unstable: must be 'error' or 'keep', got {unstable!r}")
+    if unstable == "keep" and not sys.is_stable():
+        stab, unst = stable_unstable_split(sys)
+        nu = unst.order
+        if order is not None and (isinstance(order, bool) or not isinstance(order, int | np.integer)
+                                  or order <= nu):
+            raise ValueError(f"order: must exceed the {nu} unstable modes, got {order!r}")
+        part = balanced_truncation(stab, order=None if order is None else int(order) - nu,
+                                   re_threshold=re_threshold, method=method)
+        r = part.reduced
+        k = r.order
+        A_ = np.zeros((k + nu, k + nu))
+        A_[:k, :k], A_[k:, k:] = r.A, unst.A
+        return BalancedTruncation(
+            reduced=Realization(A_, np.vstack((r.B, unst.B)), np.hstack((r.C, unst.C)), r.D),
+            hsv=part.hsv, order=k + nu, Re=part.Re, error_bound=part.error_bound,
+            method=method)
     if (order is None) == (re_threshold is None):
         raise ValueError("order, re_threshold: give exactly one of them")
     s, U, V, Lc, Lo = _balancing(sys)
