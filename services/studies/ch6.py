@@ -419,12 +419,17 @@ def _verdict_time(ours: float, seed: float, violated: bool, slack: float = 1.0) 
     return "beaten" if ours < seed - slack else "reproduced"
 
 
-def _figures(ctx: StudyContext, name: str, plot) -> list[str]:
+def _plot(ctx: StudyContext, fn: str, *args) -> list[str]:
+    """Draw one figure into ``ctx.plot_dir`` (nothing without a plot directory)."""
     if ctx.plot_dir is None:
         return []
     from services.studies import ch6_figures
 
-    return [str(p) for p in getattr(ch6_figures, plot)(ctx.plot_dir, name)]
+    return getattr(ch6_figures, fn)(*args)
+
+
+def _path(ctx: StudyContext, name: str):
+    return None if ctx.plot_dir is None else ctx.plot_dir / name
 
 
 def r6_1(ctx: StudyContext) -> ReproduceResult:
@@ -449,14 +454,17 @@ def r6_1(ctx: StudyContext) -> ReproduceResult:
            "OPI/OPII linearizations (MVs x1, x2, x3; OPII is a reconstruction). With the "
            "seed's order-2 models F4 settles in "
            f"{seed_structure.settling_time(2, F4_BAND):.1f} h but yA3 drifts for > 15 h.")
-    return ReproduceResult("R6.1", rows, verdict, why,
-                           _figures(ctx, "fig6_1", "plot_reactor") if ctx.plot_dir else [])
+    figs = _plot(ctx, "plot_reactor", run, _path(ctx, "fig6_1.png"),
+                 "Fig. 6.1: F4 100 -> 130 kmol/h, state-shared MPC", P_LIMIT)
+    return ReproduceResult("R6.1", rows, verdict, why, figs)
 
 
 def r6_2(ctx: StudyContext) -> ReproduceResult:
     t_f4, t_p, p_max = [], [], []
+    first = None
     for i in range(NOISE_SEEDS):
         run = run_reactor(ReactorCase(noise=True, seed=ctx.seed + i))
+        first = first or run
         t_f4.append(run.settling_time(2, F4_BAND, NOISE_WINDOW))
         t_p.append(run.settling_time(0, P_BAND, NOISE_WINDOW))
         p_max.append(float(run.y_true[:, 0].max()))
@@ -476,10 +484,8 @@ def r6_2(ctx: StudyContext) -> ReproduceResult:
            f"F4 settles in {f4:.1f} h (seed 8), P in {pp:.1f} h (seed 10), medians over "
            f"{NOISE_SEEDS} noise seeds (F4 range {min(t_f4):.1f}-{max(t_f4):.1f} h); "
            f"no pressure violation: {not violated}.")
-    if ctx.plot_dir is not None:
-        figs = _figures(ctx, "fig6_2", "plot_reactor_noise")
-    else:
-        figs = []
+    figs = _plot(ctx, "plot_reactor", first, _path(ctx, "fig6_2.png"),
+                 "Fig. 6.2: same transition, measurement noise SNR 10:1, filter 0.2", P_LIMIT)
     return ReproduceResult("R6.2", rows, verdict, why, figs)
 
 
@@ -499,9 +505,9 @@ def r6_3(ctx: StudyContext) -> ReproduceResult:
            "balance gives yB3, the liquid balance the reaction rate rD = F4 + rhoL dVL/dt, "
            "and the rate law then yC3, so yA3 = 1 - yB3 - yC3 (the seed does not describe "
            f"its estimator). F4 settles in {t_f4:.1f} h (seed: within 8 h).")
-    return ReproduceResult("R6.3", rows, verdict, why,
-                           _figures(ctx, "fig6_3", "plot_reactor_inferred")
-                           if ctx.plot_dir else [])
+    figs = _plot(ctx, "plot_reactor", run, _path(ctx, "fig6_3.png"),
+                 "Fig. 6.3: same transition, yA3 inferred", P_LIMIT)
+    return ReproduceResult("R6.3", rows, verdict, why, figs)
 
 
 def r6_4(ctx: StudyContext) -> ReproduceResult:
@@ -592,7 +598,7 @@ def r6_6(ctx: StudyContext) -> ReproduceResult:
            "at its nominal 0 (the two inputs are collinear, so q1 shares the move); "
            "weights 50/1 give a "
            f"{'smaller' if b50.ise(0) < b1.ise(0) else 'larger'} xp5 ISE than 1/1.")
-    figs = _figures(ctx, "fig6_4_6_5", "plot_calcium") if ctx.plot_dir else []
+    figs = _plot(ctx, "plot_calcium", fwd, back, _path(ctx, "fig6_4_6_5.png"))
     return ReproduceResult("R6.6", rows, "differs", why, figs)
 
 

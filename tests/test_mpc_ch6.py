@@ -1,0 +1,73 @@
+"""Seed chapter 6 through the CLI (R6.1, R6.3, R6.5, R6.6) against the catalogue's checks."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from services.cli import main
+
+F4_SETPOINT = 130.0   # kmol/h (R6.1)
+F4_BAND = 1.0         # kmol/h, catalogue check
+P_LIMIT = 2950.0      # kPa, the study's pressure limit (≤ Ricker's 3000 kPa shutdown)
+
+
+def reproduce(capsys, rid, *extra):
+    assert main(["reproduce", rid, "--json", *extra]) == 0
+    return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+
+def row(doc, prefix):
+    hits = [r for r in doc["rows"] if r["name"].startswith(prefix)]
+    assert hits, f"no row starting with {prefix!r} in {doc['id']}"
+    return hits[0]
+
+
+def test_r6_1_f4_reaches_130_within_10_h_without_pressure_violation(capsys, tmp_path):
+    doc = reproduce(capsys, "R6.1", "--plot", str(tmp_path))
+    assert row(doc, "F4 within")["ours"] <= 10.0
+    assert row(doc, "maximum reactor pressure")["ours"] < P_LIMIT
+    assert row(doc, "fallback moves")["ours"] == 0
+    assert doc["verdict"] in ("reproduced", "beaten")
+    assert doc["figures"] and all((tmp_path / p.split("/")[-1]).exists() for p in doc["figures"])
+
+
+def test_r6_1_closed_loop_directly():
+    """Independent of the study's own settling metric: the plant output itself."""
+    from services.studies.ch6 import ReactorCase, run_reactor
+
+    run = run_reactor(ReactorCase(t_end=12.0))
+    after = run.t >= run.case.t_step + 10.0
+    assert np.all(np.abs(run.y_true[after, 2] - F4_SETPOINT) <= F4_BAND)
+    assert run.y_true[:, 0].max() < P_LIMIT
+    # Inputs within the valve range and the rate limit every sample.
+    assert run.u.min() >= 0.0 and run.u.max() <= 100.0
+    assert np.max(np.abs(np.diff(run.u, axis=0))) <= run.case.du_max + 1e-9
+    assert set(np.unique(run.active)) <= {0, 1}
+
+
+def test_r6_3_inferred_yA3_within_8_h(capsys):
+    doc = reproduce(capsys, "R6.3")
+    assert row(doc, "F4 within")["ours"] <= 8.0
+    assert row(doc, "maximum reactor pressure")["ours"] < P_LIMIT
+
+
+def test_r6_5_printed_calcium_models(capsys):
+    doc = reproduce(capsys, "R6.5")
+    assert doc["verdict"] == "reproduced"
+    assert row(doc, "RyR pole-zero")["ours"] == pytest.approx(-10.605, rel=0.01)
+    for i, v in enumerate((1.265, 0.500, 0.289), start=1):
+        assert row(doc, f"Hankel singular value {i}")["ours"] == pytest.approx(v, rel=0.05)
+    assert row(doc, "B column ratio q1/J, OPI")["ours"] == pytest.approx(-1.19, rel=0.03)
+
+
+def test_r6_6_calcium_j_nonnegative_and_back_to_opi_within_6_s(capsys):
+    doc = reproduce(capsys, "R6.6")
+    assert row(doc, "smallest J")["ours"] >= -1e-9
+    assert row(doc, "back to OPI: xp5 within")["ours"] <= 6.0
+    assert row(doc, "back to OPI: xp6 settles")["ours"] <= 6.0
+    # Unequal output weighting is at least as good for xp5 (Fig. 6.5).
+    assert row(doc, "ISE xp5 back to OPI, weights 50/1")["ours"] <= row(
+        doc, "ISE xp5 back to OPI, weights 1/1")["ours"]
