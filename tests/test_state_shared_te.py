@@ -1,0 +1,66 @@
+"""TE linear models (loops closed, pressure filter) and their state-shared model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controller.linear import Realization
+from services.studies.ch3_te import (
+    TE_MODES,
+    te_closed_loop,
+    te_reduced,
+    te_state_shared_model,
+)
+
+FREQ_RTOL = 1e-8
+R7_10_MAX_EIG = 3.11  # printed: open-loop eigenvalues from -1968 to 3.11 1/h
+R7_10_TOL = 0.30  # catalogue: most positive eigenvalue within +-30 %
+
+
+@pytest.fixture(scope="module")
+def ssm():
+    return te_state_shared_model(dt=0.01)
+
+
+def test_open_loop_spectrum_matches_r7_10():
+    from plant_sim import get_plant
+    from plant_sim.linearize import linearize
+
+    ev = np.linalg.eigvals(linearize(get_plant("te"), "mode0").A).real
+    assert ev.max() == pytest.approx(R7_10_MAX_EIG, rel=R7_10_TOL)
+    assert ev.min() == pytest.approx(-1968, rel=R7_10_TOL)
+
+
+def test_closed_loop_model_shape_and_filter():
+    cl = te_closed_loop("mode0")
+    m = cl.model
+    assert m.order == 50 + 4 + 1 and m.n_inputs == 5 and m.n_outputs == 5
+    assert np.all(m.D == 0)
+    # the filter state: unity DC gain from pressure, pole at -300 1/h
+    assert m.A[-1, -1] == pytest.approx(-300.0)
+    assert cl.y_op[0] == pytest.approx(2705.0, rel=1e-3)  # XMEAS 7 at the base case, kPa
+
+
+def test_state_shared_structure(ssm):
+    assert ssm.order == 2 * 8 * 5 and ssm.n_params == 8 * (25 + 1)
+    assert ssm.names == ["mode0", "mode2", "mode3", "reinit"]
+    assert ssm.kinds == ["fixed", "fixed", "fixed", "adaptive"]
+
+
+@pytest.mark.parametrize("j,mode", list(enumerate(TE_MODES)))
+def test_each_mode_exact_in_state_shared_form(ssm, j, mode):
+    red = te_reduced(mode).reduced
+    A, B, C, _, _ = ssm.continuous_form(j)
+    w = np.logspace(-3, 3, 61)
+    ref = red.frequency_response(w)
+    ours = Realization(A, B, C, None).frequency_response(w)
+    assert np.max(np.abs(ours - ref)) <= FREQ_RTOL * np.max(np.abs(ref))
+    assert te_reduced(mode).Re < 0.02
+
+
+def test_each_model_holds_its_operating_point(ssm):
+    for j, mode in enumerate(TE_MODES):
+        cl = te_closed_loop(mode)
+        ssm.initialize(cl.u_op, cl.y_op)
+        np.testing.assert_allclose(ssm.estimates()[j], cl.y_op, rtol=1e-9)
