@@ -59,6 +59,38 @@ PERTURBATION = 0.03
 N_SEEDS = 5
 
 
+# -- models for every case study --------------------------------------------------------
+def state_shared_from_plant(plant_name: str, ops, a, dt: float, *, inputs=None, outputs=None,
+                            order: int | None = None) -> StateSharedModel:
+    """A state-shared model with one fixed model per operating point of a plant.
+
+    Each point is linearized (:func:`plant_sim.linearize.linearize`), restricted to
+    ``inputs``/``outputs`` (names; default all), optionally reduced by balanced
+    truncation to ``order`` (unstable modes kept), and placed about its own point
+    (bias, see :mod:`controller.state_shared`). The degree of ``a`` must be at
+    least each model's McMillan degree; lower degrees are padded with a factor
+    at the slowest root of omega.
+    """
+    from plant_sim import get_plant
+    from plant_sim.linearize import linearize
+
+    plant = get_plant(plant_name)
+    a = np.asarray(a, dtype=float)
+    pad = float(np.min(np.abs(np.roots(np.concatenate(([1.0], a[::-1]))))))
+    lms = [linearize(plant, op).select(inputs=inputs, outputs=outputs) for op in ops]
+    ssm = StateSharedModel(a, lms[0].C.shape[0], dt)
+    for op, lm in zip(ops, lms):
+        if np.any(lm.D != 0):
+            raise ValueError(f"inputs: the model at {op} has direct feedthrough (D != 0); "
+                             "the state-shared form needs a strictly proper model")
+        sys = Realization(lm.A, lm.B, lm.C, None)
+        if order is not None:
+            sys = balanced_truncation(sys, order=order, unstable="keep").reduced
+        ssm.add_model(StateSharedModel.model_from_linear(op, sys.A, sys.B, sys.C, lm.u_op,
+                                                         lm.y_op, a, pad_root=pad))
+    return ssm
+
+
 # -- shared helpers ----------------------------------------------------------------------
 def _verdict(ok: bool, why_ok: str, why_not: str) -> tuple[str, str]:
     return ("reproduced", why_ok) if ok else ("differs", why_not)
