@@ -185,6 +185,11 @@ class NormalizedLeastSquares:
         Initial parameter vector.
     dt : float
         Sample time (same time unit as ``settings.gain``).
+    lower, upper : array_like, shape (N,), optional
+        Box that the parameters are projected onto after each update (a known
+        region of the true parameters, e.g. around the fixed models; the
+        "projection" modification of Ioannou & Sun §4.11). Counted in
+        ``n_projections``.
 
     Attributes
     ----------
@@ -196,11 +201,19 @@ class NormalizedLeastSquares:
         Counters: updates applied, covariance resets, samples skipped.
     """
 
-    def __init__(self, settings: NLSSettings, p0, dt: float) -> None:
+    def __init__(self, settings: NLSSettings, p0, dt: float, lower=None, upper=None) -> None:
         self.settings = settings
         p0 = np.asarray(p0, dtype=float).reshape(-1)
         if p0.size == 0 or not np.all(np.isfinite(p0)):
             raise ValueError("p0: must be a non-empty finite vector")
+        self.lower = np.full(p0.size, -np.inf) if lower is None else np.asarray(lower, float)
+        self.upper = np.full(p0.size, np.inf) if upper is None else np.asarray(upper, float)
+        if self.lower.shape != p0.shape or self.upper.shape != p0.shape:
+            raise ValueError(f"lower, upper: must have length {p0.size}")
+        if np.any(np.isnan(self.lower)) or np.any(np.isnan(self.upper)) or np.any(
+                self.lower > self.upper):
+            raise ValueError("lower, upper: must not be NaN and lower <= upper")
+        self.n_projections = 0
         self.dt = float(dt)
         self.g_d = settings.per_sample_gain(self.dt)
         self.p = p0.copy()
@@ -268,6 +281,10 @@ class NormalizedLeastSquares:
         if not np.all(np.isfinite(p_new)) or np.max(np.abs(p_new)) > self.settings.max_abs_param:
             self.reset_covariance("diverged")
             return NLSStep(e, False, True, "diverged")
+        clipped = np.clip(p_new, self.lower, self.upper)
+        if not np.array_equal(clipped, p_new):
+            self.n_projections += 1
+            p_new = clipped
         dP = self.g_d * (K @ PWt.T)
         P_new = self.P - dP
         P_new = 0.5 * (P_new + P_new.T)

@@ -44,6 +44,10 @@ class IndexSettings:
         Minimum time a model stays active after a switch, > 0, in time units.
     output_weights : tuple of float or None
         Weights of each output's squared error (MIMO); None means all 1.
+    hysteresis : float
+        Relative margin in [0, 1): a model replaces the active one only if its J
+        is below ``(1 - hysteresis)`` times the active model's J (0 = the seed's
+        plain smallest-J rule). Stops chattering between near-equal models.
     """
 
     mu: float = 1.0
@@ -51,8 +55,11 @@ class IndexSettings:
     forgetting: float = 0.5
     min_dwell: float = 0.5
     output_weights: tuple[float, ...] | None = None
+    hysteresis: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.hysteresis, int | float) and 0 <= self.hysteresis < 1):
+            raise ValueError(f"hysteresis: must be in [0, 1), got {self.hysteresis!r}")
         for name in ("mu", "nu", "forgetting"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
@@ -179,11 +186,18 @@ class ModelSwitcher:
         Sample time.
     initial : int
         Model active at the start.
-    allowed : sequence of bool or None
-        Models that may be selected (e.g. exclude one whose controller failed).
+    hysteresis : float
+        Relative margin in [0, 1) (see :class:`IndexSettings`).
     """
 
-    def __init__(self, n_models: int, min_dwell: float, dt: float, initial: int = 0) -> None:
+    #: J differences below this are treated as ties (round-off of exact models).
+    J_TOL = 1e-12
+
+    def __init__(self, n_models: int, min_dwell: float, dt: float, initial: int = 0,
+                 hysteresis: float = 0.0) -> None:
+        if not 0 <= hysteresis < 1:
+            raise ValueError(f"hysteresis: must be in [0, 1), got {hysteresis!r}")
+        self.hysteresis = float(hysteresis)
         if not 0 <= initial < n_models:
             raise ValueError(f"initial: must be in [0, {n_models}), got {initial}")
         if not (math.isfinite(min_dwell) and min_dwell > 0):
@@ -199,7 +213,10 @@ class ModelSwitcher:
         self.n_held = 0
 
     def step(self, J, allowed=None) -> SwitchDecision:
-        """Choose the model for this sample from the index values ``J`` (n_models,)."""
+        """Choose the model for this sample from the index values ``J`` (n_models,).
+
+        ``allowed`` (n_models,) of bool excludes models (e.g. one without a controller).
+        """
         J = np.asarray(J, dtype=float).reshape(-1)
         if J.size != self.n_models:
             raise ValueError(f"J: expected {self.n_models} values, got {J.size}")
@@ -210,7 +227,9 @@ class ModelSwitcher:
         if not np.any(np.isfinite(masked)):
             return SwitchDecision(self.active, self.active, False, False)
         best = int(np.argmin(masked))
-        if best == self.active or masked[best] >= masked[self.active]:
+        # J differences at round-off level (all models exact at a steady state) never switch
+        threshold = (1.0 - self.hysteresis) * masked[self.active] - self.J_TOL
+        if best == self.active or masked[best] >= threshold:
             return SwitchDecision(self.active, best, False, False)
         if self.since_switch < self.dwell_samples:
             self.n_held += 1

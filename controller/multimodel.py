@@ -1,0 +1,334 @@
+"""Multiple-model controller on the state-shared model (seed chapters 3-5).
+
+:class:`MultiModelController` implements :class:`controller.interfaces.SampleController`.
+Per sample (y_k measured, absolute units):
+
+1. validate y_k; an invalid measurement (wrong length, NaN/inf) skips the
+   sample: u is held, adaptation and the index are frozen, an alarm is counted
+   and the shared state is advanced with the active model's estimate instead of
+   y_k, so no NaN enters any state;
+2. a-priori model errors ``e_j = y_k - y_j`` (the models' estimates made at the
+   previous sample, eq. 3.10);
+3. adapt every adaptive model by normalized least squares (eq. 4.1) on the
+   shared regressor ``W`` (``y_j = W p_j``);
+4. update the performance index (eq. 4.6) and switch (smallest J, dwell time);
+5. restart events of the adaptive kinds (seed §4, ref. [19]): when the
+   smallest J belongs to a fixed model, each *re-initialized* model takes that
+   model's parameters (and its index history); when the active model changes,
+   each *conventional* model restarts from its initial parameters;
+   *free-running* models just continue;
+6. the control law computes u_k for the active model;
+7. the shared state advances with (u_k, y_k).
+
+Switching is bumpless with respect to the model output because every model
+reads the same shared state: the new model's estimate at the switching instant
+is computed from the very state the old model used.
+
+The control law is any object with the :class:`ControlLaw` methods
+(:class:`controller.hinf.HInfLaw`, :class:`controller.mrac.MRACLaw`, or an MPC
+adapter written elsewhere).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from controller.adaptation import AdaptiveKind, NLSSettings, NormalizedLeastSquares
+from controller.interfaces import ControlDecision
+from controller.state_shared import StateSharedModel
+from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
+
+__all__ = ["ControlLaw", "MultiModelSettings", "MultiModelController"]
+
+
+class ControlLaw(Protocol):
+    """A per-model control law driven by :class:`MultiModelController`.
+
+    ``compute`` returns ``(u, info)``: the move (absolute units, shape (nu,))
+    and a dict with at least ``"status"`` and optionally ``"alarms"`` (list of
+    str) and ``"fallback"`` (bool). It may raise; the controller then holds u.
+    """
+
+    def reset(self, u: np.ndarray, y: np.ndarray) -> None: ...
+
+    def compute(self, k: int, model: int, ssm: StateSharedModel, y: np.ndarray,
+                reference: np.ndarray, u_last: np.ndarray) -> tuple[np.ndarray, dict]: ...
+
+    def checkpoint(self) -> dict[str, Any]: ...
+
+    def restore(self, state: dict[str, Any]) -> None: ...
+
+
+def _bounds(value, m: int, field: str, default: float) -> np.ndarray:
+    if value is None:
+        return np.full(m, default)
+    arr = np.broadcast_to(np.asarray(value, dtype=float), (m,)).copy()
+    if np.any(np.isnan(arr)):
+        raise ValueError(f"{field}: must not be NaN")
+    return arr
+
+
+@dataclass(frozen=True)
+class MultiModelSettings:
+    """Tuning of adaptation, switching and the input limits.
+
+    Parameters
+    ----------
+    nls : NLSSettings
+        Normalized least squares (eq. 4.1).
+    index : IndexSettings
+        Performance index weights and dwell time (eq. 4.6).
+    u_min, u_max : float or sequence of float or None
+        Input limits applied to every move (None = unbounded).
+    param_margin : float or None
+        When set, adaptive parameters are projected onto the box spanned by the
+        fixed models' parameters widened by ``param_margin`` times its width
+        (per parameter; at least ``param_margin`` times the parameter's size).
+        None = no projection.
+    """
+
+    nls: NLSSettings = NLSSettings()
+    index: IndexSettings = IndexSettings()
+    u_min: float | tuple[float, ...] | None = None
+    u_max: float | tuple[float, ...] | None = None
+    param_margin: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.param_margin is not None and not (
+                math.isfinite(self.param_margin) and self.param_margin >= 0):
+            raise ValueError(f"param_margin: must be >= 0 or None, got {self.param_margin!r}")
+        if not isinstance(self.nls, NLSSettings):
+            raise ValueError("nls: must be an NLSSettings")
+        if not isinstance(self.index, IndexSettings):
+            raise ValueError("index: must be an IndexSettings")
+        lo = np.atleast_1d(np.asarray(-math.inf if self.u_min is None else self.u_min, float))
+        hi = np.atleast_1d(np.asarray(math.inf if self.u_max is None else self.u_max, float))
+        if np.any(np.isnan(lo)) or np.any(np.isnan(hi)):
+            raise ValueError("u_min, u_max: must not be NaN")
+        if lo.shape == hi.shape and np.any(lo > hi):
+            raise ValueError("u_min: must not exceed u_max")
+
+
+class MultiModelController:
+    """State-shared multiple-model controller (fixed + adaptive models, switching, a law).
+
+    Parameters
+    ----------
+    ssm : StateSharedModel
+        The shared state and the models; adaptive models are changed in place.
+    law : ControlLaw
+        The per-model control law.
+    u0 : array_like, shape (m,)
+        Input in force before the first sample (absolute units).
+    settings : MultiModelSettings
+    kinds : sequence of AdaptiveKind or str, optional
+        Kind of each model; default from ``ssm.kinds`` ("adaptive" ->
+        free-running).
+    initial_model : int
+        Model active at the start.
+    """
+
+    def __init__(self, ssm: StateSharedModel, law: ControlLaw, u0,
+                 settings: MultiModelSettings | None = None,
+                 kinds: Sequence[AdaptiveKind | str] | None = None,
+                 initial_model: int = 0) -> None:
+        self.ssm = ssm
+        self.law = law
+        self.settings = settings or MultiModelSettings()
+        m = ssm.m
+        self.u_last = _bounds(u0, m, "u0", 0.0)
+        if not np.all(np.isfinite(self.u_last)):
+            raise ValueError("u0: must be finite")
+        self.u_min = _bounds(self.settings.u_min, m, "u_min", -math.inf)
+        self.u_max = _bounds(self.settings.u_max, m, "u_max", math.inf)
+        if kinds is None:
+            kinds = [AdaptiveKind.FIXED if k == "fixed" else AdaptiveKind.FREE_RUNNING
+                     for k in ssm.kinds]
+        self.kinds = [AdaptiveKind.parse(k) for k in kinds]
+        if len(self.kinds) != ssm.k:
+            raise ValueError(f"kinds: expected {ssm.k} entries, got {len(self.kinds)}")
+        dt = ssm.dt
+        self.adaptive = [j for j, k in enumerate(self.kinds) if k.adaptive]
+        self.fixed = [j for j, k in enumerate(self.kinds) if not k.adaptive]
+        self.p_initial = {j: ssm.params_from_theta(ssm.theta(j), ssm.bias(j))
+                          for j in self.adaptive}
+        lower = upper = None
+        if self.settings.param_margin is not None and self.fixed:
+            P = np.vstack([self.params(j) for j in self.fixed])
+            lo, hi = P.min(axis=0), P.max(axis=0)
+            width = np.maximum(hi - lo, np.abs(P).max(axis=0))
+            lower = lo - self.settings.param_margin * width
+            upper = hi + self.settings.param_margin * width
+        self.param_lower, self.param_upper = lower, upper
+        self.estimators = {j: NormalizedLeastSquares(self.settings.nls, self.p_initial[j], dt,
+                                                     lower, upper)
+                           for j in self.adaptive}
+        self.index = PerformanceIndex(self.settings.index, ssm.k, dt)
+        self.switcher = ModelSwitcher(ssm.k, self.settings.index.min_dwell, dt, initial_model,
+                                      self.settings.index.hysteresis)
+        self.initialized = False
+        self.n_invalid = 0
+        self.n_law_failures = 0
+        self.n_reinit = 0
+        self.n_restarts = 0
+        self.n_samples = 0
+
+    # -- helpers -------------------------------------------------------------------------
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self.ssm.names)
+
+    @property
+    def active(self) -> int:
+        return self.switcher.active
+
+    def params(self, j: int) -> np.ndarray:
+        """Structured parameter vector of model j (see StateSharedModel.params_from_theta)."""
+        return self.ssm.params_from_theta(self.ssm.theta(j), self.ssm.bias(j))
+
+    def counters(self) -> dict[str, int]:
+        out = {
+            "samples": self.n_samples,
+            "invalid_measurements": self.n_invalid,
+            "law_failures": self.n_law_failures,
+            "switches": self.switcher.n_switches,
+            "reinitializations": self.n_reinit,
+            "restarts": self.n_restarts,
+            "covariance_resets": sum(e.n_resets for e in self.estimators.values()),
+            "projections": sum(e.n_projections for e in self.estimators.values()),
+        }
+        law_counters = getattr(self.law, "counters", None)
+        if callable(law_counters):
+            out.update(law_counters())
+        return out
+
+    def _decision(self, u, status: str, fallback: bool, alarms: list[str], t0: float,
+                  extra: dict | None = None) -> ControlDecision:
+        return ControlDecision(
+            u=np.asarray(u, dtype=float).copy(), active_model=self.switcher.active,
+            model_names=self.names, J=self.index.J.copy(),
+            solve_ms=(time.perf_counter() - t0) * 1e3, fallback=fallback, status=status,
+            alarms=tuple(alarms), extra=extra or {})
+
+    # -- the sample ------------------------------------------------------------------------
+    def step(self, k: int, t: float, y, reference) -> ControlDecision:
+        t0 = time.perf_counter()
+        self.n_samples += 1
+        try:
+            return self._step(k, t, y, reference, t0)
+        except Exception as exc:  # never raise out of step: hold the input
+            self.n_law_failures += 1
+            return self._decision(self.u_last, "error", True,
+                                  [f"controller error, input held: {exc}"], t0)
+
+    def _step(self, k, t, y, reference, t0) -> ControlDecision:
+        m = self.ssm.m
+        y = np.asarray(y, dtype=float).reshape(-1)
+        valid = y.shape == (m,) and bool(np.all(np.isfinite(y)))
+        if not valid:
+            self.n_invalid += 1
+            alarm = (f"invalid measurement at sample {k}: sample skipped, input held, "
+                     f"adaptation frozen ({self.n_invalid} so far)")
+            if self.initialized:
+                y_sub = self.ssm.estimates()[self.switcher.active]
+                if np.all(np.isfinite(y_sub)):
+                    self.ssm.update(self.u_last, y_sub)
+            return self._decision(self.u_last, "invalid_measurement", True, [alarm], t0)
+        ref = np.atleast_2d(np.asarray(reference, dtype=float))
+        if ref.shape[1] != m or not np.all(np.isfinite(ref)):
+            return self._decision(self.u_last, "invalid_reference", True,
+                                  [f"invalid reference at sample {k}: input held"], t0)
+        if not self.initialized:
+            self.ssm.initialize(self.u_last, y)
+            self.law.reset(self.u_last, y)
+            self.initialized = True
+        alarms: list[str] = []
+        errors = self.ssm.errors(y)
+        # adaptation (eq. 4.1) on the shared regressor
+        if self.adaptive:
+            W = self.ssm.regressor()
+            for j in self.adaptive:
+                est = self.estimators[j]
+                res = est.update(W, y)
+                if res.updated or res.reset:
+                    self.ssm.set_params(j, est.p)
+        # index (eq. 4.6) and switching
+        J = self.index.update(errors)
+        dec = self.switcher.step(J)
+        # restart events of the adaptive kinds
+        if self.adaptive:
+            best = dec.best
+            for j in self.adaptive:
+                kind = self.kinds[j]
+                if kind is AdaptiveKind.REINITIALIZED and best in self.fixed:
+                    self._reinitialize(j, best)
+                elif kind is AdaptiveKind.CONVENTIONAL and dec.switched:
+                    self.estimators[j].set_params(self.p_initial[j])
+                    self.ssm.set_params(j, self.p_initial[j])
+                    self.n_restarts += 1
+        # control
+        status, fallback = "solved", False
+        try:
+            u, info = self.law.compute(k, self.switcher.active, self.ssm, y, ref, self.u_last)
+            u = np.asarray(u, dtype=float).reshape(-1)
+            status = str(info.get("status", "solved"))
+            fallback = bool(info.get("fallback", False))
+            alarms.extend(info.get("alarms", ()))
+            if u.shape != (m,) or not np.all(np.isfinite(u)):
+                raise ValueError(f"control law returned an invalid move {u!r}")
+        except Exception as exc:
+            self.n_law_failures += 1
+            u, status, fallback = self.u_last.copy(), "law_failed", True
+            alarms.append(f"control law failed, input held: {exc}")
+        u = np.clip(u, self.u_min, self.u_max)
+        self.ssm.update(u, y)
+        self.u_last = u
+        return self._decision(u, status, fallback, alarms, t0,
+                              {"switched": dec.switched, "best": dec.best})
+
+    def _reinitialize(self, j: int, source: int) -> None:
+        p = self.params(source)
+        est = self.estimators[j]
+        if np.array_equal(est.p, p):
+            return
+        est.set_params(p)
+        self.ssm.set_params(j, p)
+        self.index.copy_model(source, j)
+        self.n_reinit += 1
+
+    # -- persistence ---------------------------------------------------------------------
+    def checkpoint(self) -> dict[str, Any]:
+        """Everything for a bumpless restart, as plain JSON data."""
+        return {
+            "ssm": self.ssm.checkpoint(),
+            "estimators": {str(j): e.checkpoint() for j, e in self.estimators.items()},
+            "index": self.index.checkpoint(),
+            "switcher": self.switcher.checkpoint(),
+            "law": self.law.checkpoint(),
+            "u_last": self.u_last.tolist(),
+            "initialized": self.initialized,
+            "counters": {"n_invalid": self.n_invalid, "n_law_failures": self.n_law_failures,
+                         "n_reinit": self.n_reinit, "n_restarts": self.n_restarts,
+                         "n_samples": self.n_samples},
+        }
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.ssm.restore(state["ssm"])
+        for j, e in self.estimators.items():
+            e.restore(state["estimators"][str(j)])
+        self.index.restore(state["index"])
+        self.switcher.restore(state["switcher"])
+        self.law.restore(state["law"])
+        u = np.asarray(state["u_last"], dtype=float).reshape(-1)
+        if u.shape != self.u_last.shape or not np.all(np.isfinite(u)):
+            raise ValueError("state.u_last: wrong length or non-finite")
+        self.u_last = u
+        self.initialized = bool(state["initialized"])
+        for key, value in state.get("counters", {}).items():
+            setattr(self, key, int(value))
