@@ -16,7 +16,9 @@ gives the all-double variant.
 
 from __future__ import annotations
 
+from plant_sim.tennessee_eastman.batch import Scenario, ScenarioResult, run_batch
 from plant_sim.tennessee_eastman.plant import TennesseeEastman
 from plant_sim.tennessee_eastman.simulator import Shutdown, SimSettings, TESimulator
 
-__all__ = ["TennesseeEastman", "TESimulator", "SimSettings", "Shutdown"]
+__all__ = ["TennesseeEastman", "TESimulator", "SimSettings", "Shutdown", "Scenario",
+           "ScenarioResult", "run_batch"]
