@@ -1,0 +1,378 @@
+"""The controller node: one unit's controller on Zenoh, inside a timing budget.
+
+Per measurement (sample k):
+
+1. decode and validate it strictly (a bad payload is counted, raises an alarm
+   and is skipped: the plant keeps the last move);
+2. advance the transition (:class:`~services.transitions.TransitionManager`)
+   and take the reference over the horizon;
+3. step the unit's :class:`~controller.interfaces.SampleController` (shared
+   state, adaptation, switching, MPC — whatever the configured controller does);
+4. publish the move on ``ssmpc/<unit>/mv``.
+
+Budget: ``budget_fraction * Ts / speed`` wall seconds from the measurement's
+arrival. A :class:`~services.timing.Watchdog` publishes the fallback move (the
+last move, held) at the deadline if the step has not returned, so an overrun
+never stalls the plant; the late result is not published and the miss is
+counted. The controller's own fallback (``ControlDecision.fallback``: next
+move of the previous plan for the MPC) is counted too.
+
+Status goes to ``ssmpc/<unit>/status`` every ``status_every`` samples;
+telemetry to Rerun in batches; a checkpoint (controller state, last move,
+transition state) to SQLite every ``checkpoint_every`` samples and at every
+transition state change. On start the node restores the checkpoint, so its
+first move equals the last one before the restart (bumpless).
+
+Queries on ``ssmpc/<unit>/cmd/<action>`` with a :class:`~services.messages.Request`:
+``status``, ``grades``, ``transition`` (``args.op``: ``create`` with ``grade``
+and optional ``duration_s``; ``get`` / ``abort`` with ``id``; ``list``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+from services import keys
+from services.messages import Measurement, MessageError, MVMessage, Reply, Request
+from services.store import UnitStore
+from services.telemetry import TelemetryLogger
+from services.timing import DeadlineStats, TimingBudget, Watchdog
+from services.transitions import (
+    ConflictError,
+    TransitionError,
+    TransitionManager,
+    UnknownTransition,
+)
+from services.units import (
+    UnitConfig,
+    build_controller,
+    build_plant,
+    cv_scales,
+    unit_info,
+)
+
+__all__ = ["ControllerNode"]
+
+log = logging.getLogger("ssmpc.controller")
+
+
+class ControllerNode:
+    """Runs one unit's controller; see the module docstring.
+
+    Parameters
+    ----------
+    cfg : UnitConfig
+    session : zenoh.Session
+    store : UnitStore
+    telemetry : TelemetryLogger or None
+    speed : float
+        Process seconds per wall second (sets the wall-clock budget).
+    sender : str
+        Identity written into every MV message.
+    controller : SampleController, optional
+        Default: built from ``cfg``.
+    horizon : int
+        Reference rows passed to the controller (its prediction horizon P).
+    """
+
+    def __init__(self, cfg: UnitConfig, session, store: UnitStore,
+                 telemetry: TelemetryLogger | None = None, *, speed: float = 1.0,
+                 sender: str | None = None, controller=None, horizon: int = 1) -> None:
+        self.cfg = cfg
+        self.session = session
+        self.store = store
+        self.telemetry = telemetry
+        self.sender = sender or f"{cfg.unit}-controller"
+        self.budget = TimingBudget(cfg.sample_period_s, speed, cfg.budget_fraction)
+        self.horizon = int(horizon)
+        plant = build_plant(cfg)
+        self.info = unit_info(cfg, plant)
+        self.ny, self.nu = len(self.info.cv_names), len(self.info.mv_names)
+        grades = self.info.grades
+        self.u_last = np.asarray(grades[cfg.initial_grade]["mv"], float)
+        self.controller = controller if controller is not None else build_controller(
+            cfg, plant, self.u_last, grades)
+        self.tm = TransitionManager(
+            cfg.unit, {k: g["setpoints"] for k, g in grades.items()}, cv_scales(cfg, grades),
+            cfg.initial_grade, cfg.sample_period_s, cfg.transition_duration_s,
+            cfg.settle_tolerance, cfg.settle_samples)
+        self.stats = DeadlineStats(self.budget.budget_s)
+        self.mv_seq = 0
+        self.k = -1
+        self.t = 0.0
+        self.y = np.full(self.ny, np.nan)
+        self.r = np.asarray(self.tm.hold, float)
+        self.last_decision = None
+        self.bad_measurements = 0
+        self.plant_shutdown = False
+        self.alarms: deque[str] = deque(maxlen=20)
+        self.restored_from: int | None = None
+        self._lock = threading.RLock()
+        self._cond = threading.Condition()
+        self._latest: tuple[float, Measurement] | None = None
+        self._dropped = 0
+        self._restore()
+        self._watchdog = Watchdog()
+        self._mv_pub = session.declare_publisher(keys.mv(cfg.unit))
+        self._status_pub = session.declare_publisher(keys.status(cfg.unit))
+        self._sub = session.declare_subscriber(keys.meas(cfg.unit), self._on_meas)
+        self._qry = session.declare_queryable(keys.cmd_all(cfg.unit), self._on_query)
+        self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "controller"))
+        if self.restored_from is not None:
+            # Bumpless restart: re-assert the last move before computing any new one.
+            self._publish_mv(self.k, self.u_last, True)
+
+    # -- persistence -------------------------------------------------------------------
+    def _restore(self) -> None:
+        cp = self.store.load_checkpoint()
+        if cp is None:
+            return
+        st = cp["state"]
+        self.controller.restore(st["controller"])
+        self.tm.restore(st["transitions"])
+        self.u_last = np.asarray(st["u_last"], float)
+        self.mv_seq = int(st["mv_seq"])
+        self.stats.misses = int(st.get("deadline_misses", 0))
+        self.stats.fallbacks = int(st.get("fallback_moves", 0))
+        self.k = int(cp["sample"])
+        self.t = float(cp["process_time"])
+        self.restored_from = self.k
+        log.info("restored checkpoint at sample %d", self.k)
+
+    def checkpoint(self) -> None:
+        with self._lock:
+            state = {"controller": self.controller.checkpoint(),
+                     "transitions": self.tm.checkpoint(), "u_last": self.u_last.tolist(),
+                     "mv_seq": self.mv_seq, "deadline_misses": self.stats.misses,
+                     "fallback_moves": self.stats.fallbacks}
+            self.store.save_checkpoint(max(self.k, 0), self.t, state)
+
+    def _persist(self, tr, event: str, detail: str = "") -> None:
+        self.store.save_transition(tr.as_dict(), event=event, process_time=self.t,
+                                   detail=detail or tr.detail)
+
+    # -- Zenoh callbacks -----------------------------------------------------------------
+    def _on_meas(self, sample) -> None:
+        arrived = time.perf_counter()
+        try:
+            msg = Measurement.from_bytes(sample.payload.to_bytes(), unit=self.cfg.unit,
+                                         ny=self.ny, nu=self.nu)
+        except MessageError as exc:
+            with self._lock:
+                self.bad_measurements += 1
+                self.alarms.append(f"bad measurement rejected: {exc}")
+            log.warning("measurement rejected: %s", exc)
+            return
+        with self._cond:
+            if self._latest is not None:
+                self._dropped += 1
+            self._latest = (arrived, msg)
+            self._cond.notify()
+
+    def _on_query(self, query) -> None:
+        try:
+            action = str(query.key_expr).split("/cmd/", 1)[1].split("/")[0]
+            req = (Request.from_bytes(query.payload.to_bytes()) if query.payload is not None
+                   else Request(action=action))
+            reply = self._handle(req)
+        except MessageError as exc:
+            reply = Reply(400, error=str(exc))
+        except UnknownTransition as exc:
+            reply = Reply(404, error=str(exc))
+        except ConflictError as exc:
+            reply = Reply(409, error=str(exc))
+        except (TransitionError, ValueError) as exc:
+            reply = Reply(422, error=str(exc))
+        except Exception as exc:  # never let a query kill the node
+            log.exception("query failed")
+            reply = Reply(500, error=f"internal error: {exc}")
+        query.reply(query.key_expr, reply.to_bytes())
+
+    def _handle(self, req: Request) -> Reply:
+        if req.action == "status":
+            return Reply(200, self.status())
+        if req.action == "grades":
+            return Reply(200, self.grades())
+        if req.action == "transition":
+            return self._transition(req.args)
+        return Reply(404, error=f"action: unknown action {req.action!r}")
+
+    def _transition(self, args: dict) -> Reply:
+        op = args.get("op")
+        with self._lock:
+            if op == "create":
+                grade = args.get("grade")
+                if not isinstance(grade, str):
+                    return Reply(422, error="grade: expected a grade name")
+                duration = args.get("duration_s")
+                if duration is not None and (isinstance(duration, bool)
+                                             or not isinstance(duration, int | float)):
+                    return Reply(422, error="duration_s: expected a number")
+                tr = self.tm.request(grade, self.t, duration)
+                self._persist(tr, "pending", f"requested from {tr.from_grade}")
+                self.checkpoint()
+                return Reply(202, tr.view(self.t, self.budget.speed))
+            if op == "list":
+                return Reply(200, [t for t in self.store.transitions()])
+            tid = args.get("id")
+            if not isinstance(tid, str):
+                return Reply(422, error="id: expected a transition id")
+            if op == "get":
+                return Reply(200, self._view(tid))
+            if op == "abort":
+                if self.tm.active is not None and self.tm.active.id == tid:
+                    was = self.tm.active.state
+                    tr = self.tm.abort(tid, self.t)
+                    if tr.state == "aborted" and was != "aborted":
+                        self._persist(tr, "aborted")
+                        self.checkpoint()
+                    return Reply(200, tr.view(self.t, self.budget.speed))
+                rec = self.store.transition(tid)
+                if rec is None:
+                    raise UnknownTransition(f"id: no transition {tid!r}")
+                return Reply(200, self._view(tid))
+        return Reply(422, error=f"op: expected create, get, abort or list, got {op!r}")
+
+    def _view(self, tid: str) -> dict:
+        from services.transitions import Transition
+
+        if self.tm.active is not None and self.tm.active.id == tid:
+            return self.tm.active.view(self.t, self.budget.speed)
+        rec = self.store.transition(tid)
+        if rec is None:
+            raise UnknownTransition(f"id: no transition {tid!r}")
+        return Transition.from_dict(rec).view(self.t, self.budget.speed)
+
+    def grades(self) -> dict:
+        return {"unit": self.cfg.unit, "cvs": list(self.info.cv_names),
+                "cv_units": list(self.info.cv_units), "current": self.tm.grade,
+                "grades": {k: {"setpoints": dict(zip(self.info.cv_names, g["setpoints"])),
+                               "description": g["description"], "stability": g["stability"]}
+                           for k, g in self.info.grades.items()}}
+
+    def status(self) -> dict:
+        with self._lock:
+            d = self.last_decision
+
+            def named(names, values):
+                return {n: (float(v) if math.isfinite(v) else None)
+                        for n, v in zip(names, values)}
+
+            active = self.tm.active
+            return {
+                "unit": self.cfg.unit, "plant": self.cfg.plant, "sample": self.k,
+                "process_time_s": self.t, "speed": self.budget.speed,
+                "cv": named(self.info.cv_names, self.y),
+                "ref": named(self.info.cv_names, self.r),
+                "mv": named(self.info.mv_names, self.u_last),
+                "active_model": None if d is None else int(d.active_model),
+                "active_model_name": (None if d is None or not d.model_names
+                                      or d.active_model < 0
+                                      else d.model_names[d.active_model]),
+                "J": {} if d is None else named(d.model_names, np.asarray(d.J)),
+                "solve_ms": None if d is None else float(d.solve_ms),
+                "controller_status": None if d is None else d.status,
+                "deadline_misses": self.stats.misses,
+                "fallback_moves": self.stats.fallbacks,
+                "budget_ms": self.stats.budget_s * 1e3,
+                "samples": self.stats.samples,
+                "bad_measurements": self.bad_measurements,
+                "dropped_measurements": self._dropped,
+                "plant_shutdown": self.plant_shutdown,
+                "grade": self.tm.grade,
+                "transition": None if active is None else active.view(self.t, self.budget.speed),
+                "alarms": list(self.alarms),
+                "restored_from_sample": self.restored_from,
+            }
+
+    # -- the sample ----------------------------------------------------------------------
+    def _publish_mv(self, meas_seq: int, u, fallback: bool) -> None:
+        self.mv_seq += 1
+        msg = MVMessage(unit=self.cfg.unit, seq=self.mv_seq, meas_seq=meas_seq, u=tuple(u),
+                        sender=self.sender, fallback=fallback)
+        self._mv_pub.put(msg.to_bytes())
+
+    def process(self, arrived: float, msg: Measurement) -> None:
+        """One sample: transition, reference, controller step, MV, bookkeeping."""
+        hold = self.u_last.copy()
+        deadline = arrived + self.budget.budget_s
+        self._watchdog.arm(deadline, lambda: self._publish_mv(msg.seq, hold, True))
+        with self._lock:
+            self.k, self.t = msg.seq, msg.t
+            self.y = np.asarray(msg.y, float)
+            if msg.shutdown and not self.plant_shutdown:
+                self.plant_shutdown = True
+                self.alarms.append(f"plant shut down at t={msg.t:.1f} s")
+                tr = self.tm.fail(msg.t, "plant shut down")
+                if tr is not None:
+                    self._persist(tr, "failed")
+            changes = self.tm.update(msg.t, self.y)
+            ref = self.tm.reference_at(msg.t, self.horizon)
+            self.r = ref[0]
+        decision = self.controller.step(msg.seq, msg.t, self.y, ref)
+        fired = self._watchdog.disarm()
+        elapsed = time.perf_counter() - arrived
+        u = np.asarray(decision.u, float)
+        if not fired:
+            if u.shape != (self.nu,) or not np.all(np.isfinite(u)):
+                self.alarms.append(f"controller returned an invalid move at sample {msg.seq}; "
+                                   "held")
+                u, fb = hold, True
+            else:
+                fb = decision.fallback
+            self._publish_mv(msg.seq, u, fb)
+        else:
+            u = hold
+        with self._lock:
+            self.stats.record(elapsed, fallback=fired or decision.fallback)
+            self.u_last = np.asarray(u, float)
+            self.last_decision = decision
+            for alarm in decision.alarms:
+                self.alarms.append(alarm)
+        for tr, state in changes:
+            self._persist(tr, state)
+        if self.telemetry is not None:
+            self.telemetry.add(msg.seq, msg.t, self.y, self.r, u, decision.active_model,
+                               decision.model_names, decision.J, decision.solve_ms,
+                               self.stats.slack_ms(elapsed))
+        if changes or msg.seq % self.cfg.checkpoint_every == 0:
+            self.checkpoint()
+        if msg.seq % self.cfg.status_every == 0:
+            from services.messages import encode
+
+            self._status_pub.put(encode({"schema": 1, "kind": "status", **self.status()}))
+
+    def run(self, stop: threading.Event) -> None:
+        """Process measurements until ``stop`` is set."""
+        while not stop.is_set():
+            with self._cond:
+                if self._latest is None:
+                    self._cond.wait(0.1)
+                item, self._latest = self._latest, None
+            if item is not None:
+                try:
+                    self.process(*item)
+                except Exception as exc:  # the loop must go on; the plant holds meanwhile
+                    log.exception("sample failed")
+                    with self._lock:
+                        self.alarms.append(f"sample {item[1].seq} failed: {exc}")
+
+    def close(self) -> None:
+        """Checkpoint, flush telemetry, undeclare everything (the caller closes the session)."""
+        self._watchdog.close()
+        for ent in (self._token, self._qry, self._sub, self._status_pub, self._mv_pub):
+            try:
+                ent.undeclare()
+            except Exception:
+                pass
+        try:
+            self.checkpoint()
+        finally:
+            if self.telemetry is not None:
+                self.telemetry.close()

@@ -1,0 +1,321 @@
+"""Typed, versioned messages exchanged over Zenoh between the nodes.
+
+Every payload is one compact JSON object with an explicit ``schema`` version
+and a ``kind``. Decoders are strict: they reject malformed JSON, NaN/inf
+(including the ``NaN``/``Infinity`` literals Python's ``json`` would accept),
+a wrong schema version or kind, missing or extra fields, wrong types and
+vectors of the wrong length, always with a :class:`MessageError` that names
+the field. A node that receives a bad message counts it and keeps going.
+
+Messages
+--------
+:class:`Measurement`   plant → controller on ``ssmpc/<unit>/meas``, once per sample.
+:class:`MVMessage`     controller → plant on ``ssmpc/<unit>/mv``.
+:class:`Request`       query payload on ``ssmpc/<unit>/cmd/**`` (api → controller, → plant).
+:class:`Reply`         the answer to a :class:`Request`: ok + data, or an error code.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "MessageError",
+    "Measurement",
+    "MVMessage",
+    "Request",
+    "Reply",
+    "encode",
+    "decode_object",
+]
+
+#: Version of every message schema in this module; bumped on incompatible change.
+SCHEMA_VERSION = 1
+
+
+class MessageError(ValueError):
+    """A payload that does not decode into a valid message; the text names the field."""
+
+
+def _reject_constant(name: str):
+    raise MessageError(f"payload: non-finite number {name!r} is not allowed")
+
+
+def encode(obj: dict) -> bytes:
+    """Compact JSON, refusing NaN/inf (``allow_nan=False``)."""
+    try:
+        return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
+    except ValueError as exc:
+        raise MessageError(f"payload: cannot encode ({exc})") from exc
+
+
+def decode_object(payload: bytes | bytearray | memoryview | str, kind: str) -> dict:
+    """Parse ``payload`` into a dict and check ``schema`` and ``kind``.
+
+    Raises
+    ------
+    MessageError
+        Not JSON, not an object, NaN/inf literals, wrong schema version or kind.
+    """
+    if isinstance(payload, bytes | bytearray | memoryview):
+        try:
+            payload = bytes(payload).decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise MessageError(f"payload: not UTF-8 ({exc})") from exc
+    try:
+        obj = json.loads(payload, parse_constant=_reject_constant)
+    except json.JSONDecodeError as exc:
+        raise MessageError(f"payload: not JSON ({exc})") from exc
+    if not isinstance(obj, dict):
+        raise MessageError(f"payload: expected a JSON object, got {type(obj).__name__}")
+    version = obj.get("schema")
+    if version != SCHEMA_VERSION:
+        raise MessageError(
+            f"schema: unsupported version {version!r} (this node speaks {SCHEMA_VERSION})"
+        )
+    if obj.get("kind") != kind:
+        raise MessageError(f"kind: expected {kind!r}, got {obj.get('kind')!r}")
+    return obj
+
+
+def _check_fields(obj: dict, kind: str, required: set[str], optional: set[str] = frozenset()):
+    keys = set(obj) - {"schema", "kind"}
+    missing = required - keys
+    if missing:
+        raise MessageError(f"{kind}: missing field(s) {', '.join(sorted(missing))}")
+    extra = keys - required - set(optional)
+    if extra:
+        raise MessageError(f"{kind}: unknown field(s) {', '.join(sorted(extra))}")
+
+
+def _int(obj: dict, name: str, *, minimum: int | None = None) -> int:
+    v = obj[name]
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise MessageError(f"{name}: expected an integer, got {type(v).__name__}")
+    if minimum is not None and v < minimum:
+        raise MessageError(f"{name}: must be >= {minimum}, got {v}")
+    return v
+
+
+def _float(obj: dict, name: str) -> float:
+    v = obj[name]
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise MessageError(f"{name}: expected a number, got {type(v).__name__}")
+    v = float(v)
+    if not math.isfinite(v):
+        raise MessageError(f"{name}: non-finite value")
+    return v
+
+
+def _str(obj: dict, name: str) -> str:
+    v = obj[name]
+    if not isinstance(v, str) or not v:
+        raise MessageError(f"{name}: expected a non-empty string")
+    return v
+
+
+def _vector(obj: dict, name: str, length: int | None) -> tuple[float, ...]:
+    v = obj[name]
+    if not isinstance(v, list):
+        raise MessageError(f"{name}: expected a list of numbers, got {type(v).__name__}")
+    out = []
+    for i, x in enumerate(v):
+        if isinstance(x, bool) or not isinstance(x, int | float):
+            raise MessageError(f"{name}[{i}]: expected a number, got {type(x).__name__}")
+        x = float(x)
+        if not math.isfinite(x):
+            raise MessageError(f"{name}[{i}]: non-finite value")
+        out.append(x)
+    if length is not None and len(out) != length:
+        raise MessageError(f"{name}: expected length {length}, got {len(out)}")
+    return tuple(out)
+
+
+def _finite_tuple(values, name: str) -> tuple[float, ...]:
+    out = tuple(float(x) for x in values)
+    for i, x in enumerate(out):
+        if not math.isfinite(x):
+            raise MessageError(f"{name}[{i}]: non-finite value")
+    return out
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One sample of the plant, published at each sample boundary.
+
+    Attributes
+    ----------
+    unit : str
+        Unit name (key expression segment).
+    seq : int
+        Sample number k >= 0, increasing by one per sample.
+    t : float
+        Process time at the sample, s.
+    y : tuple of float, shape (ny,)
+        Measured outputs in the plant's engineering units.
+    u : tuple of float, shape (nu,)
+        MVs applied over the interval that ended at this sample.
+    mv_seq : int
+        ``seq`` of the MV message those ``u`` came from (-1: initial values).
+    shutdown : bool
+        True once the plant has tripped (TE interlocks); outputs then freeze.
+    """
+
+    unit: str
+    seq: int
+    t: float
+    y: tuple[float, ...]
+    u: tuple[float, ...]
+    mv_seq: int = -1
+    shutdown: bool = False
+
+    KIND = "meas"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "y", _finite_tuple(self.y, "y"))
+        object.__setattr__(self, "u", _finite_tuple(self.u, "u"))
+        if self.seq < 0:
+            raise MessageError(f"seq: must be >= 0, got {self.seq}")
+        if not math.isfinite(self.t):
+            raise MessageError("t: non-finite value")
+
+    def to_bytes(self) -> bytes:
+        return encode({"schema": SCHEMA_VERSION, "kind": self.KIND, "unit": self.unit,
+                       "seq": self.seq, "t": self.t, "y": list(self.y), "u": list(self.u),
+                       "mv_seq": self.mv_seq, "shutdown": self.shutdown})
+
+    @classmethod
+    def from_bytes(cls, payload, *, unit: str | None = None, ny: int | None = None,
+                   nu: int | None = None) -> Measurement:
+        """Strict decode; ``unit``, ``ny`` and ``nu`` when given must match."""
+        obj = decode_object(payload, cls.KIND)
+        _check_fields(obj, cls.KIND, {"unit", "seq", "t", "y", "u"}, {"mv_seq", "shutdown"})
+        msg_unit = _str(obj, "unit")
+        if unit is not None and msg_unit != unit:
+            raise MessageError(f"unit: expected {unit!r}, got {msg_unit!r}")
+        shutdown = obj.get("shutdown", False)
+        if not isinstance(shutdown, bool):
+            raise MessageError("shutdown: expected a boolean")
+        return cls(
+            unit=msg_unit,
+            seq=_int(obj, "seq", minimum=0),
+            t=_float(obj, "t"),
+            y=_vector(obj, "y", ny),
+            u=_vector(obj, "u", nu),
+            mv_seq=_int({"mv_seq": obj.get("mv_seq", -1)}, "mv_seq", minimum=-1),
+            shutdown=shutdown,
+        )
+
+
+@dataclass(frozen=True)
+class MVMessage:
+    """Manipulated variables from the controller for the interval after sample ``meas_seq``.
+
+    Attributes
+    ----------
+    unit : str
+        Unit name.
+    seq : int
+        The controller's own message counter (strictly increasing; a plant ignores
+        a message whose ``seq`` is not newer than the last one it applied).
+    meas_seq : int
+        The measurement sample this move answers.
+    u : tuple of float, shape (nu,)
+        Absolute MV values in engineering units.
+    sender : str
+        Identity of the controller; the plant accepts MVs only from its expected sender.
+    fallback : bool
+        True when the move is not a fresh optimum (deadline miss, hold, solver failure).
+    """
+
+    unit: str
+    seq: int
+    meas_seq: int
+    u: tuple[float, ...]
+    sender: str
+    fallback: bool = False
+
+    KIND = "mv"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "u", _finite_tuple(self.u, "u"))
+        if self.seq < 0:
+            raise MessageError(f"seq: must be >= 0, got {self.seq}")
+
+    def to_bytes(self) -> bytes:
+        return encode({"schema": SCHEMA_VERSION, "kind": self.KIND, "unit": self.unit,
+                       "seq": self.seq, "meas_seq": self.meas_seq, "u": list(self.u),
+                       "sender": self.sender, "fallback": self.fallback})
+
+    @classmethod
+    def from_bytes(cls, payload, *, unit: str | None = None, nu: int | None = None) -> MVMessage:
+        obj = decode_object(payload, cls.KIND)
+        _check_fields(obj, cls.KIND, {"unit", "seq", "meas_seq", "u", "sender"}, {"fallback"})
+        msg_unit = _str(obj, "unit")
+        if unit is not None and msg_unit != unit:
+            raise MessageError(f"unit: expected {unit!r}, got {msg_unit!r}")
+        fallback = obj.get("fallback", False)
+        if not isinstance(fallback, bool):
+            raise MessageError("fallback: expected a boolean")
+        return cls(unit=msg_unit, seq=_int(obj, "seq", minimum=0),
+                   meas_seq=_int(obj, "meas_seq", minimum=-1), u=_vector(obj, "u", nu),
+                   sender=_str(obj, "sender"), fallback=fallback)
+
+
+@dataclass(frozen=True)
+class Request:
+    """A query to a node: ``action`` (e.g. ``status``, ``create``) and JSON ``args``."""
+
+    action: str
+    args: dict[str, Any] = field(default_factory=dict)
+
+    KIND = "request"
+
+    def to_bytes(self) -> bytes:
+        return encode({"schema": SCHEMA_VERSION, "kind": self.KIND, "action": self.action,
+                       "args": self.args})
+
+    @classmethod
+    def from_bytes(cls, payload) -> Request:
+        obj = decode_object(payload, cls.KIND)
+        _check_fields(obj, cls.KIND, {"action"}, {"args"})
+        args = obj.get("args", {})
+        if not isinstance(args, dict):
+            raise MessageError("args: expected a JSON object")
+        return cls(action=_str(obj, "action"), args=args)
+
+
+@dataclass(frozen=True)
+class Reply:
+    """Answer to a :class:`Request`.
+
+    ``code`` follows HTTP meaning so the api node can pass it on: 200/202 ok,
+    400 bad request, 404 unknown, 409 conflict, 422 invalid, 500 internal.
+    """
+
+    code: int
+    data: Any = None
+    error: str = ""
+
+    KIND = "reply"
+
+    @property
+    def ok(self) -> bool:
+        return 200 <= self.code < 300
+
+    def to_bytes(self) -> bytes:
+        return encode({"schema": SCHEMA_VERSION, "kind": self.KIND, "code": self.code,
+                       "data": self.data, "error": self.error})
+
+    @classmethod
+    def from_bytes(cls, payload) -> Reply:
+        obj = decode_object(payload, cls.KIND)
+        _check_fields(obj, cls.KIND, {"code"}, {"data", "error"})
+        error = obj.get("error", "")
+        if not isinstance(error, str):
+            raise MessageError("error: expected a string")
+        return cls(code=_int(obj, "code", minimum=100), data=obj.get("data"), error=error)

@@ -1,0 +1,259 @@
+"""The plant node: a plant of :mod:`plant_sim` in scaled real time on Zenoh.
+
+Each sample k (period ``Ts`` process seconds, ``Ts / speed`` wall seconds):
+
+1. publish :class:`~services.messages.Measurement` ``k`` (outputs at ``t_k``)
+   on ``ssmpc/<unit>/meas``;
+2. wait for the boundary ``k + 1`` (real-time mode), or for the MV answering
+   sample ``k`` (lock-step mode, bounded by a timeout);
+3. take the newest accepted MV message (zero-order hold: none new → keep the
+   last, as a DCS does) and integrate the plant over ``[t_k, t_k+1]``.
+
+An MV message is accepted only if it decodes strictly, names this unit, comes
+from the expected sender and has a ``seq`` newer than the last accepted one;
+everything else is counted by reason and ignored. A controller move computed
+from ``y(k)`` and received before boundary ``k+1`` acts over ``[t_k, t_k+1]``,
+the usual discrete-time convention (computation delay within the budget).
+
+**Lock-step mode** (``lockstep=True``) is for tests and benchmarks: the plant
+waits for the MV of sample ``k`` (or ``lockstep_timeout_s``, then holds)
+instead of the wall clock, so a run is deterministic and as fast as the loop
+allows. The controller still measures its compute time against the budget of
+the configured speed.
+
+The node holds the liveliness token ``ssmpc/<unit>/alive/plant`` and answers
+queries on ``ssmpc/<unit>/plant/cmd/**``: ``status``, ``disturbance``
+(``{"name": ..., "value": ...}`` for ODE plants).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from services import keys
+from services.messages import Measurement, MessageError, MVMessage, Reply, Request
+from services.timing import SampleClock, TimingBudget
+from services.units import UnitConfig, build_plant, cv_indices, mv_indices, time_scale_s
+
+__all__ = ["ODERunner", "PlantNode", "PlantCounters"]
+
+log = logging.getLogger("ssmpc.plant")
+
+
+class ODERunner:
+    """Integrates a :class:`~plant_sim.base.PlantModel` sample by sample.
+
+    The MVs are the unit's selected inputs; the other inputs stay at the
+    initial grade's values. Time is kept in process seconds.
+    """
+
+    def __init__(self, cfg: UnitConfig, plant=None) -> None:
+        from plant_sim.integrate import step
+
+        self._step = step
+        self.plant = plant if plant is not None else build_plant(cfg)
+        op = self.plant.operating_point(cfg.initial_grade)
+        self.x = np.asarray(op.x, float).copy()
+        self.u_full = np.asarray(op.u, float).copy()
+        self.d = (np.asarray(op.d, float).copy() if op.d.size == self.plant.nd
+                  else self.plant.default_disturbance())
+        self.cvi = cv_indices(cfg, self.plant)
+        self.mvi = mv_indices(cfg, self.plant)
+        self.scale = time_scale_s(self.plant)
+        self.substeps = cfg.substeps
+        self.t = 0.0
+        self.shutdown = False
+        lo = np.array([self.plant.input_vars[i].lower for i in self.mvi])
+        hi = np.array([self.plant.input_vars[i].upper for i in self.mvi])
+        self.u_lower, self.u_upper = lo, hi
+
+    @property
+    def u(self) -> np.ndarray:
+        return self.u_full[self.mvi].copy()
+
+    def y(self) -> np.ndarray:
+        return np.asarray(self.plant.outputs(self.x, self.u_full), float)[self.cvi]
+
+    def advance(self, u, dt_s: float) -> None:
+        """Apply ``u`` (clipped to the actuator limits) and integrate ``dt_s`` process seconds."""
+        self.u_full[self.mvi] = np.clip(np.asarray(u, float), self.u_lower, self.u_upper)
+        h = dt_s / self.scale / self.substeps
+        for _ in range(self.substeps):
+            self.x = self._step(self.plant, self.x, self.u_full, h, self.d, t=self.t / self.scale)
+        self.t += dt_s
+
+    def set_disturbance(self, name: str, value: float) -> None:
+        i = self.plant.index("disturbance", name)
+        v = float(value)
+        if not np.isfinite(v):
+            raise ValueError(f"value: disturbance {name} must be finite")
+        self.d[i] = v
+
+    def disturbances(self) -> dict[str, float]:
+        return dict(zip(self.plant.names("disturbance"), self.d.tolist()))
+
+
+@dataclass
+class PlantCounters:
+    samples: int = 0
+    mv_accepted: int = 0
+    mv_held: int = 0
+    rejected: dict = field(default_factory=lambda: {"decode": 0, "sender": 0, "stale": 0})
+    lockstep_timeouts: int = 0
+
+
+class PlantNode:
+    """Runs one unit's plant; see the module docstring.
+
+    Parameters
+    ----------
+    cfg : UnitConfig
+    session : zenoh.Session
+        An open session (the caller closes it).
+    speed : float
+        Process seconds per wall second.
+    expected_sender : str
+        The only ``sender`` whose MV messages are applied.
+    lockstep : bool
+        Wait for the MV of each sample instead of the wall clock.
+    lockstep_timeout_s : float
+        Longest wait for an MV in lock-step mode (then the last MV holds).
+    runner : optional
+        A prepared plant runner (default :class:`ODERunner` of the unit's plant).
+    """
+
+    def __init__(self, cfg: UnitConfig, session, *, speed: float = 1.0,
+                 expected_sender: str | None = None, lockstep: bool = False,
+                 lockstep_timeout_s: float = 2.0, runner=None) -> None:
+        self.cfg = cfg
+        self.session = session
+        self.budget = TimingBudget(cfg.sample_period_s, speed, cfg.budget_fraction)
+        self.expected_sender = expected_sender or f"{cfg.unit}-controller"
+        self.lockstep = lockstep
+        self.lockstep_timeout_s = float(lockstep_timeout_s)
+        self.runner = runner if runner is not None else ODERunner(cfg)
+        self.nu = len(self.runner.u)
+        self.counters = PlantCounters()
+        self.k = 0
+        self.last_mv_seq = -1
+        self._applied_mv_seq = -1
+        self._pending: MVMessage | None = None
+        self._cond = threading.Condition()
+        self._lock = threading.Lock()
+        self._pub = session.declare_publisher(keys.meas(cfg.unit))
+        self._sub = session.declare_subscriber(keys.mv(cfg.unit), self._on_mv)
+        self._qry = session.declare_queryable(keys.plant_cmd_all(cfg.unit), self._on_query)
+        self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "plant"))
+
+    # -- Zenoh callbacks ---------------------------------------------------------------
+    def _on_mv(self, sample) -> None:
+        try:
+            msg = MVMessage.from_bytes(sample.payload.to_bytes(), unit=self.cfg.unit, nu=self.nu)
+        except MessageError as exc:
+            with self._cond:
+                self.counters.rejected["decode"] += 1
+            log.warning("MV rejected: %s", exc)
+            return
+        with self._cond:
+            if msg.sender != self.expected_sender:
+                self.counters.rejected["sender"] += 1
+                log.warning("MV rejected: sender %r is not %r", msg.sender, self.expected_sender)
+                return
+            if msg.seq <= self.last_mv_seq:
+                self.counters.rejected["stale"] += 1
+                return
+            self.last_mv_seq = msg.seq
+            self._pending = msg
+            self._cond.notify_all()
+
+    def _on_query(self, query) -> None:
+        try:
+            req = Request.from_bytes(query.payload.to_bytes()) if query.payload is not None \
+                else Request(action=str(query.key_expr).rsplit("/", 1)[-1])
+            reply = self._handle(req)
+        except MessageError as exc:
+            reply = Reply(400, error=str(exc))
+        except ValueError as exc:
+            reply = Reply(422, error=str(exc))
+        except Exception as exc:  # never let a query kill the node
+            reply = Reply(500, error=f"internal error: {exc}")
+        query.reply(query.key_expr, reply.to_bytes())
+
+    def _handle(self, req: Request) -> Reply:
+        if req.action == "status":
+            return Reply(200, self.status())
+        if req.action == "disturbance":
+            name, value = req.args.get("name"), req.args.get("value")
+            if not isinstance(name, str):
+                return Reply(422, error="name: expected the disturbance name")
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                return Reply(422, error="value: expected a number")
+            with self._lock:
+                self.runner.set_disturbance(name, value)
+            return Reply(200, {"disturbances": self.runner.disturbances()})
+        return Reply(404, error=f"action: unknown plant action {req.action!r}")
+
+    def status(self) -> dict:
+        with self._cond:
+            c = self.counters
+            return {"unit": self.cfg.unit, "sample": self.k, "t": self.runner.t,
+                    "u": self.runner.u.tolist(), "mv_seq_applied": self._applied_mv_seq,
+                    "samples": c.samples, "mv_accepted": c.mv_accepted, "mv_held": c.mv_held,
+                    "mv_rejected": dict(c.rejected), "lockstep": self.lockstep,
+                    "lockstep_timeouts": c.lockstep_timeouts, "speed": self.budget.speed,
+                    "shutdown": bool(self.runner.shutdown)}
+
+    # -- loop ------------------------------------------------------------------------------
+    def _publish(self) -> None:
+        y = self.runner.y()
+        msg = Measurement(unit=self.cfg.unit, seq=self.k, t=self.runner.t, y=tuple(y),
+                          u=tuple(self.runner.u), mv_seq=self._applied_mv_seq,
+                          shutdown=bool(self.runner.shutdown))
+        self._pub.put(msg.to_bytes())
+        self.counters.samples += 1
+
+    def _take_mv(self) -> MVMessage | None:
+        with self._cond:
+            if self.lockstep:
+                ok = self._cond.wait_for(
+                    lambda: self._pending is not None and self._pending.meas_seq >= self.k,
+                    timeout=self.lockstep_timeout_s)
+                if not ok:
+                    self.counters.lockstep_timeouts += 1
+            msg, self._pending = self._pending, None
+            if msg is None:
+                self.counters.mv_held += 1
+            else:
+                self.counters.mv_accepted += 1
+            return msg
+
+    def run(self, stop: threading.Event, max_samples: int | None = None) -> None:
+        """Run until ``stop`` is set (or ``max_samples`` samples have been integrated)."""
+        clock = SampleClock(self.budget.wall_period_s)
+        self._publish()
+        n = 0
+        while not stop.is_set() and (max_samples is None or n < max_samples):
+            if not self.lockstep:
+                clock.wait_next(stop)
+                if stop.is_set():
+                    break
+            msg = self._take_mv()
+            u = self.runner.u if msg is None else np.asarray(msg.u)
+            if msg is not None:
+                self._applied_mv_seq = msg.seq
+            with self._lock:
+                self.runner.advance(u, self.cfg.sample_period_s)
+            self.k += 1
+            n += 1
+            self._publish()
+
+    def close(self) -> None:
+        for ent in (self._token, self._qry, self._sub, self._pub):
+            try:
+                ent.undeclare()
+            except Exception:
+                pass

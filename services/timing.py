@@ -1,0 +1,193 @@
+"""Sample clock in scaled real time, the per-sample timing budget, deadline misses.
+
+At ``speed`` X (process seconds per wall second) a sample period of ``Ts``
+process seconds lasts ``Ts / X`` wall seconds. The controller must deliver its
+move within ``budget = fraction * Ts / X`` wall seconds of receiving the
+measurement; a sample that takes longer is a deadline miss. A miss never stalls
+the loop: :class:`Watchdog` publishes the fallback move at the deadline while
+the late computation finishes, and the miss is counted.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+__all__ = ["TimingBudget", "SampleClock", "DeadlineStats", "Watchdog"]
+
+
+@dataclass(frozen=True)
+class TimingBudget:
+    """The wall-clock timing of one unit's loop.
+
+    Parameters
+    ----------
+    sample_period_s : float
+        Sample period in process seconds.
+    speed : float
+        Process seconds per wall second (1 = real time).
+    fraction : float
+        Share of the wall-clock sample period the controller may use, in (0, 1].
+    """
+
+    sample_period_s: float
+    speed: float = 1.0
+    fraction: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.sample_period_s) and self.sample_period_s > 0):
+            raise ValueError(f"sample_period_s: must be positive, got {self.sample_period_s}")
+        if not (math.isfinite(self.speed) and self.speed > 0):
+            raise ValueError(f"speed: must be positive (process s per wall s), got {self.speed}")
+        if not (0 < self.fraction <= 1):
+            raise ValueError(f"fraction: budget fraction must be in (0, 1], got {self.fraction}")
+
+    @property
+    def wall_period_s(self) -> float:
+        """Wall-clock length of one sample, s."""
+        return self.sample_period_s / self.speed
+
+    @property
+    def budget_s(self) -> float:
+        """Wall-clock time the controller may spend on one sample, s."""
+        return self.fraction * self.wall_period_s
+
+
+class SampleClock:
+    """Boundaries ``start + k * period`` on the monotonic clock.
+
+    :meth:`wait_next` sleeps until the next boundary. If the caller fell more
+    than one period behind, the clock does not burst to catch up: it re-anchors
+    at now and counts the skipped boundaries in :attr:`overruns`.
+    """
+
+    def __init__(self, wall_period_s: float, *, start: float | None = None,
+                 now: Callable[[], float] = time.perf_counter) -> None:
+        if not wall_period_s > 0:
+            raise ValueError(f"wall_period_s: must be positive, got {wall_period_s}")
+        self.period = float(wall_period_s)
+        self._now = now
+        self.start = now() if start is None else float(start)
+        self.k = 0
+        self.overruns = 0
+
+    def deadline(self, k: int | None = None) -> float:
+        return self.start + (self.k if k is None else k) * self.period
+
+    def wait_next(self, stop: threading.Event | None = None) -> int:
+        """Advance to the next boundary and sleep until it; return its index k."""
+        self.k += 1
+        target = self.deadline()
+        now = self._now()
+        if now - target > self.period:
+            skipped = int((now - target) // self.period)
+            self.overruns += skipped
+            self.start = now - self.k * self.period
+            return self.k
+        delay = target - now
+        if delay > 0:
+            if stop is not None:
+                stop.wait(delay)
+            else:
+                time.sleep(delay)
+        return self.k
+
+
+class DeadlineStats:
+    """Count samples and deadline misses; keep the compute times of the last samples."""
+
+    def __init__(self, budget_s: float, keep: int = 4096) -> None:
+        self.budget_s = float(budget_s)
+        self.samples = 0
+        self.misses = 0
+        self.fallbacks = 0
+        self.last_ms = 0.0
+        self.max_ms = 0.0
+        self._keep = keep
+        self.recent_ms: list[float] = []
+
+    def record(self, elapsed_s: float, *, fallback: bool = False) -> bool:
+        """Record one sample's compute time; return True if it missed the budget."""
+        self.samples += 1
+        ms = elapsed_s * 1e3
+        self.last_ms = ms
+        self.max_ms = max(self.max_ms, ms)
+        self.recent_ms.append(ms)
+        if len(self.recent_ms) > self._keep:
+            del self.recent_ms[: len(self.recent_ms) - self._keep]
+        missed = elapsed_s > self.budget_s
+        if missed:
+            self.misses += 1
+        if fallback:
+            self.fallbacks += 1
+        return missed
+
+    def slack_ms(self, elapsed_s: float) -> float:
+        """Budget left over (negative on a miss), ms."""
+        return (self.budget_s - elapsed_s) * 1e3
+
+    def as_dict(self) -> dict:
+        return {"samples": self.samples, "deadline_misses": self.misses,
+                "fallback_moves": self.fallbacks, "last_ms": self.last_ms,
+                "max_ms": self.max_ms, "budget_ms": self.budget_s * 1e3}
+
+
+class Watchdog:
+    """Run ``action`` at a wall-clock deadline unless disarmed first.
+
+    One background thread serves all samples. :meth:`arm` sets the deadline
+    (absolute, ``time.perf_counter`` seconds) and the action; :meth:`disarm`
+    returns True if the action has already fired (the sample missed).
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._deadline: float | None = None
+        self._action: Callable[[], None] | None = None
+        self._fired = False
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name="ssmpc-watchdog", daemon=True)
+        self._thread.start()
+
+    def arm(self, deadline: float, action: Callable[[], None]) -> None:
+        with self._cond:
+            self._deadline = deadline
+            self._action = action
+            self._fired = False
+            self._cond.notify()
+
+    def disarm(self) -> bool:
+        with self._cond:
+            fired = self._fired
+            self._deadline = None
+            self._action = None
+            return fired
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+        self._thread.join(timeout=1.0)
+
+    def _run(self) -> None:
+        with self._cond:
+            while not self._closed:
+                if self._deadline is None:
+                    self._cond.wait()
+                    continue
+                delay = self._deadline - time.perf_counter()
+                if delay > 0:
+                    self._cond.wait(delay)
+                    continue
+                action = self._action
+                self._deadline = None
+                self._action = None
+                self._fired = True
+                if action is not None:
+                    try:
+                        action()
+                    except Exception:  # a failing fallback must not kill the watchdog
+                        pass

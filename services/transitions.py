@@ -1,0 +1,272 @@
+"""Grade transitions: state machine, first-order reference, progress, ISE so far, ETA.
+
+A transition moves the controlled variables from the current set points
+``r0`` to the set points of a grade ``r1`` along a first-order trajectory
+(the seed's transitions, ch. 5–7)::
+
+    r(t) = r1 + (r0 - r1) * exp(-(t - t0) / tau),   tau = duration / 4
+
+so that 98 % of the move is done after ``duration``. States::
+
+    pending ──▶ running ──▶ settled
+       │           ├──────▶ aborted   (DELETE: hold the set points of that moment)
+       └───────────┴──────▶ failed    (plant shutdown, or not settled by timeout)
+
+``settled`` means: the reference has reached ``r1`` (t ≥ t0 + duration) and
+every CV stayed within ``settle_tolerance * scale`` of ``r1`` for
+``settle_samples`` consecutive samples. ``progress`` is the share of the set
+point distance the measured CVs have covered (mean over the CVs that move,
+clipped to [0, 1]; 1 once settled). ``ise`` is the integral of the squared
+scaled tracking error ``sum_i ((y_i - r_i) / scale_i)^2 dt`` in process seconds.
+``eta_s`` is the process time left until the planned end (None when over).
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+__all__ = [
+    "STATES",
+    "TERMINAL",
+    "TransitionError",
+    "ConflictError",
+    "UnknownTransition",
+    "Transition",
+    "TransitionManager",
+]
+
+STATES = ("pending", "running", "settled", "aborted", "failed")
+TERMINAL = frozenset({"settled", "aborted", "failed"})
+_ALLOWED = {
+    "pending": {"running", "aborted", "failed"},
+    "running": {"settled", "aborted", "failed"},
+}
+
+
+class TransitionError(ValueError):
+    """A transition request that cannot be honoured (the message names the field)."""
+
+
+class ConflictError(TransitionError):
+    """A transition is already pending or running (REST 409)."""
+
+
+class UnknownTransition(TransitionError):
+    """No transition with that id (REST 404)."""
+
+
+@dataclass
+class Transition:
+    """One transition's record (JSON-serialisable via :meth:`as_dict`)."""
+
+    id: str
+    unit: str
+    grade: str
+    from_grade: str | None
+    target: list[float]
+    duration_s: float
+    requested_t: float
+    state: str = "pending"
+    start_ref: list[float] = field(default_factory=list)
+    started_t: float | None = None
+    ended_t: float | None = None
+    ise: float = 0.0
+    progress: float = 0.0
+    in_band_samples: int = 0
+    samples: int = 0
+    detail: str = ""
+
+    @property
+    def terminal(self) -> bool:
+        return self.state in TERMINAL
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Transition:
+        names = set(cls.__dataclass_fields__)
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+    def eta_s(self, t: float) -> float | None:
+        """Process seconds until the planned end; None when terminal or not started."""
+        if self.terminal:
+            return None
+        start = self.started_t if self.started_t is not None else t
+        return max(0.0, start + self.duration_s - t)
+
+    def view(self, t: float, speed: float | None = None) -> dict:
+        """What the REST GET shows: state, progress, ISE so far, ETA."""
+        eta = self.eta_s(t)
+        out = {
+            "id": self.id, "unit": self.unit, "grade": self.grade, "from_grade": self.from_grade,
+            "state": self.state, "progress": self.progress, "ise": self.ise,
+            "eta_s": eta, "eta_wall_s": None if eta is None or not speed else eta / speed,
+            "duration_s": self.duration_s, "requested_t": self.requested_t,
+            "started_t": self.started_t, "ended_t": self.ended_t, "target": self.target,
+            "detail": self.detail,
+        }
+        return out
+
+
+class TransitionManager:
+    """Set points of one unit and the transition that moves them.
+
+    Parameters
+    ----------
+    unit : str
+        Unit name.
+    grades : dict of str to sequence of float
+        Set points (CV values, shape (ny,)) of each grade.
+    scales : sequence of float, shape (ny,)
+        Engineering scale of each CV, used for the settle band and the ISE.
+    initial_grade : str
+        Grade whose set points hold at start.
+    sample_period_s : float
+        Process seconds per sample (integration step of the ISE).
+    default_duration_s : float
+        Duration used when a request gives none.
+    settle_tolerance : float
+        Band half-width as a fraction of ``scales``.
+    settle_samples : int
+        Consecutive in-band samples needed to settle.
+    timeout_factor : float
+        A running transition fails if not settled by ``t0 + timeout_factor * duration``.
+    """
+
+    def __init__(self, unit: str, grades: dict[str, list[float]], scales, initial_grade: str,
+                 sample_period_s: float, default_duration_s: float,
+                 settle_tolerance: float = 0.02, settle_samples: int = 5,
+                 timeout_factor: float = 3.0) -> None:
+        if initial_grade not in grades:
+            raise TransitionError(f"initial_grade: unknown grade {initial_grade!r}")
+        self.unit = unit
+        self.grades = {k: np.asarray(v, dtype=float) for k, v in grades.items()}
+        self.scales = np.asarray(scales, dtype=float)
+        if np.any(~np.isfinite(self.scales)) or np.any(self.scales <= 0):
+            raise TransitionError("scales: must be positive and finite")
+        self.Ts = float(sample_period_s)
+        self.default_duration_s = float(default_duration_s)
+        self.settle_tolerance = float(settle_tolerance)
+        self.settle_samples = int(settle_samples)
+        self.timeout_factor = float(timeout_factor)
+        self.grade: str | None = initial_grade
+        self.hold = self.grades[initial_grade].copy()
+        self.active: Transition | None = None
+
+    # -- requests ------------------------------------------------------------------
+    def request(self, grade: str, t: float, duration_s: float | None = None) -> Transition:
+        """Create a pending transition to ``grade`` (409 if one is pending or running)."""
+        if grade not in self.grades:
+            raise UnknownTransition(
+                f"grade: unknown grade {grade!r} for unit {self.unit!r}; "
+                f"known: {', '.join(self.grades)}")
+        if self.active is not None and not self.active.terminal:
+            raise ConflictError(
+                f"transition {self.active.id} to {self.active.grade} is {self.active.state}; "
+                "abort it first")
+        duration = self.default_duration_s if duration_s is None else float(duration_s)
+        if not (math.isfinite(duration) and duration > 0):
+            raise TransitionError(f"duration_h: must be positive, got {duration_s}")
+        tr = Transition(id=uuid.uuid4().hex[:12], unit=self.unit, grade=grade,
+                        from_grade=self.grade, target=self.grades[grade].tolist(),
+                        duration_s=duration, requested_t=float(t))
+        self.active = tr
+        return tr
+
+    def abort(self, tid: str, t: float) -> Transition:
+        """Abort: hold the set points of this moment. Aborting a finished one is a no-op."""
+        tr = self.active
+        if tr is None or tr.id != tid:
+            raise UnknownTransition(f"id: no active transition {tid!r}")
+        if tr.terminal:
+            return tr
+        self.hold = self.reference_at(t)[0].copy()
+        self.grade = None
+        self._end(tr, "aborted", t, "aborted by request; set points held")
+        return tr
+
+    def fail(self, t: float, reason: str) -> Transition | None:
+        tr = self.active
+        if tr is None or tr.terminal:
+            return None
+        self.hold = self.reference_at(t)[0].copy()
+        self.grade = None
+        self._end(tr, "failed", t, reason)
+        return tr
+
+    # -- per sample ----------------------------------------------------------------
+    def reference_at(self, t: float, horizon: int = 1) -> np.ndarray:
+        """Set points over ``horizon`` samples from ``t``, shape (horizon, ny)."""
+        times = t + self.Ts * np.arange(horizon)
+        tr = self.active
+        if tr is None or tr.state != "running":
+            return np.tile(self.hold, (horizon, 1))
+        r0 = np.asarray(tr.start_ref)
+        r1 = np.asarray(tr.target)
+        tau = tr.duration_s / 4.0
+        decay = np.exp(-np.clip(times - tr.started_t, 0.0, None) / tau)[:, None]
+        return r1 + (r0 - r1) * decay
+
+    def update(self, t: float, y) -> list[tuple[Transition, str]]:
+        """Advance the active transition with the measurement ``y`` at process time ``t``.
+
+        Returns the state changes that happened, as ``(transition, new_state)``.
+        """
+        changes: list[tuple[Transition, str]] = []
+        tr = self.active
+        if tr is None or tr.terminal:
+            return changes
+        y = np.asarray(y, dtype=float)
+        if tr.state == "pending":
+            tr.start_ref = self.hold.tolist()
+            tr.started_t = float(t)
+            tr.state = "running"
+            changes.append((tr, "running"))
+        r = self.reference_at(t)[0]
+        err = (y - r) / self.scales
+        tr.ise += float(err @ err) * self.Ts
+        tr.samples += 1
+        r0 = np.asarray(tr.start_ref)
+        r1 = np.asarray(tr.target)
+        span = r1 - r0
+        moving = np.abs(span) > 1e-12 * self.scales
+        if np.any(moving):
+            covered = np.clip((y[moving] - r0[moving]) / span[moving], 0.0, 1.0)
+            tr.progress = float(np.mean(covered))
+        else:
+            tr.progress = 1.0
+        in_band = bool(np.all(np.abs(y - r1) <= self.settle_tolerance * self.scales))
+        tr.in_band_samples = tr.in_band_samples + 1 if in_band else 0
+        if t >= tr.started_t + tr.duration_s and tr.in_band_samples >= self.settle_samples:
+            tr.progress = 1.0
+            self.hold = r1.copy()
+            self.grade = tr.grade
+            self._end(tr, "settled", t, "")
+            changes.append((tr, "settled"))
+        elif t > tr.started_t + self.timeout_factor * tr.duration_s:
+            self.fail(t, f"not settled within {self.timeout_factor:g} x duration")
+            changes.append((tr, "failed"))
+        return changes
+
+    def _end(self, tr: Transition, state: str, t: float, detail: str) -> None:
+        if state not in _ALLOWED.get(tr.state, set()):
+            raise TransitionError(f"state: cannot go from {tr.state} to {state}")
+        tr.state = state
+        tr.ended_t = float(t)
+        tr.detail = detail
+
+    # -- persistence ---------------------------------------------------------------
+    def checkpoint(self) -> dict:
+        return {"grade": self.grade, "hold": self.hold.tolist(),
+                "active": None if self.active is None else self.active.as_dict()}
+
+    def restore(self, state: dict) -> None:
+        self.grade = state.get("grade")
+        self.hold = np.asarray(state["hold"], dtype=float)
+        active = state.get("active")
+        self.active = None if active is None else Transition.from_dict(active)

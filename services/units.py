@@ -1,0 +1,363 @@
+"""Unit registry: which plant, grades, sample period and controller a unit runs.
+
+A *unit* is one plant of :mod:`plant_sim` run by one controller node. Its
+:class:`UnitConfig` is validated on construction and can be read from a JSON
+file (``--unit-config``) on top of the registry defaults (:data:`UNITS`).
+
+Controllers (``UnitConfig.controller``):
+
+- ``"pi"`` — :class:`PIBaseline`, a discrete multivariable PI with static
+  decoupling (velocity form). An honest baseline so that the services run
+  end to end; the state-shared MPC is meant to replace it as the default once
+  its per-unit builder lands (:data:`CONTROLLER_BUILDERS`).
+
+Process time in the services is in seconds: ``time_scale_s`` converts the
+plant's own time unit (3600 for ``h``; 1 for ``s``; the CSTR's dimensionless
+time is taken as seconds).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controller.interfaces import ControlDecision
+from services.keys import check_unit_name
+
+__all__ = [
+    "UnitConfig",
+    "UNITS",
+    "CONTROLLERS",
+    "CONTROLLER_BUILDERS",
+    "PIBaseline",
+    "get_unit",
+    "unit_names",
+    "load_unit_config",
+    "build_plant",
+    "build_controller",
+    "grade_setpoints",
+]
+
+CONTROLLERS = ("pi",)
+TIME_SCALE = {"h": 3600.0, "s": 1.0, "-": 1.0, "min": 60.0}
+
+
+@dataclass(frozen=True)
+class UnitConfig:
+    """Everything a plant node and a controller node of one unit agree on.
+
+    Parameters
+    ----------
+    unit : str
+        Unit name (a key-expression segment).
+    plant : str
+        Plant registry name of :mod:`plant_sim` (``cstr``, ``two_phase_reactor``, ...).
+    sample_period_s : float
+        Controller sample period, process seconds.
+    initial_grade : str
+        Grade (operating point) the plant starts at and the set points start from.
+    cvs, mvs : tuple of str
+        Controlled outputs and manipulated inputs by name (empty = all).
+    controller : str
+        One of :data:`CONTROLLERS`.
+    budget_fraction : float
+        Share of the wall-clock sample period the controller may use, (0, 1].
+    transition_duration_s : float
+        Default transition duration, process seconds (first-order reference,
+        98 % after this time).
+    settle_tolerance : float
+        Settled band, fraction of each CV's scale.
+    settle_samples : int
+        Consecutive in-band samples to call a transition settled.
+    cv_scales : tuple of float
+        Engineering scale per CV (ISE and settle band); empty = from the grades.
+    pi_gain : float
+        PI proportional gain relative to the inverse steady-state gain (dimensionless).
+    pi_integral_time_s : float
+        PI integral time, process seconds.
+    substeps : int
+        Plant-node integration steps per sample (for ODE plants: solver calls).
+    status_every, checkpoint_every, telemetry_every : int
+        Samples between status messages, SQLite checkpoints and Rerun batches.
+    """
+
+    unit: str
+    plant: str
+    sample_period_s: float
+    initial_grade: str
+    cvs: tuple[str, ...] = ()
+    mvs: tuple[str, ...] = ()
+    controller: str = "pi"
+    budget_fraction: float = 0.5
+    transition_duration_s: float = 10.0
+    settle_tolerance: float = 0.02
+    settle_samples: int = 5
+    cv_scales: tuple[float, ...] = ()
+    pi_gain: float = 1.0
+    pi_integral_time_s: float = 1.0
+    substeps: int = 1
+    status_every: int = 1
+    checkpoint_every: int = 50
+    telemetry_every: int = 50
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        check_unit_name(self.unit)
+        from plant_sim import PLANTS
+
+        if self.plant not in PLANTS:
+            raise ValueError(f"plant: unknown plant {self.plant!r}; known: {', '.join(PLANTS)}")
+        for name in ("sample_period_s", "transition_duration_s", "pi_integral_time_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}: must be a positive number, got {v!r}")
+        if not (0 < self.budget_fraction <= 1):
+            raise ValueError(f"budget_fraction: must be in (0, 1], got {self.budget_fraction}")
+        if self.controller not in CONTROLLERS:
+            raise ValueError(f"controller: expected one of {CONTROLLERS}, got {self.controller!r}")
+        if not (0 < self.settle_tolerance < 1):
+            raise ValueError(f"settle_tolerance: must be in (0, 1), got {self.settle_tolerance}")
+        for name in ("settle_samples", "substeps", "status_every", "checkpoint_every",
+                     "telemetry_every"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+        if not math.isfinite(self.pi_gain) or self.pi_gain <= 0:
+            raise ValueError(f"pi_gain: must be positive, got {self.pi_gain}")
+        object.__setattr__(self, "cvs", tuple(self.cvs))
+        object.__setattr__(self, "mvs", tuple(self.mvs))
+        object.__setattr__(self, "cv_scales", tuple(float(s) for s in self.cv_scales))
+        if any(not (math.isfinite(s) and s > 0) for s in self.cv_scales):
+            raise ValueError("cv_scales: must be positive numbers")
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], base: UnitConfig | None = None) -> UnitConfig:
+        """Build from a dict (e.g. JSON); unknown keys are an error naming the key."""
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unit config: unknown field(s) {', '.join(sorted(unknown))}")
+        if base is None:
+            return cls(**d)
+        return replace(base, **d)
+
+
+# Registry defaults. Sample periods: the seed's where printed, otherwise a choice
+# that resolves the plant's dominant dynamics with ~20 samples.
+UNITS: dict[str, UnitConfig] = {
+    "cstr": UnitConfig(
+        unit="cstr", plant="cstr", sample_period_s=0.1, initial_grade="OPI",
+        transition_duration_s=10.0, pi_gain=3.0, pi_integral_time_s=1.0, cv_scales=(1.0,),
+        description="exothermic CSTR (dimensionless time taken as seconds)"),
+    "bioreactor": UnitConfig(
+        unit="bioreactor", plant="bioreactor", sample_period_s=360.0, initial_grade="OPI",
+        transition_duration_s=36000.0, pi_gain=0.5, pi_integral_time_s=7200.0,
+        description="substrate-inhibited bioreactor"),
+    "two_phase_reactor": UnitConfig(
+        unit="two_phase_reactor", plant="two_phase_reactor", sample_period_s=360.0,
+        initial_grade="OPI", mvs=("x1", "x2", "x3"), transition_duration_s=4 * 3600.0,
+        pi_gain=0.5, pi_integral_time_s=3600.0, cv_scales=(100.0, 5.0, 30.0),
+        description="Ricker two-phase reactor (level loop in the plant)"),
+}
+
+
+def unit_names() -> list[str]:
+    return list(UNITS)
+
+
+def get_unit(unit: str) -> UnitConfig:
+    """Registry default of ``unit``; unknown names raise ValueError listing the known ones."""
+    if unit not in UNITS:
+        raise ValueError(f"unit: unknown unit {unit!r}; known: {', '.join(UNITS)}")
+    return UNITS[unit]
+
+
+def load_unit_config(unit: str, path: str | Path | None = None, **overrides) -> UnitConfig:
+    """Registry default, then the JSON file at ``path``, then keyword overrides."""
+    cfg = get_unit(unit) if unit in UNITS or path is None else None
+    if path is not None:
+        try:
+            data = json.loads(Path(path).read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ValueError(f"unit_config: cannot read {str(path)!r}: {exc}") from exc
+        if not isinstance(data, dict):
+            raise ValueError("unit_config: expected a JSON object")
+        data.setdefault("unit", unit)
+        cfg = UnitConfig.from_dict(data, cfg)
+    overrides = {k: v for k, v in overrides.items() if v is not None}
+    if overrides:
+        cfg = replace(cfg, **overrides)
+    return cfg
+
+
+# -- plant side ---------------------------------------------------------------------------
+def build_plant(cfg: UnitConfig):
+    from plant_sim import get_plant
+
+    return get_plant(cfg.plant)
+
+
+def time_scale_s(plant) -> float:
+    """Process seconds per unit of the plant's own time."""
+    if plant.time_unit not in TIME_SCALE:
+        raise ValueError(f"time_unit: unsupported plant time unit {plant.time_unit!r}")
+    return TIME_SCALE[plant.time_unit]
+
+
+def cv_indices(cfg: UnitConfig, plant) -> list[int]:
+    names = cfg.cvs or tuple(plant.names("output"))
+    return [plant.index("output", n) for n in names]
+
+
+def mv_indices(cfg: UnitConfig, plant) -> list[int]:
+    names = cfg.mvs or tuple(plant.names("input"))
+    return [plant.index("input", n) for n in names]
+
+
+def grade_setpoints(cfg: UnitConfig, plant) -> dict[str, dict[str, Any]]:
+    """Valid grades of the unit with their CV set points and steady MVs."""
+    cvi, mvi = cv_indices(cfg, plant), mv_indices(cfg, plant)
+    out = {}
+    for name, op in plant.operating_points.items():
+        if not op.valid:
+            continue
+        y = np.asarray(plant.outputs(op.x, op.u), dtype=float)
+        out[name] = {"setpoints": y[cvi].tolist(), "mv": np.asarray(op.u)[mvi].tolist(),
+                     "description": op.description, "stability": op.stability}
+    if cfg.initial_grade not in out:
+        raise ValueError(f"initial_grade: {cfg.initial_grade!r} is not a valid grade of "
+                         f"{cfg.plant}; valid: {', '.join(out)}")
+    return out
+
+
+def cv_scales(cfg: UnitConfig, grades: dict[str, dict[str, Any]]) -> np.ndarray:
+    """Per-CV scale: configured, else the spread of the grades' set points (or |value|)."""
+    sp = np.array([g["setpoints"] for g in grades.values()], dtype=float)
+    if cfg.cv_scales:
+        if len(cfg.cv_scales) != sp.shape[1]:
+            raise ValueError(f"cv_scales: expected {sp.shape[1]} values, got "
+                             f"{len(cfg.cv_scales)}")
+        return np.asarray(cfg.cv_scales)
+    spread = sp.max(axis=0) - sp.min(axis=0)
+    fallback = np.maximum(np.abs(sp).max(axis=0), 1e-6)
+    return np.where(spread > 1e-9, spread, fallback)
+
+
+# -- controller side ----------------------------------------------------------------------
+class PIBaseline:
+    """Multivariable discrete PI with static decoupling (velocity form).
+
+    Per sample, with ``e = r - y`` (row 0 of the reference)::
+
+        u_k = sat( u_{k-1} + K ( (e_k - e_{k-1}) + Ts / Ti * e_k ) ),   K = g * G0^{-1}
+
+    ``G0`` is the plant's steady-state gain at the initial grade (CV by MV,
+    computed from the linearization ``D - C A^{-1} B``) and ``g`` a
+    dimensionless gain. The velocity form does not wind up on the limits, and
+    its state (``u_{k-1}``, ``e_{k-1}``) is all a restart needs: the first move
+    after :meth:`restore` continues from the last one (bumpless).
+
+    An invalid measurement (NaN/inf, wrong length) holds the input and raises an
+    alarm (``fallback=True``), as the interface requires.
+    """
+
+    def __init__(self, gain_matrix, Ts: float, Ti: float, u0, u_min=None, u_max=None,
+                 names: tuple[str, ...] = ("PI",)) -> None:
+        self.K = np.atleast_2d(np.asarray(gain_matrix, dtype=float))
+        self.nu, self.ny = self.K.shape
+        if not np.all(np.isfinite(self.K)):
+            raise ValueError("gain_matrix: must be finite (is the steady-state gain singular?)")
+        self.ratio = float(Ts) / float(Ti)
+        self.u = np.asarray(u0, dtype=float).copy()
+        self.u_min = np.full(self.nu, -np.inf) if u_min is None else np.asarray(u_min, float)
+        self.u_max = np.full(self.nu, np.inf) if u_max is None else np.asarray(u_max, float)
+        self.e_prev: np.ndarray | None = None
+        self.names = names
+
+    def step(self, k: int, t: float, y, reference) -> ControlDecision:
+        t0 = time.perf_counter()
+        y = np.asarray(y, dtype=float).reshape(-1)
+        r = np.atleast_2d(np.asarray(reference, dtype=float))[0]
+        if y.shape != (self.ny,) or not np.all(np.isfinite(y)):
+            return ControlDecision(u=self.u.copy(), active_model=0, model_names=self.names,
+                                   J=np.zeros(1), solve_ms=(time.perf_counter() - t0) * 1e3,
+                                   fallback=True, status="invalid_measurement",
+                                   alarms=(f"invalid measurement at sample {k}: input held",))
+        e = r - y
+        if self.e_prev is None:
+            self.e_prev = e.copy()
+        du = self.K @ ((e - self.e_prev) + self.ratio * e)
+        self.u = np.clip(self.u + du, self.u_min, self.u_max)
+        self.e_prev = e
+        return ControlDecision(u=self.u.copy(), active_model=0, model_names=self.names,
+                               J=np.array([float(e @ e)]),
+                               solve_ms=(time.perf_counter() - t0) * 1e3, status="solved")
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {"u": self.u.tolist(),
+                "e_prev": None if self.e_prev is None else self.e_prev.tolist()}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.u = np.asarray(state["u"], dtype=float)
+        e = state.get("e_prev")
+        self.e_prev = None if e is None else np.asarray(e, dtype=float)
+
+
+def _build_pi(cfg: UnitConfig, plant, u0, grades) -> PIBaseline:
+    from plant_sim.linearize import linearize
+
+    cvi, mvi = cv_indices(cfg, plant), mv_indices(cfg, plant)
+    lm = linearize(plant, cfg.initial_grade)
+    G = lm.D - lm.C @ np.linalg.solve(lm.A, lm.B)
+    G0 = G[np.ix_(cvi, mvi)]
+    if G0.shape[0] != G0.shape[1]:
+        raise ValueError(f"cvs/mvs: the PI baseline needs as many CVs as MVs, got "
+                         f"{G0.shape[0]} and {G0.shape[1]}")
+    K = cfg.pi_gain * np.linalg.inv(G0)
+    lo = np.array([plant.input_vars[i].lower for i in mvi])
+    hi = np.array([plant.input_vars[i].upper for i in mvi])
+    return PIBaseline(K, cfg.sample_period_s, cfg.pi_integral_time_s, u0, lo, hi)
+
+
+#: Controller builders by ``UnitConfig.controller``: ``fn(cfg, plant, u0, grades)``.
+CONTROLLER_BUILDERS: dict[str, Callable] = {"pi": _build_pi}
+
+
+def build_controller(cfg: UnitConfig, plant=None, u0=None, grades=None):
+    """The unit's :class:`~controller.interfaces.SampleController`, starting at ``u0``."""
+    plant = plant if plant is not None else build_plant(cfg)
+    grades = grades if grades is not None else grade_setpoints(cfg, plant)
+    if u0 is None:
+        u0 = grades[cfg.initial_grade]["mv"]
+    return CONTROLLER_BUILDERS[cfg.controller](cfg, plant, np.asarray(u0, float), grades)
+
+
+@dataclass(frozen=True)
+class UnitInfo:
+    """Names and sizes of a built unit (what both nodes and the API show)."""
+
+    cv_names: tuple[str, ...]
+    mv_names: tuple[str, ...]
+    cv_units: tuple[str, ...]
+    mv_units: tuple[str, ...]
+    grades: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+
+def unit_info(cfg: UnitConfig, plant) -> UnitInfo:
+    cvi, mvi = cv_indices(cfg, plant), mv_indices(cfg, plant)
+    return UnitInfo(
+        cv_names=tuple(plant.output_vars[i].name for i in cvi),
+        mv_names=tuple(plant.input_vars[i].name for i in mvi),
+        cv_units=tuple(plant.output_vars[i].unit for i in cvi),
+        mv_units=tuple(plant.input_vars[i].unit for i in mvi),
+        grades=grade_setpoints(cfg, plant))

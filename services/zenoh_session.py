@@ -1,0 +1,107 @@
+"""Open a Zenoh session: from a config file, or the embedded default.
+
+The embedded default is what ``ssmpc up`` needs on one machine and nothing
+more: peer mode, listening on loopback only, multicast scouting off (peers
+find each other through the endpoints they are told to connect to, then
+gossip), and an optional short lease so that a frozen peer is noticed quickly
+(the default lease is 10 s; a 1 s lease notices a frozen peer in ~0.75 s).
+
+A config file (``--zenoh-config FILE``, JSON5 as read by
+``zenoh.Config.from_file``) replaces the embedded default entirely; command
+line ``--listen``/``--connect`` endpoints are then added on top of it.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ["SessionSettings", "build_config", "open_session", "free_port", "free_tcp_endpoint"]
+
+MODES = ("peer", "client", "router")
+
+
+@dataclass(frozen=True)
+class SessionSettings:
+    """How a node joins the Zenoh mesh.
+
+    Parameters
+    ----------
+    config_file : str or None
+        A Zenoh JSON5 configuration; None for the embedded default.
+    mode : str
+        ``peer``, ``client`` or ``router`` (embedded default only).
+    listen, connect : tuple of str
+        Endpoints such as ``tcp/127.0.0.1:7447``.
+    lease_ms : int or None
+        Transport lease in ms; None keeps Zenoh's default.
+    multicast_scouting : bool
+        Embedded default keeps it off.
+    """
+
+    config_file: str | None = None
+    mode: str = "peer"
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    lease_ms: int | None = None
+    multicast_scouting: bool = False
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode: expected one of {MODES}, got {self.mode!r}")
+        if self.lease_ms is not None and not (100 <= int(self.lease_ms) <= 600_000):
+            raise ValueError(f"lease_ms: must be in [100, 600000] ms, got {self.lease_ms}")
+        for name in ("listen", "connect"):
+            for ep in getattr(self, name):
+                if "/" not in ep:
+                    raise ValueError(f"{name}: endpoint {ep!r} is not of the form proto/addr:port")
+        if self.config_file is not None and not Path(self.config_file).is_file():
+            raise ValueError(f"zenoh_config: file {self.config_file!r} does not exist")
+
+
+def build_config(settings: SessionSettings):
+    """A ``zenoh.Config`` for ``settings``."""
+    import zenoh
+
+    if settings.config_file is not None:
+        conf = zenoh.Config.from_file(settings.config_file)
+        if settings.listen:
+            conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+        if settings.connect:
+            conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+        return conf
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(settings.mode))
+    listen = list(settings.listen)
+    if not listen and settings.mode != "client":
+        listen = ["tcp/127.0.0.1:0"]
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(settings.multicast_scouting)))
+    if settings.lease_ms is not None:
+        conf.insert_json5("transport/link/tx/lease", str(int(settings.lease_ms)))
+    for key, value in settings.extra.items():
+        conf.insert_json5(key, json.dumps(value))
+    return conf
+
+
+def open_session(settings: SessionSettings | None = None):
+    """Open and return a ``zenoh.Session``; the caller must ``close()`` it."""
+    import zenoh
+
+    return zenoh.open(build_config(settings or SessionSettings()))
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port that was free a moment ago (for tests and ``ssmpc up``)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def free_tcp_endpoint(host: str = "127.0.0.1") -> str:
+    return f"tcp/{host}:{free_port(host)}"
