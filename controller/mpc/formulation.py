@@ -72,35 +72,42 @@ def augment(Phi, Gamma, C):
     return Phi_a, Psi_a, C_a
 
 
-def prediction_matrices(Phi_a, Psi_a, C_a, P: int, M: int):
+def prediction_matrices(Phi_a, Psi_a, C_a, P: int, M: int, *, terminal: bool = False):
     """Stacked prediction ``Y = S_x x_a + S_u ΔU`` (eq. 6.5) and the horizon-end state.
+
+    Only products with the thin matrices ``C_a`` (ny rows) and ``Ψ_a`` (nu columns) are
+    formed, so the cost is O(P n² (ny + nu)), not O(P n³): it matters for the
+    400-state shared models of the TE.
 
     Returns
     -------
     S_x : ndarray, shape (P*ny, na)
     S_u : ndarray, shape (P*ny, M*nu)
         Block (i, j) is ``C_a Φ_a^(i-j) Ψ_a`` for ``j <= i``, ``j < M`` (i = 0 is y(k+1)).
-    T_x : ndarray, shape (na, na)
-        ``Φ_a^P``: the state at ``k+P`` is ``T_x x_a + T_u ΔU``.
-    T_u : ndarray, shape (na, M*nu)
+    T_x : ndarray, shape (na, na) or None
+        ``Φ_a^P`` (only with ``terminal=True``): the state at ``k+P`` is
+        ``T_x x_a + T_u ΔU``.
+    T_u : ndarray, shape (na, M*nu) or None
     """
     na, nu = Psi_a.shape
     ny = C_a.shape[0]
     S_x = np.zeros((P * ny, na))
     S_u = np.zeros((P * ny, M * nu))
-    # Markov-like blocks C_a Φ_a^d Ψ_a, d = 0..P-1, and the powers Φ_a^(d+1).
     blocks = []
-    pw = np.eye(na)
-    pw_psi = []
+    CP = np.array(C_a, dtype=float)  # C_a Φ_a^d
     for d in range(P):
-        blocks.append(C_a @ pw @ Psi_a)
-        pw_psi.append(pw @ Psi_a)
-        pw = Phi_a @ pw
-        S_x[d * ny:(d + 1) * ny] = C_a @ pw
-    T_x = pw
+        blocks.append(CP @ Psi_a)
+        CP = CP @ Phi_a
+        S_x[d * ny:(d + 1) * ny] = CP
     for i in range(P):
         for j in range(min(i + 1, M)):
             S_u[i * ny:(i + 1) * ny, j * nu:(j + 1) * nu] = blocks[i - j]
+    if not terminal:
+        return S_x, S_u, None, None
+    pw_psi = [np.array(Psi_a, dtype=float)]  # Φ_a^d Ψ_a
+    for _ in range(P - 1):
+        pw_psi.append(Phi_a @ pw_psi[-1])
+    T_x = np.linalg.matrix_power(Phi_a, P)
     T_u = np.zeros((na, M * nu))
     for j in range(M):
         T_u[:, j * nu:(j + 1) * nu] = pw_psi[P - 1 - j]
@@ -253,7 +260,8 @@ def build_formulation(Phi, Gamma, C, settings: MPCSettings,
     for name, m in (("Phi", Phi), ("Gamma", Gamma), ("C", C)):
         if not np.all(np.isfinite(m)):
             raise ValueError(f"{name}: non-finite entries")
-    S_x, S_u, T_x, T_u = prediction_matrices(Phi_a, Psi_a, C_a, s.P, s.M)
+    S_x, S_u, T_x, T_u = prediction_matrices(Phi_a, Psi_a, C_a, s.P, s.M,
+                                             terminal=terminal_weight is not None)
     nmv = s.M * s.nu
     Xi_bar = np.tile(s.Xi, s.P)
     SuT_Xi = S_u.T * Xi_bar

@@ -27,18 +27,59 @@ class SharedStateSource:
 
     The multiple-model controller advances the shared state itself; this source only
     remembers the previous state for Δn and reports the model the caller selected.
+
+    An adaptive model's Θ changes every sample; rebuilding its exact prediction form
+    (a matrix exponential of the shared order) and its QP every sample would cost tens
+    of milliseconds at TE size. For an adaptive model this source therefore uses the
+    shared state's own discrete recursion (no matrix exponential)::
+
+        n(k+1) = [[Fd, 0], [Gd Θ1ᵀ, Fd + Gd Θ2ᵀ]] n(k) + [Gd; 0] u(k),   y = Θᵀ n + b
+
+    which is exactly how the controller advances n with y held over the sample, and
+    refreshes it only every ``adaptive_refresh`` samples; the Δu formulation tolerates
+    the small model error in between. Fixed models use the exact ZOH prediction form.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, adaptive_refresh: int = 10) -> None:
+        if isinstance(adaptive_refresh, bool) or int(adaptive_refresh) < 1:
+            raise ValueError(f"adaptive_refresh: must be an integer >= 1, got "
+                             f"{adaptive_refresh!r}")
+        self.adaptive_refresh = int(adaptive_refresh)
         self.ssm = None
         self.model = 0
         self.n_prev: np.ndarray | None = None
+        self._snap: dict[int, tuple] = {}
+        self._made: dict[int, int] = {}
+        self._k = 0
+        self.refreshes = 0
+
+    def _discrete_form(self, j: int):
+        ssm = self.ssm
+        nm = ssm.Fd.shape[0]
+        th = np.asarray(ssm.theta(j))
+        Phi = np.zeros((2 * nm, 2 * nm))
+        Phi[:nm, :nm] = ssm.Fd
+        Phi[nm:, :nm] = ssm.Gd @ th[:nm].T
+        Phi[nm:, nm:] = ssm.Fd + ssm.Gd @ th[nm:].T
+        Gamma = np.zeros((2 * nm, ssm.m))
+        Gamma[:nm] = ssm.Gd
+        return Phi, Gamma, th.T.copy()
+
+    def _form(self, j: int):
+        if self.ssm.kinds[j] != "adaptive":
+            return self.ssm.prediction_form(j)
+        if j not in self._snap or self._k - self._made[j] >= self.adaptive_refresh:
+            self._snap[j] = self._discrete_form(j)
+            self._made[j] = self._k
+            self.refreshes += 1
+        return self._snap[j]
 
     def observe(self, u_prev, y) -> ModelView:
         n = self.ssm.n
         n_prev = n if self.n_prev is None else self.n_prev
         self.n_prev = n
-        pf = self.ssm.prediction_form(self.model)
+        self._k += 1
+        pf = self._form(self.model)
         return ModelView(self.model, n, n_prev, pf[0], pf[1], pf[2], index=self.model,
                          names=tuple(self.ssm.names))
 
@@ -57,17 +98,20 @@ class MPCLaw:
     ----------
     settings : MPCSettings
         ``nu = ny = m`` of the state-shared model.
+    adaptive_refresh : int
+        Samples between refreshes of an active adaptive model's prediction form.
     """
 
-    def __init__(self, settings: MPCSettings) -> None:
+    def __init__(self, settings: MPCSettings, adaptive_refresh: int = 10) -> None:
         self.settings = settings
-        self.source = SharedStateSource()
+        self.source = SharedStateSource(adaptive_refresh)
         self.mpc = MPCController(settings, self.source, u0=np.zeros(settings.nu))
 
     def prepare(self, ssm) -> None:
         """Build every model's QP ahead of time (a switch then costs no build)."""
+        self.source.ssm = ssm
         for j in range(ssm.k):
-            pf = ssm.prediction_form(j)
+            pf = self.source._form(j)
             self.mpc.prepare(j, pf[0], pf[1], pf[2])
 
     def reset(self, u, y) -> None:

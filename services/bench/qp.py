@@ -116,7 +116,7 @@ def solve_sequence(seq: QPSequence, backend: str, *, warm: bool,
 
 def add_arguments(parser) -> None:
     parser.add_argument("--samples", type=int, default=400, help="QPs in the sequence")
-    parser.add_argument("--repeat", type=int, default=3, help="passes over the sequence")
+    parser.add_argument("--repeat", type=int, default=2, help="passes over the sequence")
     parser.add_argument("--seed", type=int, default=0, help="sequence seed")
 
 
@@ -130,31 +130,37 @@ def run(args) -> list[dict]:
     seq = record_te_sequence(getattr(args, "seed", 0), n)
     ref = solve_sequence(seq, "daqp", warm=False)
     cases = []
-    for name, backend, warm in (("daqp", "daqp", True), ("daqp cold", "daqp", False),
-                                ("proxsuite", "proxsuite", False)):
+    for name, backend, warm, unsafe in (("daqp", "daqp", True, False),
+                                        ("daqp cold", "daqp", False, False),
+                                        ("proxsuite", "proxsuite", False, False),
+                                        ("proxsuite warm (unsafe)", "proxsuite", True, True)):
         times, fails, worst = [], 0, 0.0
         for _ in range(repeat):
-            results = []
-            for v, solver in _timed(seq, backend, warm, times):
-                results.append((v, solver))
+            results = [r for _, r in _timed(seq, backend, warm, times, unsafe)]
             for r, r0 in zip(results, ref):
-                if not r[1].ok:
+                if not r.ok:
                     fails += 1
                 elif r0.ok:
-                    worst = max(worst, float(np.max(np.abs(r[1].x - r0.x))))
+                    worst = max(worst, float(np.max(np.abs(r.x - r0.x))))
         cases.append(latency_case(
             name, times, unit="us", backend=backend, warm_start=warm,
+            default=(backend == "daqp" and warm),
             variables=seq.nz, general_rows=int(seq.A.shape[0]),
             rows_with_bounds=seq.n_rows, qps=len(seq.vectors), failures=fails,
             max_abs_diff_vs_daqp_cold=worst))
     return cases
 
 
-def _timed(seq: QPSequence, backend: str, warm: bool, times: list):
+# The controller's default backend is DAQP (MPCSettings.backend): on this sequence it is
+# ~100x faster than proxsuite at the median and at p99, gives the same solutions, and
+# its warm start is exact; proxsuite's warm start reports feasible QPs infeasible.
+
+
+def _timed(seq: QPSequence, backend: str, warm: bool, times: list, unsafe: bool = False):
     if backend == "daqp":
         solver = DAQPBackend(seq.H, seq.A, warm_start=warm)
     else:
-        solver = ProxsuiteBackend(seq.H, seq.A, warm_start=warm)
+        solver = ProxsuiteBackend(seq.H, seq.A, warm_start=warm, unsafe_warm_start=unsafe)
     for v in seq.vectors:
         t0 = time.perf_counter()
         r = solver.solve(v)

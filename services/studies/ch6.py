@@ -40,7 +40,7 @@ from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
 from services.reproduce import ReproduceResult, Row, StudyContext
 
 __all__ = ["RESULTS", "ReactorCase", "ReactorRun", "run_reactor", "reactor_models",
-           "CalciumCase", "run_calcium"]
+           "CalciumCase", "run_calcium", "reactor_settings"]
 
 MV = ("x1", "x2", "x3")
 CV = ("P", "yA3", "F4")
@@ -214,6 +214,21 @@ class _CompositionObserver:
             self.NB += h * (K["yB1"] * F1 - self.NB / nv * F3)
 
 
+def reactor_settings(case: ReactorCase, y1, y2) -> MPCSettings:
+    """MPC settings of §6.1.2 for a transition between outputs ``y1`` and ``y2``.
+
+    Output weights Ξ = 3, 1, 10 act on outputs scaled by their set-point change (the
+    units differ by 100x); equal move weights on valve moves in units of 100 %.
+    """
+    span = np.abs(np.asarray(y2) - np.asarray(y1))
+    return MPCSettings(
+        nu=3, ny=3, P=case.P, M=case.M, Xi=np.asarray(case.weights) / span ** 2,
+        Lambda=np.full(3, case.move_weight / 100.0 ** 2), u_min=np.zeros(3),
+        u_max=np.full(3, 100.0), du_max=np.full(3, case.du_max),
+        y_max=[P_LIMIT, np.inf, np.inf], slack_scale=[span[0], 1.0, 1.0], slack_linear=1e3,
+        slack_quadratic=1.0, filter_alpha=0.2 if case.noise else 1.0, budget_ms=50.0)
+
+
 def run_reactor(case: ReactorCase = ReactorCase()) -> ReactorRun:
     """Closed loop F4 100 → 130 kmol/h with the state-shared MPC (Figs. 6.1–6.3)."""
     from plant_sim.integrate import step as plant_step
@@ -227,14 +242,8 @@ def run_reactor(case: ReactorCase = ReactorCase()) -> ReactorRun:
     dt = case.dt
     ssm = StateSharedModel(a, 3, dt, specs)
 
-    # Weights on outputs scaled by their set-point change (units differ by 100x).
+    settings = reactor_settings(case, y1, y2)
     span = np.abs(y2 - y1)
-    settings = MPCSettings(
-        nu=3, ny=3, P=case.P, M=case.M, Xi=np.asarray(case.weights) / span ** 2,
-        Lambda=np.full(3, case.move_weight / 100.0 ** 2), u_min=np.zeros(3),
-        u_max=np.full(3, 100.0), du_max=np.full(3, case.du_max),
-        y_max=[P_LIMIT, np.inf, np.inf], slack_scale=[span[0], 1.0, 1.0], slack_linear=1e3,
-        slack_quadratic=1.0, filter_alpha=0.2 if case.noise else 1.0, budget_ms=50.0)
     law = MPCLaw(settings)
     law.prepare(ssm)
     index = PerformanceIndex(IndexSettings(mu=case.index_mu, nu=case.index_nu,
