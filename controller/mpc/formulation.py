@@ -170,9 +170,19 @@ class DeltaUFormulation:
     ub0: np.ndarray
 
     def __post_init__(self) -> None:
+        # Per-sample constants, so qp_vectors allocates only what changes.
         s = self.settings
-        object.__setattr__(self, "_ymax_tiled", np.tile(s.y_max, s.P))
-        object.__setattr__(self, "_ymin_tiled", np.tile(s.y_min, s.P))
+        rows = self.input_rows
+        ymax = np.tile(s.y_max, s.P)[self.ymax_rows]
+        ymin = np.tile(s.y_min, s.P)[self.ymin_rows]
+        n_in, n_max = rows.size, self.ymax_rows.size
+        bl0 = np.concatenate([np.tile(s.u_min, s.M)[rows], np.full(n_max, -np.inf), ymin])
+        bu0 = np.concatenate([np.tile(s.u_max, s.M)[rows], ymax, np.full(ymin.size, np.inf)])
+        consts = {"_in_idx": rows % s.nu, "_n_in": n_in, "_n_max": n_max, "_bl0": bl0,
+                  "_bu0": bu0, "_Sx_max": np.ascontiguousarray(self.S_x[self.ymax_rows]),
+                  "_Sx_min": np.ascontiguousarray(self.S_x[self.ymin_rows])}
+        for k, v in consts.items():
+            object.__setattr__(self, k, v)
 
     @property
     def n_rows(self) -> int:
@@ -200,25 +210,20 @@ class DeltaUFormulation:
         R = np.asarray(reference, dtype=float)
         if R.ndim == 1:
             R = np.broadcast_to(R, (s.P, s.ny))
-        f = np.zeros(self.nz)
+        f = np.empty(self.nz)
         f[:self.n_moves] = self.F_x @ x_a - self.F_r @ R.reshape(-1)
         if self.has_slack:
             f[-1] = s.slack_linear
-        parts = []
-        if self.input_rows.size:
-            parts.append((np.tile(s.u_min - u_prev, s.M)[self.input_rows],
-                          np.tile(s.u_max - u_prev, s.M)[self.input_rows]))
+        bl = self._bl0.copy()
+        bu = self._bu0.copy()
+        n_in, n_max = self._n_in, self._n_max
+        if n_in:
+            up = np.asarray(u_prev, dtype=float)[self._in_idx]
+            bl[:n_in] -= up
+            bu[:n_in] -= up
         if self.has_slack:
-            free = self.S_x @ x_a
-            hi_max = (self._ymax_tiled - free)[self.ymax_rows]
-            lo_min = (self._ymin_tiled - free)[self.ymin_rows]
-            parts.append((np.full(hi_max.size, -np.inf), hi_max))
-            parts.append((lo_min, np.full(lo_min.size, np.inf)))
-        if parts:
-            bl = np.concatenate([a for a, _ in parts])
-            bu = np.concatenate([b for _, b in parts])
-        else:
-            bl = bu = np.zeros(0)
+            bu[n_in:n_in + n_max] -= self._Sx_max @ x_a
+            bl[n_in + n_max:] -= self._Sx_min @ x_a
         return QPVectors(f=f, lb=self.lb0, ub=self.ub0, bl=bl, bu=bu)
 
     def predict(self, x_a, dU) -> np.ndarray:
