@@ -182,3 +182,20 @@ def test_console_script_sim(tmp_path):
     bad = subprocess.run(cmd + ["linearize", "cstr", "--op", "OPX"], capture_output=True,
                          text=True, timeout=120)
     assert bad.returncode != 0 and "op" in bad.stderr
+
+
+def test_plants_marks_calcium_reconstructed(capsys):
+    assert main(["plants", "--plant", "calcium"]) == 0
+    out = capsys.readouterr().out
+    assert "calcium" in out and "[reconstructed]" in out
+    assert main(["plants", "--plant", "calcium", "--json"]) == 0
+    (p,) = last_json(capsys.readouterr().out)["plants"]
+    assert p["reconstructed"] is True and p["time_unit"] == "s"
+
+
+def test_linearize_calcium_chapter6_outputs(capsys):
+    assert main(["linearize", "calcium", "--op", "OPII", "--option", "outputs=x5,x6",
+                 "--json"]) == 0
+    doc = last_json(capsys.readouterr().out)
+    assert doc["output_names"] == ["x5", "x6"] and doc["input_names"] == ["J", "q1"]
+    assert np.array(doc["C"]).shape == (2, 5)
