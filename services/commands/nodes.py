@@ -1,0 +1,216 @@
+"""``ssmpc plant|controller|api``: one node alone, on the embedded default or a Zenoh mesh.
+
+Each node opens its own Zenoh session (``--zenoh-config FILE`` or the embedded
+default: peer mode, loopback, multicast scouting off; ``--listen`` and
+``--connect`` add endpoints), prints ``ready <role> <unit>`` on stdout when it
+serves, and stops cleanly on SIGINT/SIGTERM or after ``--duration`` wall
+seconds: telemetry flushed, checkpoint written, session closed.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import sys
+import threading
+import time
+
+from services.output import CLIError
+
+__all__ = ["register", "add_mesh_arguments", "session_settings"]
+
+
+def add_mesh_arguments(p) -> None:
+    g = p.add_argument_group("Zenoh mesh")
+    g.add_argument("--zenoh-config", metavar="FILE",
+                   help="Zenoh JSON5 config (default: embedded peer on loopback, no multicast)")
+    g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to connect to (repeatable)")
+    g.add_argument("--mode", choices=["peer", "client"], default="peer",
+                   help="Zenoh mode of the embedded default (default peer)")
+    g.add_argument("--lease-ms", type=int, default=None,
+                   help="transport lease in ms (shorter: a dead peer is noticed sooner)")
+
+
+def session_settings(args):
+    from services.zenoh_session import SessionSettings
+
+    return SessionSettings(config_file=args.zenoh_config, mode=args.mode,
+                           listen=tuple(args.listen), connect=tuple(args.connect),
+                           lease_ms=args.lease_ms)
+
+
+def _add_unit_arguments(p) -> None:
+    p.add_argument("--unit", default="cstr", help="unit name (see services.units; default cstr)")
+    p.add_argument("--unit-config", metavar="FILE", help="JSON overrides of the unit config")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="process seconds per wall second (default 1 = real time)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="stop by itself after this many wall seconds")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("plant", help="run a unit's plant node (scaled real time on Zenoh)")
+    _add_unit_arguments(p)
+    add_mesh_arguments(p)
+    p.add_argument("--lockstep", action="store_true",
+                   help="wait for each sample's MV instead of the wall clock (tests, benches)")
+    p.add_argument("--lockstep-timeout", type=float, default=2.0,
+                   help="longest wait for an MV in lock-step mode, wall s")
+    p.add_argument("--sender", default=None, help="expected controller sender id")
+    p.set_defaults(func=run_plant)
+
+    p = sub.add_parser("controller", help="run a unit's controller node")
+    _add_unit_arguments(p)
+    add_mesh_arguments(p)
+    p.add_argument("--state-dir", default=".", help="directory of the SQLite store (default .)")
+    p.add_argument("--rrd", default=None,
+                   help="Rerun recording file (default <state-dir>/ssmpc-<unit>.rrd)")
+    p.add_argument("--rerun-addr", default=None,
+                   help="send telemetry to a Rerun viewer (rerun+http://host:9876/proxy) "
+                        "instead of a file")
+    p.add_argument("--no-telemetry", action="store_true", help="do not record telemetry")
+    p.add_argument("--sender", default=None, help="sender id written into MV messages")
+    p.set_defaults(func=run_controller)
+
+    p = sub.add_parser("api", help="run the REST api node (FastAPI on uvicorn)")
+    add_mesh_arguments(p)
+    p.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
+    p.add_argument("--query-timeout", type=float, default=2.0,
+                   help="Zenoh query timeout, s (then 504)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="stop by itself after this many wall seconds")
+    p.set_defaults(func=run_api)
+
+
+def _logging() -> None:
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+
+
+def _stop_event(duration: float | None) -> threading.Event:
+    stop = threading.Event()
+
+    def handler(signum, frame):
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    if duration is not None:
+        if duration <= 0:
+            raise CLIError("duration: must be positive wall seconds")
+        timer = threading.Timer(duration, stop.set)
+        timer.daemon = True
+        timer.start()
+    return stop
+
+
+def _ready(role: str, unit: str, **extra) -> None:
+    tail = " ".join(f"{k}={v}" for k, v in extra.items())
+    print(f"ready {role} {unit} {tail}".rstrip(), flush=True)
+
+
+def _config(args):
+    from services.units import load_unit_config
+
+    if args.speed is None or not args.speed > 0:
+        raise CLIError("speed: must be positive (process seconds per wall second)")
+    return load_unit_config(args.unit, args.unit_config)
+
+
+def run_plant(args) -> int:
+    from services.plant_node import PlantNode
+    from services.zenoh_session import open_session
+
+    _logging()
+    cfg = _config(args)
+    stop = _stop_event(args.duration)
+    session = open_session(session_settings(args))
+    node = None
+    try:
+        node = PlantNode(cfg, session, speed=args.speed, expected_sender=args.sender,
+                         lockstep=args.lockstep, lockstep_timeout_s=args.lockstep_timeout)
+        _ready("plant", cfg.unit, zid=session.zid())
+        node.run(stop)
+    finally:
+        if node is not None:
+            node.close()
+        session.close()
+    return 0
+
+
+def run_controller(args) -> int:
+    from pathlib import Path
+
+    from services.controller_node import ControllerNode
+    from services.store import UnitStore, default_store_path
+    from services.telemetry import TelemetryLogger
+    from services.units import build_plant, unit_info
+    from services.zenoh_session import open_session
+
+    _logging()
+    cfg = _config(args)
+    info = unit_info(cfg, build_plant(cfg))
+    stop = _stop_event(args.duration)
+    store = UnitStore(default_store_path(cfg.unit, args.state_dir), cfg.unit)
+    sink = None
+    if not args.no_telemetry:
+        sink = args.rerun_addr or args.rrd or str(Path(args.state_dir) / f"ssmpc-{cfg.unit}.rrd")
+    telemetry = TelemetryLogger(cfg.unit, info.cv_names, info.mv_names, sink,
+                                batch=cfg.telemetry_every)
+    session = open_session(session_settings(args))
+    node = None
+    try:
+        node = ControllerNode(cfg, session, store, telemetry, speed=args.speed,
+                              sender=args.sender)
+        _ready("controller", cfg.unit, zid=session.zid(), store=store.path)
+        node.run(stop)
+    finally:
+        if node is not None:
+            node.close()
+        else:
+            telemetry.close()
+        session.close()
+        store.close()
+    return 0
+
+
+def run_api(args) -> int:
+    import uvicorn
+
+    from api.app import create_app
+    from api.mesh import Mesh
+    from services.zenoh_session import open_session
+
+    _logging()
+    if not 0 < args.port < 65536:
+        raise CLIError(f"port: must be 1..65535, got {args.port}")
+    session = open_session(session_settings(args))
+    mesh = Mesh(session, timeout_s=args.query_timeout)
+    try:
+        app = create_app(mesh)
+        config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning",
+                                access_log=False, lifespan="off")
+        server = uvicorn.Server(config)
+        stop = _stop_event(args.duration)
+        # uvicorn runs in a worker thread (so it installs no signal handlers); the main
+        # thread owns SIGINT/SIGTERM and tells it to exit.
+        thread = threading.Thread(target=server.run, name="uvicorn", daemon=True)
+        thread.start()
+        while not server.started and thread.is_alive() and not stop.is_set():
+            time.sleep(0.02)
+        if not thread.is_alive() and not server.started:
+            raise CLIError(f"port: cannot serve on {args.host}:{args.port} (in use?)")
+        if server.started:
+            _ready("api", "-", url=f"http://{args.host}:{args.port}")
+        while not stop.is_set() and thread.is_alive():
+            stop.wait(0.2)
+        server.should_exit = True
+        thread.join(timeout=10)
+    finally:
+        mesh.close()
+        session.close()
+    return 0
