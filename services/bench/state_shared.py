@@ -2,8 +2,10 @@
 
 Each measured call is ``update(u, y)`` followed by ``estimates()`` (all models'
 outputs), the per-sample work of the identifier before adaptation and
-switching. Sizes: TE (n = 40, m = 5, order 400, 3 fixed + 1 adaptive model,
-R7.15), two-phase reactor (n = 2, m = 3), SISO (n = 2, m = 1). Thetas are
+switching. Sizes: TE as in the seed (n = 40, m = 5, order 400, 3 fixed + 1 adaptive
+model, R7.15), two-phase reactor (n = 2, m = 3), SISO (n = 2, m = 1); with
+``--te-model`` also the numerically sane TE model actually built
+(:mod:`services.studies.ch3_te`, n = 8). Thetas are
 random: the cost does not depend on their values. Also reported: building one
 model's prediction form (exact ZOH of the 400-state closed form) at TE size.
 """
@@ -30,6 +32,9 @@ SIZES = {  # case -> (n, m, models)
 def add_arguments(parser) -> None:
     parser.add_argument("--samples", type=int, default=20000, help="timed calls per case")
     parser.add_argument("--seed", type=int, default=0, help="random seed for thetas and signals")
+    parser.add_argument("--te-model", action="store_true",
+                        help="also time the real TE model (n = 8, modes 0/2/3 + adaptive; "
+                             "builds TE linearizations first, ~10 s)")
 
 
 def build(n: int, m: int, k: int, rng: np.random.Generator, dt: float = 0.01) -> StateSharedModel:
@@ -70,6 +75,13 @@ def run(args) -> list[dict]:
         ssm = build(n, m, k, rng)
         cases.append(latency_case(f"update+estimates {case}", _time_sample(ssm, args.samples, rng),
                                   "us", n_deg=n, m=m, models=k, order=ssm.order))
+    if getattr(args, "te_model", False):
+        from services.studies.ch3_te import te_state_shared_model
+
+        ssm = te_state_shared_model(dt=0.01)
+        cases.append(latency_case("update+estimates te_model_n8_m5_k4",
+                                  _time_sample(ssm, args.samples, rng), "us", n_deg=ssm.n_deg,
+                                  m=ssm.m, models=ssm.k, order=ssm.order))
     n, m, k = SIZES["te_n40_m5_k4"]
     ssm = build(n, m, k, rng)
     reps = max(3, min(20, args.samples // 1000))
