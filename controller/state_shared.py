@@ -398,6 +398,8 @@ class StateSharedModel:
         self.Fbd, self.gbd = _zoh_block(self.Fb, self.gb, dt)
         self.Fd = np.kron(np.eye(m), self.Fbd)
         self.Gd = np.kron(np.eye(m), self.gbd[:, None])
+        for arr in (self.Fb, self.gb, self.F, self.G, self.Fbd, self.gbd, self.Fd, self.Gd):
+            arr.setflags(write=False)
         self.order = 2 * n * m
         self.n_params = n * (m * m + 1)
         # Shared state as a (2m, n) matrix (rows 0..m-1 = n1 blocks, m..2m-1 = n2 blocks),
@@ -419,7 +421,12 @@ class StateSharedModel:
 
     @property
     def n(self) -> np.ndarray:
+        """The shared state [n1; n2], shape (2nm,) (a copy; assigning sets the state)."""
         return self._N.reshape(-1).copy()
+
+    @n.setter
+    def n(self, value: ArrayLike) -> None:
+        self.set_state(value)
 
     @property
     def k(self) -> int:

@@ -388,3 +388,13 @@ def test_te_sized_io_with_order_ten_is_exact():
     ours = control.ss(Ac, Bc, Cc, np.zeros((m, m))).frequency_response(w).complex
     assert np.max(np.abs(np.asarray(ours) - np.asarray(ref))) <= CONDITIONING_TOL * np.max(
         np.abs(ref))
+
+
+def test_state_setter_validates():
+    ssm = StateSharedModel([1.0, 1.0], 2, 0.1)
+    ssm.n = np.arange(8.0)
+    np.testing.assert_array_equal(ssm.n, np.arange(8.0))
+    with pytest.raises(ValueError, match="n"):
+        ssm.n = np.zeros(7)
+    with pytest.raises(ValueError):
+        ssm.F[0, 0] = 1.0  # designer matrices are read-only
