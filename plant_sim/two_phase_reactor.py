@@ -15,7 +15,13 @@ dissertation (valves act instantly; Ricker's 10 s valve lags are dropped):
     dVL/dt = (rD - F4) / rhoL
 
 Inputs are all four valve signals (x1 feed 1, x2 feed 2, x3 purge, x4bar product
-bias; %, 0-100); studies choose three of them as manipulated variables. Outputs
+bias; %, 0-100); studies choose three of them as manipulated variables. With
+``inputs="flows"`` the feeds and the purge are flow-controlled instead (ideal flow
+loops): the inputs are the set points F1, F2, F3 (kmol/h) and x4bar, and the valves
+follow (x3 = F3 / (Cv3 sqrt(P - Pr))). With flow inputs the OPI linearization gives
+the seed's eigenvalues (R3.1) to 4 digits (-3.6077, -1.2647, -0.0744, -0.0659); with
+valve inputs the slowest mode is 6.5 % off (finding of the chapter-3 study,
+services/studies/ch3.py). Outputs
 P (kPa), yA3 (mol %), F4 (kmol/h). The shutdown limit P <= 3000 kPa is the upper
 bound of the P output (2900 kPa is Ricker's conservative override,
 :data:`P_CONSERVATIVE`). The computed product valve x4 is clipped to 0-100 % and
@@ -35,6 +41,7 @@ Operating points are solved at construction with :func:`find_steady_state`:
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -111,8 +118,22 @@ class TwoPhaseReactor(PlantModel):
     input_scale = np.array([10.0, 10.0, 10.0, 10.0])
 
     def __init__(self, *, Kc: float = -1.4,
-                 VLsp: float = 100.0 * ND_NOMINAL / PARAMETERS["rhoL"] / PARAMETERS["VLmax"]
-                 ) -> None:
+                 VLsp: float = 100.0 * ND_NOMINAL / PARAMETERS["rhoL"] / PARAMETERS["VLmax"],
+                 inputs: str = "valves") -> None:
+        if inputs not in ("valves", "flows"):
+            raise PlantInputError(f"inputs: must be 'valves' or 'flows', got {inputs!r}")
+        self.input_mode = inputs
+        if inputs == "flows":
+            p = PARAMETERS
+            self.input_vars = (
+                Variable("F1", "kmol/h", "feed-1 flow set point (A, B, C)", 0.0,
+                         100.0 * p["Cv1"]),
+                Variable("F2", "kmol/h", "feed-2 flow set point (pure A)", 0.0,
+                         100.0 * p["Cv2"]),
+                Variable("F3", "kmol/h", "purge flow set point", 0.0, math.inf),
+                type(self).input_vars[3],
+            )
+            self.input_scale = np.array([10.0, 1.0, 1.0, 10.0])
         for fname, v in (("Kc", Kc), ("VLsp", VLsp)):
             if not (isinstance(v, int | float) and math.isfinite(v)):
                 raise PlantInputError(f"{fname}: must be a finite number, got {v!r}")
@@ -140,8 +161,29 @@ class TwoPhaseReactor(PlantModel):
         F4 = p["Cv4"] * x4 * dp
         return NV, P, rD, F1, F2, F3, F4
 
+    def valves(self, x, u) -> np.ndarray:
+        """Valve positions (x1, x2, x3, x4bar) in % for inputs ``u`` in either mode."""
+        if self.input_mode == "valves":
+            return np.asarray(u, dtype=float)
+        p = PARAMETERS
+        NV = x[0] + x[1] + x[2]
+        P = NV * self._RT / (p["V"] - x[3])
+        dp = math.sqrt(max(P - p["Pr"], 1e-12))
+        return np.array([u[0] / p["Cv1"], u[1] / p["Cv2"], u[2] / (p["Cv3"] * dp), u[3]])
+
+    def flow_inputs(self, x, valves) -> np.ndarray:
+        """Flow set points (F1, F2, F3, x4bar) that hold the given valve positions at ``x``."""
+        p = PARAMETERS
+        NV = x[0] + x[1] + x[2]
+        P = NV * self._RT / (p["V"] - x[3])
+        dp = math.sqrt(max(P - p["Pr"], 0.0))
+        return np.array([valves[0] * p["Cv1"], valves[1] * p["Cv2"],
+                         valves[2] * p["Cv3"] * dp, valves[3]])
+
     def rhs(self, t, x, u, d):
         p = PARAMETERS
+        if self.input_mode == "flows":
+            u = self.valves(x, u)
         NV, P, rD, F1, F2, F3, F4 = self._flows(x, u)
         f3 = F3 / NV
         return np.array([
@@ -152,12 +194,15 @@ class TwoPhaseReactor(PlantModel):
         ])
 
     def outputs(self, x, u):
+        if self.input_mode == "flows":
+            u = self.valves(x, u)
         NV, P, rD, F1, F2, F3, F4 = self._flows(x, u)
         return np.array([P, 100.0 * x[0] / NV, F4])
 
     def valve_x4(self, x, u) -> float:
         """Product-valve position commanded by the level loop, %."""
         p = PARAMETERS
+        u = self.valves(x, u)
         return min(max(u[3] + self.Kc * (self.VLsp - 100.0 * x[3] / p["VLmax"]), 0.0), 100.0)
 
     # -- operating points ----------------------------------------------------------------
@@ -166,10 +211,16 @@ class TwoPhaseReactor(PlantModel):
         key = (self.Kc, self.VLsp)
         if key not in _OP_CACHE:
             _OP_CACHE[key] = self._solve_ops()
-        return dict(_OP_CACHE[key])
+        ops = dict(_OP_CACHE[key])
+        if self.input_mode == "flows":
+            ops = {k: replace(op, u=self.flow_inputs(op.x, op.u)) for k, op in ops.items()}
+        return ops
 
     def _solve_ops(self) -> dict[str, OperatingPoint]:
         from plant_sim.steady_state import find_steady_state
+
+        valve_plant = self if self.input_mode == "valves" else TwoPhaseReactor(
+            Kc=self.Kc, VLsp=self.VLsp)
 
         VL = self.VLsp / 100.0 * PARAMETERS["VLmax"]
         ops = {}
@@ -177,7 +228,7 @@ class TwoPhaseReactor(PlantModel):
             xg, ug = _GUESS[name]
             xg = list(xg)
             xg[3] = VL
-            ss = find_steady_state(self, ug, xg, free_inputs=("x1", "x2", "x3", "x4bar"),
+            ss = find_steady_state(valve_plant, ug, xg, free_inputs=("x1", "x2", "x3", "x4bar"),
                                    targets={**spec, "VL": VL})
             if name == "OPI":
                 desc = ("Ricker's base case: P 2700 kPa, yA3 47 %, F4 100 kmol/h, "

@@ -94,3 +94,31 @@ def test_bad_options_name_the_field():
         get_plant("two_phase_reactor", VLsp=150.0)
     with pytest.raises(PlantInputError, match="^Kc"):
         get_plant("two_phase_reactor", Kc=float("nan"))
+
+
+def test_flow_inputs_reproduce_seed_opi_eigenvalues():
+    # R3.1: with flow-controlled feeds and purge the OPI eigenvalues match the printed
+    # ones to one unit of the last printed digit (-0.07442 prints as -0.0745 in the seed).
+    plant = get_plant("two_phase_reactor", inputs="flows")
+    assert plant.names("input") == ["F1", "F2", "F3", "x4bar"]
+    ev = np.sort(linearize(plant, "OPI").eigenvalues().real)
+    np.testing.assert_allclose(ev, [-3.6077, -1.2647, -0.0745, -0.0659], atol=1e-4)
+
+
+@pytest.mark.parametrize("op", ["OPI", "OPII"])
+def test_flow_mode_is_the_same_physical_point(plant, op):
+    flows = get_plant("two_phase_reactor", inputs="flows")
+    pv, pf = plant.operating_point(op), flows.operating_point(op)
+    np.testing.assert_array_equal(pv.x, pf.x)
+    np.testing.assert_allclose(flows.outputs(pf.x, pf.u), plant.outputs(pv.x, pv.u), rtol=1e-12)
+    f = flows.rhs(0.0, pf.x, pf.u, pf.d)
+    assert np.max(np.abs(f) / np.maximum(np.abs(pf.x), flows.state_scale)) <= STEADY_TOL
+    # F1 = Cv1 x1 (facts §1.3) at OPI: 201.43 kmol/h
+    if op == "OPI":
+        assert pf.u[0] == pytest.approx(201.43, abs=0.01)
+        assert pf.u[2] == pytest.approx(7.047, abs=0.001)
+
+
+def test_bad_input_mode():
+    with pytest.raises(PlantInputError, match="^inputs"):
+        get_plant("two_phase_reactor", inputs="pumps")
