@@ -220,3 +220,25 @@ def test_model_shape_mismatch_is_an_error(system):
     s = MPCSettings(nu=3, ny=2, P=5, M=2)
     with pytest.raises(ValueError, match="Gamma"):
         build_formulation(Phi, Gamma, C, s)
+
+
+def test_measured_disturbance_prediction_matches_simulation(system):
+    """Δd(k) feedforward: S_x x_a + S_u ΔU + S_d Δd equals the simulated outputs."""
+    rng, Phi, Gamma, C = system
+    Gd = rng.normal(size=(4, 1))
+    P, M = 8, 3
+    s = MPCSettings(nu=2, ny=2, P=P, M=M)
+    form = build_formulation(Phi, Gamma, C, s, Gamma_d=Gd)
+    x_prev, u_prev = rng.normal(size=4), rng.normal(size=2)
+    d_prev, d_now = np.array([0.3]), np.array([1.1])
+    x = Phi @ x_prev + Gamma @ u_prev + Gd @ d_prev
+    dU = rng.normal(size=M * 2)
+    ys, xs, u = [], x.copy(), u_prev.copy()
+    for i in range(P):
+        if i < M:
+            u = u + dU[i * 2:(i + 1) * 2]
+        xs = Phi @ xs + Gamma @ u + Gd @ d_now
+        ys.append(C @ xs)
+    x_a = form.augmented_state(x - x_prev, C @ x)
+    np.testing.assert_allclose(form.predict(x_a, dU, d_now - d_prev).ravel(),
+                               np.concatenate(ys), rtol=ALGEBRA_RTOL, atol=1e-10)

@@ -53,6 +53,8 @@ class ModelView:
         Performance-index values of all models (eq. 4.6), for reporting.
     names : tuple of str
         Model names aligned with ``J``.
+    Gamma_d : ndarray, shape (n, nd), optional
+        Measured-disturbance input of the model (feedforward of Δd).
     """
 
     key: Hashable
@@ -64,6 +66,7 @@ class ModelView:
     index: int = -1
     J: np.ndarray = field(default_factory=lambda: np.zeros(0))
     names: tuple[str, ...] = ()
+    Gamma_d: np.ndarray | None = None
 
 
 @runtime_checkable
@@ -86,8 +89,10 @@ class LinearModelState:
 
     Parameters
     ----------
-    models : mapping key -> (Phi, Gamma, C) or sequence of such tuples
-        Deviation models around an operating point; the model input is ``u − u_ref``.
+    models : mapping key -> (Phi, Gamma, C[, Gamma_d]) or sequence of such tuples
+        Deviation models around an operating point; the model input is ``u − u_ref``;
+        ``Gamma_d`` (n, nd) is the input of a measured disturbance (see
+        :meth:`MPCController.set_measured_disturbance`).
     u_ref : array_like, shape (nu,), optional
         Input about which the models are linear (default zero). A constant offset
         cancels in Δx.
@@ -103,6 +108,10 @@ class LinearModelState:
         if not items:
             raise ValueError("models: at least one model is required")
         self.models = {k: tuple(np.asarray(m, dtype=float) for m in v[:3]) for k, v in items}
+        self.Gamma_d = {k: (np.asarray(v[3], dtype=float) if len(v) > 3 and v[3] is not None
+                            else None) for k, v in items}
+        self.d = None  # measured disturbance in force over the last sample
+        self._d_next = None
         self.keys = [k for k, _ in items]
         nu = self.models[self.keys[0]][1].shape[1]
         self.u_ref = np.zeros(nu) if u_ref is None else np.asarray(u_ref, dtype=float)
@@ -125,11 +134,20 @@ class LinearModelState:
             self.x_prev[k] = self.x[k]
             if self._started:
                 self.x[k] = Phi @ self.x[k] + Gamma @ du
+                if self.Gamma_d[k] is not None and self.d is not None:
+                    self.x[k] = self.x[k] + self.Gamma_d[k] @ self.d
+        if self._d_next is not None:
+            self.d = self._d_next
         self._started = True
         Phi, Gamma, C = self.models[self.active]
         return ModelView(self.active, self.x[self.active], self.x_prev[self.active], Phi, Gamma,
                          C, index=self.keys.index(self.active),
-                         names=tuple(str(k) for k in self.keys))
+                         names=tuple(str(k) for k in self.keys),
+                         Gamma_d=self.Gamma_d[self.active])
+
+    def set_measured_disturbance(self, d) -> None:
+        """Disturbance measured now, in force over the coming sample (deviation units)."""
+        self._d_next = np.asarray(d, dtype=float).copy()
 
     def checkpoint(self) -> dict[str, Any]:
         return {"x": {str(k): v.tolist() for k, v in self.x.items()},
@@ -184,11 +202,29 @@ class MPCController:
                                         "solver_failure", "invalid_measurement",
                                         "invalid_reference", "error", "rebuilds")}
         self.last_result: QPResult | None = None
+        self.d: np.ndarray | None = None
+        self.d_prev: np.ndarray | None = None
+
+    def set_measured_disturbance(self, d) -> None:
+        """Measured disturbance at this sample, before :meth:`step` (feedforward).
+
+        ``Δd = d(k) − d(k−1)`` enters the prediction through the model's ``Gamma_d``;
+        future changes are taken as zero. A non-finite value is ignored (no feedforward
+        this sample). Forwarded to the state source when it accepts it.
+        """
+        d = np.asarray(d, dtype=float).reshape(-1)
+        if not np.all(np.isfinite(d)):
+            return
+        self.d_prev = d.copy() if self.d is None else self.d
+        self.d = d.copy()
+        fwd = getattr(self.source, "set_measured_disturbance", None)
+        if callable(fwd):
+            fwd(d)
 
     # -- preparation ---------------------------------------------------------------
-    def prepare(self, key: Hashable, Phi, Gamma, C) -> DeltaUFormulation:
+    def prepare(self, key: Hashable, Phi, Gamma, C, Gamma_d=None) -> DeltaUFormulation:
         """Build (or fetch) the formulation and solver of one model ahead of use."""
-        form, built = self.cache.get(key, Phi, Gamma, C)
+        form, built = self.cache.get(key, Phi, Gamma, C, Gamma_d)
         entry = self._solvers.get(key)
         if built or entry is None or entry[0] is not form:
             s = self.settings
@@ -271,11 +307,15 @@ class MPCController:
                                       solve_ms=0.0, alarms=(
                                           f"sample {k}: invalid reference; {how}",),
                                       extra={"fallback_move": how, "y_filtered": y_f})
-            form = self.prepare(view.key, view.Phi, view.Gamma, view.C)
+            form = self.prepare(view.key, view.Phi, view.Gamma, view.C, view.Gamma_d)
             solver = self._solvers[view.key][1]
             t_build = self.clock()
             x_a = np.concatenate([np.asarray(view.x) - np.asarray(view.x_prev), y_f])
-            vec = form.qp_vectors(x_a, self.u, R)
+            dd = None
+            if view.Gamma_d is not None and self.d is not None:
+                dd = self.d - self.d_prev
+            self.d_prev = self.d
+            vec = form.qp_vectors(x_a, self.u, R, dd)
             res = solver.solve(vec)
             self.last_result = res
             # The budget covers the sample's work except a one-off (re)build of a
@@ -290,7 +330,7 @@ class MPCController:
                 u = np.clip(self.u + np.clip(plan[0], -s.du_max, s.du_max), s.u_min, s.u_max)
                 if form.has_slack:
                     extra["slack"] = float(z[-1])
-                extra["predicted"] = form.predict(x_a, z[:form.n_moves])
+                extra["predicted"] = form.predict(x_a, z[:form.n_moves], dd)
                 self.counters["solved"] += 1
                 return self._decision(u, view, fallback=False, status="solved",
                                       solve_ms=res.solve_ms, extra=extra)

@@ -168,6 +168,8 @@ class DeltaUFormulation:
     ymin_rows: np.ndarray
     lb0: np.ndarray
     ub0: np.ndarray
+    Gamma_d: np.ndarray | None = None
+    S_d: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         # Per-sample constants, so qp_vectors allocates only what changes.
@@ -194,7 +196,7 @@ class DeltaUFormulation:
         return np.concatenate([np.asarray(dx, dtype=float).ravel(),
                                np.asarray(y, dtype=float).ravel()])
 
-    def qp_vectors(self, x_a, u_prev, reference) -> QPVectors:
+    def qp_vectors(self, x_a, u_prev, reference, dd=None) -> QPVectors:
         """QP vectors at one sample.
 
         Parameters
@@ -205,13 +207,21 @@ class DeltaUFormulation:
             Inputs applied over the last sample, ``u(k-1)``.
         reference : ndarray, shape (P, ny) or (ny,)
             Reference for ``y(k+1) … y(k+P)``; a single row is held over the horizon.
+        dd : ndarray, shape (nd,), optional
+            Change of the measured disturbance at this sample, ``d(k) − d(k−1)``
+            (feedforward; future changes are taken as zero). Needs ``Gamma_d``.
         """
         s = self.settings
         R = np.asarray(reference, dtype=float)
         if R.ndim == 1:
             R = np.broadcast_to(R, (s.P, s.ny))
         f = np.empty(self.nz)
-        f[:self.n_moves] = self.F_x @ x_a - self.F_r @ R.reshape(-1)
+        off = None
+        if dd is not None and self.S_d is not None:
+            off = self.S_d @ np.asarray(dd, dtype=float)  # predicted effect of Δd(k)
+            f[:self.n_moves] = self.F_x @ x_a - self.F_r @ (R.reshape(-1) - off)
+        else:
+            f[:self.n_moves] = self.F_x @ x_a - self.F_r @ R.reshape(-1)
         if self.has_slack:
             f[-1] = s.slack_linear
         bl = self._bl0.copy()
@@ -224,17 +234,22 @@ class DeltaUFormulation:
         if self.has_slack:
             bu[n_in:n_in + n_max] -= self._Sx_max @ x_a
             bl[n_in + n_max:] -= self._Sx_min @ x_a
+            if off is not None:
+                bu[n_in:n_in + n_max] -= off[self.ymax_rows]
+                bl[n_in + n_max:] -= off[self.ymin_rows]
         return QPVectors(f=f, lb=self.lb0, ub=self.ub0, bl=bl, bu=bu)
 
-    def predict(self, x_a, dU) -> np.ndarray:
+    def predict(self, x_a, dU, dd=None) -> np.ndarray:
         """Predicted outputs ``y(k+1) … y(k+P)`` for the moves ``dU``, shape (P, ny)."""
         s = self.settings
-        return (self.S_x @ x_a + self.S_u @ np.asarray(dU, dtype=float).ravel()).reshape(
-            s.P, s.ny)
+        Y = self.S_x @ x_a + self.S_u @ np.asarray(dU, dtype=float).ravel()
+        if dd is not None and self.S_d is not None:
+            Y = Y + self.S_d @ np.asarray(dd, dtype=float)
+        return Y.reshape(s.P, s.ny)
 
 
 def build_formulation(Phi, Gamma, C, settings: MPCSettings,
-                      terminal_weight=None) -> DeltaUFormulation:
+                      terminal_weight=None, Gamma_d=None) -> DeltaUFormulation:
     """Build the condensed QP of eq. 6.10 for one model.
 
     Parameters
@@ -246,6 +261,9 @@ def build_formulation(Phi, Gamma, C, settings: MPCSettings,
         Extra weight W on the augmented state at ``k+P`` (``½ x_a(k+P)ᵀ W x_a(k+P)``
         in the halved cost). With ``M = P`` and ``W = X − C_aᵀΞC_a``, X the solution
         of the Riccati equation, the MPC is the LQR of the augmented model.
+    Gamma_d : array_like, shape (n, nd), optional
+        Measured-disturbance input ``x(k+1) = Φx + Γu + Γ_d d``; enables feedforward of
+        ``Δd(k)`` through ``S_d`` (block i: ``C_a Φ_a^i [Γ_d; CΓ_d]``).
 
     Raises
     ------
@@ -311,13 +329,26 @@ def build_formulation(Phi, Gamma, C, settings: MPCSettings,
         blocks.append(np.hstack([S_u[ymax_rows], -scale[ymax_rows, None]]))
         blocks.append(np.hstack([S_u[ymin_rows], scale[ymin_rows, None]]))
     A = np.vstack(blocks) if blocks else np.zeros((0, nz))
+    S_d = None
+    if Gamma_d is not None:
+        Gamma_d = np.asarray(Gamma_d, dtype=float).reshape(Phi.shape[0], -1)
+        if not np.all(np.isfinite(Gamma_d)):
+            raise ValueError("Gamma_d: non-finite entries")
+        Psi_d = np.vstack([Gamma_d, C @ Gamma_d])
+        S_d = np.zeros((s.P * s.ny, Gamma_d.shape[1]))
+        v = Psi_d
+        for i in range(s.P):
+            S_d[i * s.ny:(i + 1) * s.ny] = C_a @ v
+            v = Phi_a @ v
+        Gamma_d.setflags(write=False)
+        S_d.setflags(write=False)
     for arr in (Phi, Gamma, C, Phi_a, Psi_a, C_a, S_x, S_u, H, A, F_x, F_r, lb0, ub0):
         arr.setflags(write=False)
     return DeltaUFormulation(
         settings=s, Phi=Phi, Gamma=Gamma, C=C, Phi_a=Phi_a, Psi_a=Psi_a, C_a=C_a,
         S_x=S_x, S_u=S_u, H=H, A=np.ascontiguousarray(A), F_x=F_x, F_r=F_r, nz=nz,
         n_moves=nmv, has_slack=has_slack, input_rows=input_rows, ymax_rows=ymax_rows,
-        ymin_rows=ymin_rows, lb0=lb0, ub0=ub0,
+        ymin_rows=ymin_rows, lb0=lb0, ub0=ub0, Gamma_d=Gamma_d, S_d=S_d,
     )
 
 
@@ -334,13 +365,16 @@ class FormulationCache:
         self._store: dict[Hashable, DeltaUFormulation] = {}
         self.builds = 0
 
-    def get(self, key: Hashable, Phi, Gamma, C) -> tuple[DeltaUFormulation, bool]:
+    def get(self, key: Hashable, Phi, Gamma, C,
+            Gamma_d=None) -> tuple[DeltaUFormulation, bool]:
         """The formulation for ``key``; the flag is True when it was (re)built now."""
         form = self._store.get(key)
         if form is not None and _same(form.Phi, Phi) and _same(form.Gamma, Gamma) and _same(
-                form.C, C):
+                form.C, C) and ((Gamma_d is None and form.Gamma_d is None) or (
+                Gamma_d is not None and form.Gamma_d is not None
+                and _same(form.Gamma_d, Gamma_d))):
             return form, False
-        form = build_formulation(Phi, Gamma, C, self.settings, self.terminal_weight)
+        form = build_formulation(Phi, Gamma, C, self.settings, self.terminal_weight, Gamma_d)
         self._store[key] = form
         self.builds += 1
         return form, True
