@@ -640,6 +640,30 @@ class StateSharedModel:
             slot.prediction = PredictionForm(Phi, Gam, C, b, fd)
         return slot.prediction
 
+    def sampled_form(self, j: int) -> PredictionForm:
+        """Model j closed over the *sampled* shared-state update: (Phi, Gamma, C, b), ``.f``.
+
+        ``n(k+1) = Fd-update of n(k) with u(k) and y(k) = C n(k) + b`` held over the
+        sample: ``Phi = [[Fd, 0], [Gd Th1^T, Fd + Gd Th2^T]]``, ``Gamma = [Gd; 0]``,
+        ``f = [0; Gd b]``. This is exactly how :meth:`update` moves the state when
+        fed model j's own output, so predictions stay consistent with the measured
+        state; :meth:`prediction_form` is instead the exact ZOH discretization of the
+        continuous model (they differ by O(dt) in the n2 coupling). No matrix
+        exponential: cheap enough to rebuild every sample for adaptive models.
+        """
+        spec = self.model(j)
+        nm = self.n_deg * self.m
+        th1, th2 = spec.theta[:nm], spec.theta[nm:]
+        Phi = np.zeros((2 * nm, 2 * nm))
+        Phi[:nm, :nm] = self.Fd
+        Phi[nm:, :nm] = self.Gd @ th1.T
+        Phi[nm:, nm:] = self.Fd + self.Gd @ th2.T
+        Gam = np.zeros((2 * nm, self.m))
+        Gam[:nm] = self.Gd
+        f = np.zeros(2 * nm)
+        f[nm:] = self.Gd @ spec.bias
+        return PredictionForm(Phi, Gam, spec.theta.T.copy(), spec.bias.copy(), f)
+
     # -- persistence ----------------------------------------------------------------
     def checkpoint(self) -> dict:
         """JSON-serialisable snapshot (plain lists/floats); :meth:`restore` is exact."""

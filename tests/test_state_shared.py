@@ -398,3 +398,23 @@ def test_state_setter_validates():
         ssm.n = np.zeros(7)
     with pytest.raises(ValueError):
         ssm.F[0, 0] = 1.0  # designer matrices are read-only
+
+
+def test_sampled_form_reproduces_update_driven_by_own_output():
+    rng = np.random.default_rng(21)
+    a = designer_polynomial([-1.0, -2.0])
+    A, B, C = random_stable(rng, 2, 2)
+    spec = StateSharedModel.model_from_linear("M", A, B, C, [1.0, 2.0], [3.0, 4.0], a)
+    ssm = StateSharedModel(a, 2, 0.1, [spec])
+    ssm.initialize([1.0, 2.0], [3.0, 4.0])
+    Phi, Gam, Cj, b = pf = ssm.sampled_form(0)
+    z = ssm.n
+    for _ in range(20):
+        u = rng.standard_normal(2)
+        y = ssm.estimates()[0]
+        ssm.update(u, y)
+        z = Phi @ z + Gam @ u + pf.f
+        np.testing.assert_allclose(ssm.n, z, rtol=1e-12, atol=1e-12)
+    # and for small dt it approaches the exact prediction form
+    fine = StateSharedModel(a, 2, 1e-4, [spec])
+    np.testing.assert_allclose(fine.sampled_form(0).Phi, fine.prediction_form(0).Phi, atol=1e-7)
