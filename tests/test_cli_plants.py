@@ -199,3 +199,23 @@ def test_linearize_calcium_chapter6_outputs(capsys):
     doc = last_json(capsys.readouterr().out)
     assert doc["output_names"] == ["x5", "x6"] and doc["input_names"] == ["J", "q1"]
     assert np.array(doc["C"]).shape == (2, 5)
+
+
+def test_bench_unit_plants_document_shape(capsys):
+    assert main(["bench", "unit-plants", "--repeat", "1", "--steps", "2", "--json"]) == 0
+    doc = last_json(capsys.readouterr().out)
+    assert doc["bench"] == "unit-plants" and doc["machine"]
+    names = {c["case"] for c in doc["cases"]}
+    assert {"calcium step", "two_phase_reactor simulate"} <= names
+    for c in doc["cases"]:
+        assert {"median", "p99", "max", "n", "unit"} <= set(c)
+
+
+def test_sim_calcium_plot(tmp_path, capsys):
+    out, png = tmp_path / "ca.csv", tmp_path / "ca.png"
+    assert main(["sim", "calcium", "--op", "OPII", "--hours", "5", "--sample", "0.05",
+                 "--step", "J=1@1", "--out", str(out), "--plot", str(png), "--json"]) == 0
+    doc = last_json(capsys.readouterr().out)
+    assert doc["time_unit"] == "s" and doc["reconstructed"] is True
+    # more trigger influx raises cytosolic Ca (the seed's sign convention, doc §2)
+    assert doc["final"]["x"]["x5"] > 0.167 and png.exists()
