@@ -1,0 +1,110 @@
+"""Strict, versioned message codecs: round trips and every kind of bad payload."""
+
+import json
+import math
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from services.messages import (
+    SCHEMA_VERSION,
+    Measurement,
+    MessageError,
+    MVMessage,
+    Reply,
+    Request,
+)
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+
+
+def _meas_obj(**over):
+    obj = {"schema": SCHEMA_VERSION, "kind": "meas", "unit": "cstr", "seq": 3, "t": 0.3,
+           "y": [1.3], "u": [0.4], "mv_seq": 2, "shutdown": False}
+    obj.update(over)
+    return obj
+
+
+@given(seq=st.integers(0, 2**53), t=finite, y=st.lists(finite, min_size=1, max_size=41),
+       u=st.lists(finite, min_size=1, max_size=12))
+def test_measurement_round_trip_is_exact(seq, t, y, u):
+    msg = Measurement(unit="te", seq=seq, t=t, y=tuple(y), u=tuple(u), mv_seq=-1)
+    back = Measurement.from_bytes(msg.to_bytes(), unit="te", ny=len(y), nu=len(u))
+    assert back == msg
+
+
+def test_mv_round_trip():
+    msg = MVMessage(unit="cstr", seq=7, meas_seq=6, u=(0.41,), sender="cstr-controller",
+                    fallback=True)
+    assert MVMessage.from_bytes(msg.to_bytes(), unit="cstr", nu=1) == msg
+
+
+@pytest.mark.parametrize("text", ['{"y": NaN}', '{"y": Infinity}', '{"y": -Infinity}'])
+def test_nan_and_inf_literals_are_rejected(text):
+    obj = _meas_obj()
+    payload = json.dumps(obj).replace('"y": [1.3]', text[1:-1])
+    with pytest.raises(MessageError, match="non-finite"):
+        Measurement.from_bytes(payload.encode())
+
+
+def test_nan_cannot_be_encoded():
+    with pytest.raises(MessageError, match="y"):
+        Measurement(unit="cstr", seq=0, t=0.0, y=(math.nan,), u=(0.4,))
+
+
+@pytest.mark.parametrize("over, field", [
+    ({"schema": 2}, "schema"),
+    ({"schema": "1"}, "schema"),
+    ({"kind": "mv"}, "kind"),
+    ({"seq": -1}, "seq"),
+    ({"seq": 1.5}, "seq"),
+    ({"seq": True}, "seq"),
+    ({"t": "0"}, "t"),
+    ({"y": [1.3, 2.0]}, "y"),
+    ({"y": ["1.3"]}, "y"),
+    ({"y": 1.3}, "y"),
+    ({"u": [True]}, "u"),
+    ({"unit": "te"}, "unit"),
+    ({"shutdown": 0}, "shutdown"),
+    ({"extra": 1}, "extra"),
+])
+def test_measurement_decoder_names_the_bad_field(over, field):
+    payload = json.dumps(_meas_obj(**over)).encode()
+    with pytest.raises(MessageError, match=field):
+        Measurement.from_bytes(payload, unit="cstr", ny=1, nu=1)
+
+
+def test_missing_field_is_named():
+    obj = _meas_obj()
+    del obj["t"]
+    with pytest.raises(MessageError, match="missing.*t"):
+        Measurement.from_bytes(json.dumps(obj).encode())
+
+
+@pytest.mark.parametrize("payload", [b"", b"not json", b"[1, 2]", b"\xff\xfe", b"null"])
+def test_garbage_is_a_message_error(payload):
+    with pytest.raises(MessageError):
+        Measurement.from_bytes(payload)
+
+
+def test_mv_wrong_length_and_sender_type():
+    good = MVMessage(unit="cstr", seq=1, meas_seq=0, u=(0.4,), sender="c").to_bytes()
+    with pytest.raises(MessageError, match="u: expected length 2"):
+        MVMessage.from_bytes(good, nu=2)
+    obj = json.loads(good)
+    obj["sender"] = ""
+    with pytest.raises(MessageError, match="sender"):
+        MVMessage.from_bytes(json.dumps(obj).encode())
+
+
+def test_request_and_reply():
+    req = Request("transition", {"op": "create", "grade": "OPII"})
+    assert Request.from_bytes(req.to_bytes()) == req
+    rep = Reply(404, error="unit: unknown")
+    back = Reply.from_bytes(rep.to_bytes())
+    assert back == rep and not back.ok
+    assert Reply(202, {"id": "x"}).ok
+    with pytest.raises(MessageError, match="args"):
+        Request.from_bytes(json.dumps({"schema": 1, "kind": "request", "action": "x",
+                                       "args": [1]}).encode())

@@ -1,0 +1,255 @@
+"""Plant and controller nodes over the real Zenoh (loopback): closed loop, bad input, restart.
+
+The nodes run in threads of this process, each with its own Zenoh session, in
+lock-step mode unless a test needs the wall clock.
+"""
+
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from services import keys
+from services.controller_node import ControllerNode
+from services.messages import Measurement, MVMessage, Reply, Request
+from services.plant_node import PlantNode
+from services.store import UnitStore
+from services.telemetry import TelemetryLogger
+from services.units import get_unit
+from services.zenoh_session import SessionSettings, free_tcp_endpoint, open_session
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
+
+LEASE_MS = 1000
+
+
+class Harness:
+    """A controller node and a plant node of one unit, each on its own session."""
+
+    def __init__(self, tmp_path, unit="cstr", speed=100.0, lockstep=True, telemetry=True,
+                 start_plant=True, **cfg_over):
+        from dataclasses import replace
+
+        self.cfg = replace(get_unit(unit), **cfg_over)
+        self.tmp = tmp_path
+        self.ep = free_tcp_endpoint()
+        self.speed = speed
+        self.lockstep = lockstep
+        self.telemetry = telemetry
+        self.s_ctrl = open_session(SessionSettings(listen=(self.ep,), lease_ms=LEASE_MS))
+        self.s_plant = open_session(SessionSettings(connect=(self.ep,), lease_ms=LEASE_MS))
+        self.s_client = open_session(SessionSettings(connect=(self.ep,), lease_ms=LEASE_MS))
+        self.stop_ctrl = threading.Event()
+        self.stop_plant = threading.Event()
+        self.ctrl = None
+        self.plant = None
+        self.threads = []
+        self.start_controller()
+        if start_plant:
+            self.start_plant()
+
+    @property
+    def store_path(self):
+        return self.tmp / f"{self.cfg.unit}.sqlite"
+
+    def start_controller(self):
+        self.store = UnitStore(self.store_path, self.cfg.unit)
+        tel = None
+        if self.telemetry:
+            tel = TelemetryLogger(self.cfg.unit, ["y"] if self.cfg.unit == "cstr" else [],
+                                  ["u"] if self.cfg.unit == "cstr" else [],
+                                  self.tmp / f"{self.cfg.unit}.rrd", batch=20)
+        self.stop_ctrl = threading.Event()
+        self.ctrl = ControllerNode(self.cfg, self.s_ctrl, self.store, tel, speed=self.speed)
+        th = threading.Thread(target=self.ctrl.run, args=(self.stop_ctrl,), daemon=True)
+        th.start()
+        self.ctrl_thread = th
+
+    def stop_controller(self):
+        self.stop_ctrl.set()
+        self.ctrl_thread.join(5)
+        self.ctrl.close()
+        self.store.close()
+
+    def start_plant(self, **kw):
+        time.sleep(0.3)  # let the sessions see each other's declarations
+        self.plant = PlantNode(self.cfg, self.s_plant, speed=self.speed, lockstep=self.lockstep,
+                               lockstep_timeout_s=kw.pop("lockstep_timeout_s", 1.0), **kw)
+        th = threading.Thread(target=self.plant.run, args=(self.stop_plant,), daemon=True)
+        th.start()
+        self.plant_thread = th
+
+    def query(self, action, args=None, timeout=2.0):
+        rs = list(self.s_client.get(keys.cmd(self.cfg.unit, action),
+                                    payload=Request(action, args or {}).to_bytes(),
+                                    timeout=timeout))
+        assert rs, f"no reply to {action}"
+        return Reply.from_bytes(rs[0].ok.payload.to_bytes())
+
+    def wait_transition(self, tid, timeout=30.0):
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            v = self.query("transition", {"op": "get", "id": tid}).data
+            if v["state"] in ("settled", "aborted", "failed"):
+                return v
+            time.sleep(0.05)
+        raise AssertionError(f"transition {tid} still {v['state']}")
+
+    def wait_samples(self, n, timeout=20.0):
+        t_end = time.monotonic() + timeout
+        start = self.ctrl.k
+        while self.ctrl.k < start + n and time.monotonic() < t_end:
+            time.sleep(0.01)
+        assert self.ctrl.k >= start + n, "loop did not advance"
+
+    def close(self):
+        self.stop_plant.set()
+        if self.plant is not None:
+            self.plant_thread.join(5)
+            self.plant.close()
+        if self.ctrl is not None and not self.stop_ctrl.is_set():
+            self.stop_controller()
+        for s in (self.s_client, self.s_plant, self.s_ctrl):
+            s.close()
+
+
+@pytest.fixture
+def harness(tmp_path):
+    hs = []
+
+    def make(**kw):
+        h = Harness(tmp_path, **kw)
+        hs.append(h)
+        return h
+
+    yield make
+    for h in hs:
+        h.close()
+
+
+CSTR_OPII_Y = 5.0  # facts: OPII y = x2 = 5.0
+SETTLE_TOL = 0.02  # the unit's settle band (fraction of the unit scale 1.0)
+
+
+def test_closed_loop_transition_settles_at_the_grade(harness):
+    h = harness()
+    h.wait_samples(5)
+    rep = h.query("transition", {"op": "create", "grade": "OPII"})
+    assert rep.code == 202 and rep.data["state"] == "pending"
+    view = h.wait_transition(rep.data["id"])
+    assert view["state"] == "settled"
+    st = h.query("status").data
+    assert abs(st["cv"]["y"] - CSTR_OPII_Y) <= SETTLE_TOL
+    assert st["grade"] == "OPII"
+    for key in ("active_model", "J", "solve_ms", "deadline_misses", "fallback_moves"):
+        assert key in st
+    events = [e["state"] for e in h.store.events(rep.data["id"])]
+    assert events == ["pending", "running", "settled"]
+    ps = h.plant.status()
+    assert ps["mv_rejected"] == {"decode": 0, "sender": 0, "stale": 0}
+    assert ps["lockstep_timeouts"] == 0
+
+
+def test_conflict_and_unknown_grade(harness):
+    h = harness()
+    h.wait_samples(2)
+    assert h.query("transition", {"op": "create", "grade": "OPII"}).code == 202
+    assert h.query("transition", {"op": "create", "grade": "OPIII"}).code == 409
+    assert h.query("transition", {"op": "create", "grade": "mode9"}).code == 404
+    assert h.query("transition", {"op": "get", "id": "nope"}).code == 404
+    assert h.query("transition", {"op": "create", "grade": 3}).code == 422
+    assert h.query("bogus").code == 404
+
+
+def test_plant_ignores_mv_from_wrong_sender_stale_and_malformed(harness):
+    h = harness(start_plant=False)
+    h.stop_controller()  # only the plant and our own publisher talk
+    h.start_plant(expected_sender="cstr-controller")
+    time.sleep(0.3)
+    pub = h.s_client.declare_publisher(keys.mv("cstr"))
+    good = MVMessage(unit="cstr", seq=10, meas_seq=0, u=(0.45,), sender="cstr-controller")
+    wrong = MVMessage(unit="cstr", seq=11, meas_seq=0, u=(9.0,), sender="intruder")
+    stale = MVMessage(unit="cstr", seq=5, meas_seq=0, u=(8.0,), sender="cstr-controller")
+    nan = json.dumps({"schema": 1, "kind": "mv", "unit": "cstr", "seq": 12, "meas_seq": 0,
+                      "u": [float("nan")], "sender": "cstr-controller"}).encode()
+    v2 = json.loads(good.to_bytes())
+    v2["schema"] = 2
+    v2["seq"] = 13
+    for payload in (good.to_bytes(), wrong.to_bytes(), stale.to_bytes(), nan,
+                    json.dumps(v2).encode(), b"\x00garbage"):
+        pub.put(payload)
+    t_end = time.monotonic() + 5
+    while time.monotonic() < t_end and sum(h.plant.status()["mv_rejected"].values()) < 5:
+        time.sleep(0.02)
+    st = h.plant.status()
+    assert st["mv_rejected"] == {"decode": 3, "sender": 1, "stale": 1}
+    time.sleep(0.1)
+    assert h.plant.runner.u[0] == pytest.approx(0.45)  # only the good one was applied
+    pub.undeclare()
+
+
+def test_controller_rejects_bad_measurements_and_keeps_running(harness):
+    h = harness()
+    h.wait_samples(3)
+    pub = h.s_client.declare_publisher(keys.meas("cstr"))
+    time.sleep(0.2)
+    bad = [b'{"schema":1,"kind":"meas","unit":"cstr","seq":1,"t":0,"y":[NaN],"u":[0.4]}',
+           Measurement(unit="cstr", seq=1, t=0.0, y=(1.0, 2.0), u=(0.4,)).to_bytes(),
+           b'{"schema":9,"kind":"meas"}', b"[]"]
+    for p in bad:
+        pub.put(p)
+    t_end = time.monotonic() + 5
+    while h.ctrl.bad_measurements < len(bad) and time.monotonic() < t_end:
+        time.sleep(0.02)
+    assert h.ctrl.bad_measurements == len(bad)
+    h.wait_samples(5)  # the loop goes on
+    assert any("bad measurement" in a for a in h.query("status").data["alarms"])
+    pub.undeclare()
+
+
+def test_restart_is_bumpless_and_history_complete(harness):
+    h = harness()
+    h.wait_samples(3)
+    tid = h.query("transition", {"op": "create", "grade": "OPII"}).data["id"]
+    h.wait_samples(20)
+    h.stop_plant.set()
+    h.plant_thread.join(5)
+    h.plant.close()
+    time.sleep(0.3)  # the controller answers the plant's last measurement
+    h.stop_controller()
+    last_ctrl_u = h.ctrl.u_last.copy()
+    # a fresh controller node on the same store: the first MV it sends is the last one
+    seen = []
+    sub = h.s_client.declare_subscriber(keys.mv("cstr"), lambda s: seen.append(
+        MVMessage.from_bytes(s.payload.to_bytes())))
+    time.sleep(0.2)
+    h.start_controller()
+    t_end = time.monotonic() + 5
+    while not seen and time.monotonic() < t_end:
+        time.sleep(0.02)
+    assert seen, "restarted controller sent no MV"
+    np.testing.assert_array_equal(seen[0].u, last_ctrl_u)
+    assert h.ctrl.restored_from is not None
+    view = h.query("transition", {"op": "get", "id": tid}).data
+    assert view["state"] == "running"
+    sub.undeclare()
+    h.stop_plant = threading.Event()
+    h.start_plant()
+    assert h.wait_transition(tid)["state"] == "settled"
+    events = [e["state"] for e in UnitStore(h.store_path, "cstr").events(tid)]
+    assert events == ["pending", "running", "settled"]
+
+
+def test_controller_gone_plant_holds_last_move(harness):
+    h = harness(lockstep=False, speed=20.0)
+    h.wait_samples(5)
+    u_before = h.plant.runner.u.copy()
+    h.stop_controller()
+    k0 = h.plant.status()["sample"]
+    time.sleep(0.5)
+    st = h.plant.status()
+    assert st["sample"] > k0 + 10  # the plant keeps running in real time
+    np.testing.assert_array_equal(h.plant.runner.u, u_before)
+    assert st["mv_held"] >= 10

@@ -1,0 +1,69 @@
+"""Timing budget, sample clock (fake clock), deadline counting, watchdog."""
+
+import threading
+import time
+
+import pytest
+
+from services.timing import DeadlineStats, SampleClock, TimingBudget, Watchdog
+
+
+def test_budget_is_fraction_of_scaled_period():
+    b = TimingBudget(sample_period_s=36.0, speed=10_000.0, fraction=0.5)
+    assert b.wall_period_s == pytest.approx(3.6e-3)
+    assert b.budget_s == pytest.approx(1.8e-3)
+
+
+@pytest.mark.parametrize("kw, field", [
+    ({"sample_period_s": 0.0}, "sample_period_s"),
+    ({"speed": -1.0}, "speed"),
+    ({"speed": float("inf")}, "speed"),
+    ({"fraction": 0.0}, "fraction"),
+    ({"fraction": 1.5}, "fraction"),
+])
+def test_budget_validation_names_field(kw, field):
+    args = {"sample_period_s": 1.0, **kw}
+    with pytest.raises(ValueError, match=field):
+        TimingBudget(**args)
+
+
+class FakeClock:
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+def test_clock_reanchors_instead_of_bursting():
+    fake = FakeClock()
+    clock = SampleClock(0.5, now=fake)
+    fake.now = 100.5  # exactly on the first boundary: no sleep needed
+    assert clock.wait_next() == 1
+    fake.now = 103.0  # fell behind by several periods
+    assert clock.wait_next() == 2
+    assert clock.overruns >= 3
+    assert clock.deadline() == pytest.approx(103.0)
+
+
+def test_deadline_stats_counts_misses_and_slack():
+    s = DeadlineStats(budget_s=1e-3)
+    assert not s.record(0.5e-3)
+    assert s.record(2e-3, fallback=True)
+    assert (s.samples, s.misses, s.fallbacks) == (2, 1, 1)
+    assert s.slack_ms(2e-3) == pytest.approx(-1.0)
+    assert s.as_dict()["max_ms"] == pytest.approx(2.0)
+
+
+def test_watchdog_fires_at_deadline_and_not_when_disarmed():
+    wd = Watchdog()
+    fired = threading.Event()
+    wd.arm(time.perf_counter() + 0.02, fired.set)
+    assert fired.wait(2.0)
+    assert wd.disarm() is True
+    other = threading.Event()
+    wd.arm(time.perf_counter() + 0.5, other.set)
+    assert wd.disarm() is False
+    time.sleep(0.6)
+    assert not other.is_set()
+    wd.close()
