@@ -12,13 +12,15 @@ Cases
     (order 24) plus one free-running adaptive model, P = 40, M = 4, 3 MVs;
     transitions 100 → 130 → 100 kmol/h repeated.
 
-    ``te``: TE size as the state-shared engineer sizes it (n = 40, m = 5: shared order
-    400, 3 fixed + 1 adaptive model), P = 10, M = 4, 5 MVs (QP: 21 variables, input,
+    ``te``: the chapter-3 TE state-shared model (``services.studies.ch3_te``: modes 0,
+    2, 3 + one adaptive model, n = 8, m = 5, shared order 80, 208 parameters per
+    model; 5 MVs: XMV 3, 4, 6, T_r*, XMV 11), P = 10, M = 4 (QP: 21 variables, input,
     rate and soft output limits). The state-shared model is square (as many MVs as
     CVs), so 7 MVs with 5 CVs is not expressible; the 29-variable QP alone is in
-    ``ssmpc bench qp``. The plant is model 0 of the set with an output disturbance;
-    the set points move every 50 samples. Adaptation of the 1045-parameter model is
-    timed as part of the sample.
+    ``ssmpc bench qp``. The plant is the mode-3 model (the stable one) with output
+    disturbances; set points move every 50 samples. Building the TE linear models
+    takes ~30 s before timing starts. ``--synthetic-te`` adds a random n = 40 model
+    (order 400, 1045 adapted parameters), the seed's size.
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (TE-size models)")
     parser.add_argument("--no-adapt", action="store_true",
                         help="skip the adaptation step (to see its share)")
+    parser.add_argument("--synthetic-te", action="store_true",
+                        help="also a random n = 40 model (shared order 400, the seed's size)")
 
 
 class _Timer:
@@ -140,55 +144,79 @@ def two_phase_case(samples: int, adapt: bool = True) -> dict:
                  rebuilds=law.mpc.counters["rebuilds"])
 
 
-def te_case(samples: int, seed: int = 0, adapt: bool = True) -> dict:
-    from controller.adaptation import NLSSettings, NormalizedLeastSquares
+def _te_controller(ssm, P: int, M: int, u_op, y_op, adaptive_refresh: int = 50):
     from controller.mpc import MPCSettings
     from controller.mpc.law import MPCLaw
+
+    m = ssm.m
+    scale = np.maximum(np.abs(np.asarray(y_op)) * 0.01, 1e-3)  # 1 % of the operating value
+    settings = MPCSettings(nu=m, ny=m, P=P, M=M, Xi=1.0 / scale ** 2,
+                           Lambda=np.full(m, 1.0 / 10.0 ** 2),
+                           u_min=np.asarray(u_op) - 20.0, u_max=np.asarray(u_op) + 20.0,
+                           du_max=np.full(m, 2.0), y_min=np.asarray(y_op) - 5 * scale,
+                           y_max=np.asarray(y_op) + 5 * scale, slack_scale=scale,
+                           slack_linear=1e3, slack_quadratic=10.0, budget_ms=5.0)
+    return settings, MPCLaw(settings, adaptive_refresh=adaptive_refresh)
+
+
+def te_case(samples: int, seed: int = 0, adapt: bool = True, synthetic: bool = False) -> dict:
+    """TE-size sample: the chapter-3 TE state-shared model (modes 0, 2, 3 + adaptive;
+    n = 8, m = 5: shared order 80, 208 parameters per model), or with ``synthetic`` a
+    random n = 40 model (order 400, 1045 parameters) of the seed's size."""
+    from controller.adaptation import NLSSettings, NormalizedLeastSquares
     from controller.state_shared import ModelSpec, StateSharedModel, designer_polynomial
     from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
 
-    n, m, k_models, dt = 40, 5, 4, 0.01
-    P, M = 10, 4
+    P, M, dt = 10, 4, 0.01
     rng = np.random.default_rng(seed)
-    a = designer_polynomial(-np.geomspace(0.5, 5.0, n))
-    ssm = StateSharedModel(a, m, dt)
-    for j in range(k_models):
-        kind = "adaptive" if j == k_models - 1 else "fixed"
-        p = 1e-3 * rng.standard_normal(ssm.n_params + m)
-        p[-m:] = rng.standard_normal(m)
-        theta, bias = ssm.theta_from_params(p)  # structured: the adaptive one can be adapted
-        ssm.add_model(ModelSpec(f"M{j}", theta, bias, kind))
-    settings = MPCSettings(nu=m, ny=m, P=P, M=M, Xi=[3.0, 1.0, 10.0, 1.0, 2.0],
-                           Lambda=np.full(m, 0.1), u_min=np.full(m, -5.0),
-                           u_max=np.full(m, 5.0), du_max=np.full(m, 0.5),
-                           y_min=np.full(m, -3.0), y_max=np.full(m, 3.0), slack_linear=1e3,
-                           slack_quadratic=10.0, budget_ms=5.0)
-    law = MPCLaw(settings, adaptive_refresh=50)
+    if synthetic:
+        n, m = 40, 5
+        ssm = StateSharedModel(designer_polynomial(-np.geomspace(0.5, 5.0, n)), m, dt)
+        for j in range(4):
+            p = 1e-3 * rng.standard_normal(ssm.n_params + m)
+            p[-m:] = 50.0 + rng.standard_normal(m)
+            theta, bias = ssm.theta_from_params(p)
+            ssm.add_model(ModelSpec(f"M{j}", theta, bias, "adaptive" if j == 3 else "fixed"))
+        plant_j = 0
+    else:
+        from services.studies.ch3_te import te_state_shared_model
+
+        ssm = te_state_shared_model(dt=dt)
+        plant_j = ssm.names.index("mode3")  # the stable one of the three
+    m, k_models = ssm.m, ssm.k
+    # The plant: one model's exact prediction form on its own copy of the shared state.
+    pf = ssm.prediction_form(plant_j)
+    Phi, Gam, C, b, f = (np.asarray(v) for v in (pf[0], pf[1], pf[2], pf[3], pf.f))
+    # Operating point of the plant model: u_op from a steady state with y = C n + b.
+    u_op = np.zeros(m) if synthetic else _te_u_op(ssm.names[plant_j])
+    A_ss = Phi - np.eye(Phi.shape[0])
+    n_ss = -np.linalg.solve(A_ss, Gam @ u_op + f)
+    y_op = C @ n_ss + b
+    settings, law = _te_controller(ssm, P, M, u_op, y_op)
     t0 = time.perf_counter()
     law.prepare(ssm)
     prepare_ms = (time.perf_counter() - t0) * 1e3 / k_models
-    index = PerformanceIndex(IndexSettings(), k_models, dt)
-    switcher = ModelSwitcher(k_models, 0.05, dt)
+    index = PerformanceIndex(IndexSettings(output_weights=tuple(1.0 / np.maximum(
+        np.abs(y_op) * 0.01, 1e-3) ** 2)), k_models, dt)
+    switcher = ModelSwitcher(k_models, 0.05, dt, initial=plant_j)
     j_ad = k_models - 1
     est = NormalizedLeastSquares(NLSSettings(), ssm.params_from_theta(ssm.theta(j_ad),
                                                                      ssm.bias(j_ad)), dt)
-    # Plant: model 0's prediction form on its own copy of the shared state.
-    Phi, Gam, C, b = (np.asarray(v) for v in ssm.prediction_form(0)[:4])
-    f = np.asarray(ssm.prediction_form(0).f)
-    u = np.zeros(m)
-    y = np.asarray(b, dtype=float).copy()
+    u = u_op.copy()
+    x_plant = n_ss.copy()
+    y = C @ x_plant + b
     ssm.initialize(u, y)
-    x_plant = ssm.n
     law.reset(u, y)
     d = np.zeros(m)
     sp = y.copy()
     timer = _Timer()
     fallbacks = 0
     warm = 50
+    scale = np.maximum(np.abs(y_op) * 0.01, 1e-3)
     for k in range(samples + warm):
         if k % 50 == 0:
-            sp = b + rng.uniform(-1.0, 1.0, size=m)
-            d = d + 0.05 * rng.standard_normal(m)
+            sp = y_op + scale * rng.uniform(-2.0, 2.0, size=m)
+            d = d + 0.2 * scale * rng.standard_normal(m)
         y = C @ x_plant + b + d
         ref = np.tile(sp, (P, 1))
         t_part = _Timer() if k < warm else timer
@@ -196,10 +224,17 @@ def te_case(samples: int, seed: int = 0, adapt: bool = True) -> dict:
                                    adapt)
         fallbacks += bool(info.get("fallback")) and k >= warm
         x_plant = Phi @ x_plant + Gam @ u + f
-    return _case("te", timer, state_order=ssm.order, models=k_models, P=P, M=M,
+    name = "te synthetic n40" if synthetic else "te"
+    return _case(name, timer, state_order=ssm.order, models=k_models, P=P, M=M,
                  qp_variables=M * m + 1, adapted_parameters=est.n_params,
                  fallbacks=fallbacks, adapt=adapt, prepare_ms_per_model=prepare_ms,
-                 rebuilds=law.mpc.counters["rebuilds"])
+                 rebuilds=law.mpc.counters["rebuilds"], plant_model=ssm.names[plant_j])
+
+
+def _te_u_op(mode: str) -> np.ndarray:
+    from services.studies.ch3_te import te_closed_loop
+
+    return np.asarray(te_closed_loop(mode).u_op, dtype=float)
 
 
 def run(args) -> list[dict]:
@@ -207,4 +242,8 @@ def run(args) -> list[dict]:
     if samples < 1:
         raise ValueError(f"samples: must be >= 1, got {samples}")
     adapt = not getattr(args, "no_adapt", False)
-    return [two_phase_case(samples, adapt), te_case(samples, getattr(args, "seed", 0), adapt)]
+    seed = getattr(args, "seed", 0)
+    cases = [two_phase_case(samples, adapt), te_case(samples, seed, adapt)]
+    if getattr(args, "synthetic_te", False):
+        cases.append(te_case(samples, seed, adapt, synthetic=True))
+    return cases
