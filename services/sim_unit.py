@@ -16,7 +16,7 @@ import numpy as np
 from plant_sim.base import PlantModel
 from plant_sim.integrate import PiecewiseConstant, SimulationResult, simulate
 from services.output import CLIError, atomic_output, check_writable, emit_json
-from services.plant_info import build_plant
+from services.plant_info import build_plant, parse_options
 
 __all__ = ["run", "parse_step", "StepSpec", "write_csv_text", "plot_result"]
 
@@ -133,7 +133,8 @@ def _reject_te_options(args) -> None:
 
 def run(args) -> int:
     """Entry point called by :mod:`services.commands.sim` for the unit plants."""
-    plant = build_plant(args.plant)
+    # plant options (e.g. gamma=inf, sigma=ref94, inputs=flows) if the parser offers them
+    plant = build_plant(args.plant, parse_options(getattr(args, "option", None)))
     _reject_te_options(args)
     op = plant.operating_point(args.op or "OPI")
     duration = args.hours
