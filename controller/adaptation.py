@@ -102,6 +102,11 @@ class NLSSettings:
     max_abs_param : float
         A parameter larger than this in magnitude is treated as divergence: the
         update is rejected and the covariance reset (counted).
+    dead_zone : float
+        No update while every output's prediction error is within this band
+        (output units; 0 = always adapt, the seed's law). The classic robust
+        modification (Ioannou & Sun §8.5): without excitation at a steady state,
+        tiny errors from unmodelled dynamics otherwise let the parameters drift.
     """
 
     kappa: float = 10.0
@@ -111,8 +116,12 @@ class NLSSettings:
     reset_value: float | None = None
     exact_check_max_params: int = 64
     max_abs_param: float = 1e8
+    dead_zone: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.dead_zone, int | float) and math.isfinite(self.dead_zone)
+                and self.dead_zone >= 0):
+            raise ValueError(f"dead_zone: must be a finite number >= 0, got {self.dead_zone!r}")
         for name in ("kappa", "gain", "rate", "eig_floor", "max_abs_param"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
@@ -165,7 +174,7 @@ class NLSStep:
         True when the covariance was reset at this sample.
     reason : str
         ``""``, ``"floor"``, ``"singular"``, ``"nonfinite"``, ``"diverged"``,
-        ``"invalid_data"`` or ``"frozen"``.
+        ``"invalid_data"``, ``"frozen"`` or ``"dead_zone"``.
     """
 
     error: np.ndarray
@@ -222,6 +231,7 @@ class NormalizedLeastSquares:
         self.n_updates = 0
         self.n_resets = 0
         self.n_skipped = 0
+        self.n_dead_zone = 0
         self.reset_reasons: dict[str, int] = {}
 
     @property
@@ -270,6 +280,9 @@ class NormalizedLeastSquares:
         if freeze:
             self.n_skipped += 1
             return NLSStep(e, False, reason="frozen")
+        if self.settings.dead_zone > 0 and np.max(np.abs(e)) <= self.settings.dead_zone:
+            self.n_dead_zone += 1
+            return NLSStep(e, False, reason="dead_zone")
         PWt = self.P @ W.T  # (N, m)
         S = np.eye(m) + self.settings.rate * (W @ PWt)
         try:

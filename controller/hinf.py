@@ -320,9 +320,9 @@ class HInfLaw:
     Every change of controller is bumpless: the new controller's state is
     warmed up by running it over the last ``warm_samples`` tracking errors
     (so its dynamics carry the recent history), and ``u_hold`` is set so that
-    the move is continuous. With input
-    limits, the controller state is frozen while the move is clipped
-    (conditional integration, no wind-up).
+    the move is continuous. With input limits, the controller state is frozen
+    while its update would push a clipped move further past the limit
+    (directional conditional integration: no wind-up and no lock-up).
 
     Parameters
     ----------
@@ -358,11 +358,13 @@ class HInfLaw:
         self.n_syntheses = 0
         self.n_synthesis_failures = 0
         self.n_controller_changes = 0
+        self.n_saturated = 0
         self.last_gamma = math.nan
 
     def counters(self) -> dict[str, int]:
         return {"syntheses": self.n_syntheses, "synthesis_failures": self.n_synthesis_failures,
-                "controller_changes": self.n_controller_changes}
+                "controller_changes": self.n_controller_changes,
+                "saturated_samples": self.n_saturated}
 
     def reset(self, u, y) -> None:
         self.u_hold = float(np.asarray(u, dtype=float).reshape(-1)[0])
@@ -426,11 +428,17 @@ class HInfLaw:
             if len(self._errors) > self.warm_samples:
                 del self._errors[0]
         c = self.ctrl
-        du = float(c.C[0] @ self.xk + c.D[0, 0] * e)
-        u = self.u_hold + du
-        if self.u_min <= u <= self.u_max:
-            self.xk = c.A @ self.xk + c.B[:, 0] * e
-        u = min(max(u, self.u_min), self.u_max)
+        u_raw = self.u_hold + float(c.C[0] @ self.xk + c.D[0, 0] * e)
+        u = min(max(u_raw, self.u_min), self.u_max)
+        x_new = c.A @ self.xk + c.B[:, 0] * e
+        if u != u_raw:
+            self.n_saturated += 1
+            # directional conditional integration: freeze the state only while its
+            # update would push the move further past the limit (no wind-up, no lock-up)
+            push = float(c.C[0] @ (x_new - self.xk))
+            if (u_raw > self.u_max and push > 0) or (u_raw < self.u_min and push < 0):
+                x_new = self.xk
+        self.xk = x_new
         return np.array([u]), {"status": "solved", "alarms": alarms}
 
     def checkpoint(self) -> dict[str, Any]:

@@ -132,12 +132,16 @@ class MultiModelController:
         free-running).
     initial_model : int
         Model active at the start.
+    record_params : bool
+        Put the adaptive models' parameter vectors into ``decision.extra["params"]``
+        (for parameter-trajectory figures).
     """
 
     def __init__(self, ssm: StateSharedModel, law: ControlLaw, u0,
                  settings: MultiModelSettings | None = None,
                  kinds: Sequence[AdaptiveKind | str] | None = None,
-                 initial_model: int = 0) -> None:
+                 initial_model: int = 0, record_params: bool = False) -> None:
+        self.record_params = bool(record_params)
         self.ssm = ssm
         self.law = law
         self.settings = settings or MultiModelSettings()
@@ -289,8 +293,10 @@ class MultiModelController:
         u = np.clip(u, self.u_min, self.u_max)
         self.ssm.update(u, y)
         self.u_last = u
-        return self._decision(u, status, fallback, alarms, t0,
-                              {"switched": dec.switched, "best": dec.best})
+        extra: dict[str, Any] = {"switched": dec.switched, "best": dec.best}
+        if self.record_params:
+            extra["params"] = {j: self.estimators[j].p.copy() for j in self.adaptive}
+        return self._decision(u, status, fallback, alarms, t0, extra)
 
     def _reinitialize(self, j: int, source: int) -> None:
         p = self.params(source)

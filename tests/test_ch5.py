@@ -1,0 +1,126 @@
+"""Seed chapter 5 through ``ssmpc reproduce R5.x --json``, against the catalogue's checks
+(facts/seed_results.md R5.3-R5.13)."""
+
+import contextlib
+import functools
+import io
+import json
+
+import pytest
+
+from services.cli import main
+
+CSTR_BAND = 0.02  # ±2 % of the target (R5.5, R5.7, R5.8)
+
+
+@functools.cache
+def _run(rid, *extra):
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = main(["reproduce", rid, "--json", *extra])
+    return code, buf.getvalue().strip().splitlines()[-1]
+
+
+def _reproduce(rid, capsys, *extra):
+    """One CLI run per id (cached across tests); returns (document, rows by name)."""
+    code, out = _run(rid, *extra)
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["id"] == rid and set(doc) == {"id", "rows", "verdict", "why", "figures"}
+    return doc, {r["name"]: r for r in doc["rows"]}
+
+
+def test_r5_3_mrac_reaches_5_with_final_model_m2_or_m4(capsys, tmp_path):
+    doc, rows = _reproduce("R5.3", capsys, "--plot", str(tmp_path))
+    assert rows["MRAC 1.3->5.0: final |y - target|"]["ours"] <= 0.05
+    assert rows["MRAC 1.3->5.0: final model (1-4)"]["ours"] in (2.0, 4.0)
+    assert doc["verdict"] == "reproduced"
+    assert doc["figures"] and all((tmp_path / p.split("/")[-1]).exists() for p in doc["figures"])
+
+
+def test_r5_4_fixed_rows_match_table_5_4_exactly(capsys):
+    doc, rows = _reproduce("R5.4", capsys)
+    for name in ("M1", "M2"):
+        for i in range(1, 5):
+            r = rows[f"{name} k{i} (MRAC parametric model)"]
+            assert r["ours"] == pytest.approx(r["seed"], abs=2e-3)  # printed to 4 decimals
+
+
+def test_r5_5_hinf_both_directions_settle_within_2_percent(capsys):
+    doc, rows = _reproduce("R5.5", capsys)
+    assert rows["1.3->5.0: final |y - target|"]["ours"] <= CSTR_BAND * 5.0
+    assert rows["5.0->1.3: final |y - target|"]["ours"] <= CSTR_BAND * 1.3
+    assert rows["1.3->5.0: settling time (band 0.1)"]["ours"] <= 30.0
+    assert rows["5.0->1.3: settling time (band 0.026)"]["ours"] <= 30.0
+    assert doc["verdict"] == "reproduced"
+
+
+def test_r5_6_reinitialized_model_ends_within_2_percent_of_m2(capsys):
+    doc, rows = _reproduce("R5.6", capsys)
+    assert rows["max relative |M4 - M2|"]["ours"] <= 0.02
+    for i in range(1, 5):  # fixed rows are Table 5.3's linearizations (±2 %, R5.2)
+        r = rows[f"M2 k{i}"]
+        assert r["ours"] == pytest.approx(r["seed"], rel=0.02)
+
+
+def test_r5_7_robustness_cases_stay_stable_and_settle(capsys):
+    doc, rows = _reproduce("R5.7", capsys)
+    finals = [r for name, r in rows.items() if name.endswith("final |y - target|")]
+    assert len(finals) == 3
+    targets = (5.0, 1.3, 5.0)
+    for r, target in zip(finals, targets):
+        assert r["ours"] <= CSTR_BAND * target
+    assert doc["verdict"] == "reproduced"
+
+
+def test_r5_8_every_leg_settles(capsys):
+    doc, rows = _reproduce("R5.8", capsys)
+    for target in ("2", "5", "1.3"):
+        assert rows[f"leg -> {target}: settling time"]["ours"] is not None
+    assert rows["M4 max relative deviation from M1"]["ours"] <= 0.05
+
+
+@pytest.mark.xfail(reason="known gap: our free-running model ends far from M1 after the "
+                          "1.3 -> 2 -> 5 -> 1.3 run (seed: close to M1); see R5.8 why",
+                   strict=True)
+def test_r5_8_free_running_model_ends_close_to_m1(capsys):
+    doc, rows = _reproduce("R5.8", capsys)
+    assert rows["M3 max relative deviation from M1"]["ours"] <= 0.05
+
+
+def test_r5_10_bioreactor_both_directions_within_0_01(capsys):
+    doc, rows = _reproduce("R5.10", capsys)
+    assert rows["OPI->OPII: final |y - target|"]["ours"] <= 0.01
+    assert rows["OPII->OPI: final |y - target|"]["ours"] <= 0.01
+    assert doc["verdict"] == "reproduced"
+
+
+def test_r5_11_model_error_within_0_02(capsys):
+    doc, rows = _reproduce("R5.11", capsys)
+    assert rows["OPI->OPII: final |y - target|"]["ours"] <= 0.02
+    assert rows["OPII->OPI: final |y - target|"]["ours"] <= 0.02
+
+
+@pytest.mark.xfail(reason="known gap: with integral action and anti-windup a single fixed-model "
+                          "H-inf loop tracks the staircases better than the switched set",
+                   strict=True)
+def test_r5_12_state_shared_beats_single_model(capsys):
+    doc, rows = _reproduce("R5.12", capsys)
+    assert rows["up (steps): ISE state-shared"]["ours"] < rows[
+        "up (steps): ISE single model (OPI)"]["ours"]
+    assert rows["down (steps): ISE state-shared"]["ours"] < rows[
+        "down (steps): ISE single model (OPII)"]["ours"]
+
+
+def test_r5_13_state_shared_stays_bounded_on_pulses(capsys):
+    doc, rows = _reproduce("R5.13", capsys)
+    assert rows["state-shared: bounded (1 = yes)"]["ours"] == 1.0
+    assert rows["state-shared: final cell density x1"]["ours"] > 0.01
+
+
+@pytest.mark.xfail(reason="known gap: the seed's single-model loop goes unstable on the pulses; "
+                          "ours (integral action + anti-windup) stays in the valid region",
+                   strict=True)
+def test_r5_13_single_model_leaves_the_valid_region(capsys):
+    doc, rows = _reproduce("R5.13", capsys)
+    assert rows["single model: bounded (1 = yes)"]["ours"] == 0.0
