@@ -149,3 +149,31 @@ def test_r3_6_state_shared_vs_nonlinear(capsys):
 def test_unknown_id_is_a_clear_error(capsys):
     assert main(["reproduce", "R3.99", "--json"]) == 2
     assert "R3.99" in capsys.readouterr().err
+
+
+def test_r3_7_calcium_minimal_order(capsys):
+    doc, rows = reproduce(capsys, "R3.7")
+    for op in ("OPI", "OPII"):
+        assert rows[f"{op} minimal order"]["ours"] == 4
+        assert rows[f"{op} rank of the 5th-order controllability matrix"]["ours"] == 4
+        assert rows[f"{op} minimal model fast eigenvalue"]["seed"] in (-841.32, -685.37)
+
+
+def test_r3_8_calcium_re_catalogue_qualitative(capsys):
+    doc, rows = reproduce(capsys, "R3.8")
+    for op, s2, s3 in (("OPI", 15.66, 0.39), ("OPII", 24.20, 0.44)):
+        assert rows[f"Re order 2 {op} (eq. 3.22)"]["seed"] == s2
+        assert rows[f"Re order 3 {op} (eq. 3.22)"]["seed"] == s3
+        assert rows[f"Re order 3 {op} (eq. 3.22)"]["ours"] < 1.0  # order 3 accepted
+        assert rows[f"Re order 2 {op} (eq. 3.22)"]["ours"] > 10.0  # order 2 rejected
+
+
+def test_r3_10_calcium_table(capsys, tmp_path):
+    doc, rows = reproduce(capsys, "R3.10", "--plot", str(tmp_path))
+    for op in ("OPI", "OPII"):
+        for name in ("x2", "x5", "x6"):
+            assert rows[f"ARe 5L-4L {op} {name}"]["ours"] < 1e-6  # catalogue: round-off
+    assert rows["ARe 4L-RE OPI x5"]["seed"] == 7.95
+    # catalogue qualitative check: truncation hurts x5 far more than linearization
+    assert rows["ARe 4L-RE OPI x5"]["ours"] > 5 * rows["ARe 4L-NL OPI x5"]["ours"]
+    assert len(doc["figures"]) == 1
