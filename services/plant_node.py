@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -144,6 +146,9 @@ class PlantNode:
         self._pending: MVMessage | None = None
         self._cond = threading.Condition()
         self._lock = threading.Lock()
+        self._published_at = 0.0
+        #: wall time from publishing measurement k to receiving the MV answering it, s
+        self.loop_latency_s: deque[float] = deque(maxlen=20_000)
         self._pub = session.declare_publisher(keys.meas(cfg.unit))
         self._sub = session.declare_subscriber(keys.mv(cfg.unit), self._on_mv)
         self._qry = session.declare_queryable(keys.plant_cmd_all(cfg.unit), self._on_query)
@@ -167,6 +172,8 @@ class PlantNode:
                 self.counters.rejected["stale"] += 1
                 return
             self.last_mv_seq = msg.seq
+            if msg.meas_seq == self.k and not msg.fallback:
+                self.loop_latency_s.append(time.perf_counter() - self._published_at)
             self._pending = msg
             self._cond.notify_all()
 
@@ -195,12 +202,21 @@ class PlantNode:
             with self._lock:
                 self.runner.set_disturbance(name, value)
             return Reply(200, {"disturbances": self.runner.disturbances()})
+        if req.action == "reset_stats":
+            with self._cond:
+                self.loop_latency_s.clear()
+                self.counters = PlantCounters()
+            return Reply(200, self.status())
         return Reply(404, error=f"action: unknown plant action {req.action!r}")
 
     def status(self) -> dict:
         with self._cond:
             c = self.counters
-            return {"unit": self.cfg.unit, "sample": self.k, "t": self.runner.t,
+            lat = np.asarray(self.loop_latency_s, dtype=float) * 1e6
+            latency = ({"p50_us": float(np.median(lat)), "p99_us": float(np.percentile(lat, 99)),
+                        "max_us": float(lat.max()), "n": int(lat.size)} if lat.size else None)
+            return {"loop_latency": latency, "unit": self.cfg.unit, "sample": self.k,
+                    "t": self.runner.t,
                     "u": self.runner.u.tolist(), "mv_seq_applied": self._applied_mv_seq,
                     "samples": c.samples, "mv_accepted": c.mv_accepted, "mv_held": c.mv_held,
                     "mv_rejected": dict(c.rejected), "lockstep": self.lockstep,
@@ -213,6 +229,8 @@ class PlantNode:
         msg = Measurement(unit=self.cfg.unit, seq=self.k, t=self.runner.t, y=tuple(y),
                           u=tuple(self.runner.u), mv_seq=self._applied_mv_seq,
                           shutdown=bool(self.runner.shutdown))
+        with self._cond:
+            self._published_at = time.perf_counter()
         self._pub.put(msg.to_bytes())
         self.counters.samples += 1
 

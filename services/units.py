@@ -103,7 +103,7 @@ class UnitConfig:
     pi_gain: float = 1.0
     pi_integral_time_s: float = 1.0
     substeps: int = 1
-    status_every: int = 1
+    status_every: int = 10
     checkpoint_every: int = 50
     telemetry_every: int = 50
     description: str = ""

@@ -1,0 +1,201 @@
+"""``ssmpc bench loop``: the closed loop over Zenoh, as separate processes on loopback.
+
+Cases
+-----
+speed
+    Plant (real-time mode) and controller nodes at a ladder of speeds; each
+    rung runs ``--rung-seconds`` wall seconds after a warm-up. A rung passes
+    with zero deadline misses (controller) and zero held samples (no MV in
+    time at the plant). ``median`` is the highest passing speed (process s per
+    wall s); the case also reports the wall period of that rung and the
+    equivalent speed for the TE sample period (36 s).
+latency
+    Lock-step loop: wall time from the plant publishing measurement k to it
+    receiving the MV answering k (Zenoh both ways + decode + controller step +
+    encode), µs, p50/p99 from the plant node's record.
+rest
+    ``GET /api/v1/units/<unit>/status`` on the api node (uvicorn → Zenoh query
+    → controller → back), µs, over a kept-alive HTTP connection.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+
+from services.benchmarking import latency_case
+
+NAME = "loop"
+DESCRIPTION = "closed loop over Zenoh: highest speed at zero misses, loop latency, REST latency"
+
+TE_SAMPLE_PERIOD_S = 36.0
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--unit", default="cstr", help="unit to run (default cstr)")
+    parser.add_argument("--speeds", default=None,
+                        help="comma-separated speed ladder (default: from the unit's period)")
+    parser.add_argument("--rung-seconds", type=float, default=3.0,
+                        help="wall seconds measured per speed rung")
+    parser.add_argument("--latency-seconds", type=float, default=5.0,
+                        help="wall seconds of the lock-step latency run")
+    parser.add_argument("--rest-requests", type=int, default=500, help="REST requests")
+    parser.add_argument("--cases", default="speed,latency,rest",
+                        help="comma-separated subset of speed, latency, rest")
+
+
+class _Nodes:
+    """Controller, plant and (optionally) api nodes as child processes."""
+
+    def __init__(self, unit: str, speed: float, lockstep: bool, api: bool, state_dir: str):
+        from services.commands.up import _spawn, _wait_ready
+        from services.zenoh_session import free_port
+
+        self.procs = []
+        state_dir = tempfile.mkdtemp(dir=state_dir)  # a fresh store: no restored checkpoint
+        ep_c, ep_p, ep_a = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
+        self.ep_c, self.ep_p = ep_c, ep_p
+        self.port = free_port()
+        common = ["--unit", unit, "--speed", repr(float(speed)), "--lease-ms", "1000"]
+        deadline = time.monotonic() + 120
+        try:
+            c = _spawn(["controller", *common, "--listen", ep_c, "--state-dir", state_dir,
+                        "--no-telemetry"])
+            self.procs.append(c)
+            _wait_ready(c, "controller", deadline)
+            p = _spawn(["plant", *common, "--listen", ep_p, "--connect", ep_c]
+                       + (["--lockstep"] if lockstep else []))
+            self.procs.append(p)
+            _wait_ready(p, "plant", deadline)
+            if api:
+                a = _spawn(["api", "--listen", ep_a, "--connect", ep_c, "--connect", ep_p,
+                            "--port", str(self.port)])
+                self.procs.append(a)
+                _wait_ready(a, "api", deadline)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        from services.commands.up import stop_children
+
+        stop_children(self.procs)
+
+
+def _query(session, key, action):
+    from services.messages import Reply, Request
+
+    for r in session.get(key, payload=Request(action).to_bytes(), timeout=5.0):
+        if r.ok is not None:
+            return Reply.from_bytes(r.ok.payload.to_bytes()).data
+    raise RuntimeError(f"no answer from {key}")
+
+
+def _client_session(nodes: _Nodes):
+    from services.zenoh_session import SessionSettings, open_session
+
+    s = open_session(SessionSettings(connect=(nodes.ep_c, nodes.ep_p)))
+    time.sleep(0.5)
+    return s
+
+
+def _rung(unit: str, speed: float, seconds: float, state_dir: str) -> dict:
+    from services import keys
+
+    nodes = _Nodes(unit, speed, lockstep=False, api=False, state_dir=state_dir)
+    s = _client_session(nodes)
+    try:
+        time.sleep(1.0)  # warm-up: JIT, caches, connections
+        _query(s, keys.cmd(unit, "reset_stats"), "reset_stats")
+        _query(s, keys.plant_cmd(unit, "reset_stats"), "reset_stats")
+        time.sleep(seconds)
+        cs = _query(s, keys.cmd(unit, "status"), "status")
+        ps = _query(s, keys.plant_cmd(unit, "status"), "status")
+    finally:
+        s.close()
+        nodes.close()
+    return {"speed": speed, "samples": cs["samples"], "deadline_misses": cs["deadline_misses"],
+            "held": ps["mv_held"], "plant_samples": ps["samples"]}
+
+
+def speed_case(args, state_dir: str) -> dict:
+    from services.units import get_unit
+
+    cfg = get_unit(args.unit)
+    if args.speeds:
+        ladder = [float(x) for x in args.speeds.split(",")]
+    else:  # wall periods from 20 ms down to 0.2 ms
+        ladder = [cfg.sample_period_s / w for w in (20e-3, 5e-3, 2e-3, 1e-3, 0.5e-3, 0.2e-3)]
+    best = None
+    rungs = []
+    for speed in ladder:
+        r = _rung(args.unit, speed, args.rung_seconds, state_dir)
+        rungs.append(r)
+        ok = r["deadline_misses"] == 0 and r["held"] == 0 and r["samples"] > 0
+        if ok:
+            best = r
+        else:
+            break
+    if best is None:
+        raise RuntimeError(f"no speed of {ladder} ran without deadline misses: {rungs}")
+    wall_period = cfg.sample_period_s / best["speed"]
+    return {"case": "speed", "unit": "x real time", "median": best["speed"],
+            "p99": best["speed"], "max": best["speed"], "n": best["samples"],
+            "plant_unit": args.unit, "wall_period_ms": wall_period * 1e3,
+            "te_equivalent_speed": TE_SAMPLE_PERIOD_S / wall_period, "rungs": rungs}
+
+
+def latency_and_rest(args, state_dir: str, want_latency: bool, want_rest: bool) -> list[dict]:
+    import httpx
+
+    from services import keys
+    from services.units import get_unit
+
+    cfg = get_unit(args.unit)
+    out = []
+    nodes = _Nodes(args.unit, 1.0, lockstep=True, api=want_rest, state_dir=state_dir)
+    s = _client_session(nodes)
+    try:
+        time.sleep(1.0)
+        _query(s, keys.plant_cmd(args.unit, "reset_stats"), "reset_stats")
+        if want_latency:
+            time.sleep(args.latency_seconds)
+            ps = _query(s, keys.plant_cmd(args.unit, "status"), "status")
+            lat = ps["loop_latency"]
+            out.append({"case": "latency", "unit": "us", "median": lat["p50_us"],
+                        "p99": lat["p99_us"], "max": lat["max_us"], "n": lat["n"],
+                        "plant_unit": args.unit, "mode": "lockstep",
+                        "samples_per_wall_s": ps["samples"] / args.latency_seconds,
+                        "te_equivalent_speed": ps["samples"] / args.latency_seconds
+                        * TE_SAMPLE_PERIOD_S,
+                        "sample_period_s": cfg.sample_period_s})
+        if want_rest:
+            url = f"http://127.0.0.1:{nodes.port}/api/v1/units/{args.unit}/status"
+            times = []
+            with httpx.Client(timeout=10) as c:
+                for _ in range(20):
+                    c.get(url).raise_for_status()
+                for _ in range(args.rest_requests):
+                    t0 = time.perf_counter()
+                    c.get(url).raise_for_status()
+                    times.append((time.perf_counter() - t0) * 1e6)
+            out.append(latency_case("rest", times, "us", endpoint="GET status",
+                                    plant_unit=args.unit))
+    finally:
+        s.close()
+        nodes.close()
+    return out
+
+
+def run(args) -> list[dict]:
+    cases = {c.strip() for c in args.cases.split(",") if c.strip()}
+    unknown = cases - {"speed", "latency", "rest"}
+    if unknown:
+        raise ValueError(f"cases: unknown case(s) {', '.join(sorted(unknown))}")
+    out = []
+    with tempfile.TemporaryDirectory(prefix="ssmpc-bench-loop-") as state_dir:
+        if "latency" in cases or "rest" in cases:
+            out += latency_and_rest(args, state_dir, "latency" in cases, "rest" in cases)
+        if "speed" in cases:
+            out.insert(0, speed_case(args, state_dir))
+    return out
