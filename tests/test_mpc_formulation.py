@@ -242,3 +242,29 @@ def test_measured_disturbance_prediction_matches_simulation(system):
     x_a = form.augmented_state(x - x_prev, C @ x)
     np.testing.assert_allclose(form.predict(x_a, dU, d_now - d_prev).ravel(),
                                np.concatenate(ys), rtol=ALGEBRA_RTOL, atol=1e-10)
+
+
+def test_input_target_term_matches_least_squares(system):
+    """With input targets the unconstrained optimum is again a least-squares solution."""
+    rng, Phi, Gamma, C = system
+    P, M = 10, 3
+    Xi, Lam, W = np.array([1.0, 2.0]), np.array([0.3, 0.3]), np.array([0.5, 0.0])
+    u_t = np.array([0.2, -1.0])
+    s = MPCSettings(nu=2, ny=2, P=P, M=M, Xi=Xi, Lambda=Lam, u_target=u_t,
+                    u_target_weight=W)
+    form = build_formulation(Phi, Gamma, C, s)
+    x_prev, u_prev, d = rng.normal(size=4), rng.normal(size=2), rng.normal(size=2)
+    x = Phi @ x_prev + Gamma @ u_prev
+    R = rng.normal(size=(P, 2))
+    y0, G = stacked_by_simulation(Phi, Gamma, C, x_prev, x, d, u_prev, P, M)
+    T = np.kron(np.tril(np.ones((M, M))), np.eye(2))
+    w = np.sqrt(np.tile(Xi, P))
+    wu = np.sqrt(np.tile(W, M))
+    lhs = np.vstack([w[:, None] * G, np.diag(np.sqrt(np.tile(Lam, M))), wu[:, None] * T])
+    rhs = np.concatenate([w * (R.ravel() - y0), np.zeros(M * 2),
+                          wu * np.tile(u_t - u_prev, M)])
+    dU_ref = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+    v = form.qp_vectors(form.augmented_state(x - x_prev, C @ x + d), u_prev, R)
+    res = DAQPBackend(form.H, form.A).solve(v)
+    assert res.ok
+    np.testing.assert_allclose(res.x, dU_ref, atol=SOLVER_ATOL)

@@ -170,6 +170,7 @@ class DeltaUFormulation:
     ub0: np.ndarray
     Gamma_d: np.ndarray | None = None
     S_d: np.ndarray | None = None
+    F_ut: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         # Per-sample constants, so qp_vectors allocates only what changes.
@@ -222,6 +223,9 @@ class DeltaUFormulation:
             f[:self.n_moves] = self.F_x @ x_a - self.F_r @ (R.reshape(-1) - off)
         else:
             f[:self.n_moves] = self.F_x @ x_a - self.F_r @ R.reshape(-1)
+        if self.F_ut is not None:
+            f[:self.n_moves] += self.F_ut @ np.tile(np.asarray(u_prev, dtype=float)
+                                                    - s.u_target, s.M)
         if self.has_slack:
             f[-1] = s.slack_linear
         bl = self._bl0.copy()
@@ -291,6 +295,13 @@ def build_formulation(Phi, Gamma, C, settings: MPCSettings,
     Hu = SuT_Xi @ S_u + np.diag(np.tile(s.Lambda, s.M))
     F_x = SuT_Xi @ S_x
     F_r = SuT_Xi
+    F_ut = None
+    if np.any(s.u_target_weight > 0):
+        # Input targets: u(k+j) = u(k-1) + Σ_{i<=j} Δu(k+i), cost ‖u − u_t‖²_W.
+        T = np.kron(np.tril(np.ones((s.M, s.M))), np.eye(s.nu))
+        TtW = T.T * np.tile(s.u_target_weight, s.M)
+        Hu = Hu + TtW @ T
+        F_ut = TtW  # f += F_ut @ tile(u_prev − u_target)
     if terminal_weight is not None:
         W = np.asarray(terminal_weight, dtype=float)
         na = Phi_a.shape[0]
@@ -348,7 +359,7 @@ def build_formulation(Phi, Gamma, C, settings: MPCSettings,
         settings=s, Phi=Phi, Gamma=Gamma, C=C, Phi_a=Phi_a, Psi_a=Psi_a, C_a=C_a,
         S_x=S_x, S_u=S_u, H=H, A=np.ascontiguousarray(A), F_x=F_x, F_r=F_r, nz=nz,
         n_moves=nmv, has_slack=has_slack, input_rows=input_rows, ymax_rows=ymax_rows,
-        ymin_rows=ymin_rows, lb0=lb0, ub0=ub0, Gamma_d=Gamma_d, S_d=S_d,
+        ymin_rows=ymin_rows, lb0=lb0, ub0=ub0, Gamma_d=Gamma_d, S_d=S_d, F_ut=F_ut,
     )
 
 

@@ -92,6 +92,12 @@ class MPCSettings:
     fallback : str
         What to apply when a solve fails or overruns: ``"shift"`` (the next move of
         the previous optimal plan, holding once the plan is used up) or ``"hold"``.
+    u_target : array_like, shape (nu,), optional
+        Resting values of the inputs (e.g. a trigger's nominal 0); with
+        ``u_target_weight`` > 0 the cost adds ``Σ_j ‖u(k+j) − u_target‖²_W`` over the
+        control horizon, so redundant inputs settle at their targets.
+    u_target_weight : array_like, shape (nu,)
+        Diagonal W, >= 0 (default 0: no input targets).
     """
 
     nu: int
@@ -114,6 +120,8 @@ class MPCSettings:
     warm_start: bool = True
     filter_alpha: float = 1.0
     fallback: str = "shift"
+    u_target: np.ndarray = None
+    u_target_weight: np.ndarray = None
 
     def __post_init__(self) -> None:
         for name in ("nu", "ny", "P", "M", "max_iter"):
@@ -134,6 +142,11 @@ class MPCSettings:
         set_("y_max", _vector("y_max", self.y_max, ny, allow_inf=True, default=math.inf))
         set_("slack_scale", _vector("slack_scale", self.slack_scale, ny, allow_inf=False,
                                     default=1.0))
+        set_("u_target", _vector("u_target", self.u_target, nu, allow_inf=False, default=0.0))
+        set_("u_target_weight", _vector("u_target_weight", self.u_target_weight, nu,
+                                        allow_inf=False, default=0.0))
+        if np.any(self.u_target_weight < 0):
+            raise MPCSettingsError("u_target_weight: must be >= 0")
         if np.any(self.Xi < 0):
             raise MPCSettingsError("Xi: output weights must be >= 0")
         if np.any(self.Lambda <= 0):
