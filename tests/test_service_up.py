@@ -1,0 +1,88 @@
+"""``ssmpc up`` as a user runs it: three processes, a REST transition, clean shutdown, .rrd."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from services.telemetry import entity_paths
+from services.zenoh_session import free_port
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _children(pid):
+    out = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        text = (task / "children").read_text().split()
+        out.update(int(x) for x in text)
+    return out
+
+
+def _alive(pid):
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0]
+    except FileNotFoundError:
+        return False
+    return state != "Z"
+
+
+def test_up_transition_and_clean_shutdown(tmp_path):
+    port = free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "up", "--unit", "cstr", "--speed", "20",
+         "--port", str(port), "--state-dir", str(tmp_path), "--duration", "150"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        t_end = time.monotonic() + 120
+        lines = []
+        while time.monotonic() < t_end:
+            line = proc.stdout.readline()
+            assert line, f"up exited early: {proc.stderr.read()}"
+            lines.append(line)
+            if line.startswith("ssmpc up:"):
+                break
+        assert [ln.split()[1] for ln in lines[:3]] == ["controller", "plant", "api"]
+        children = _children(proc.pid)
+        assert len(children) == 3
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as c:
+            assert c.get("/health").status_code == 200
+            r = c.post("/api/v1/units/cstr/transitions", json={"grade": "OPII"})
+            assert r.status_code == 202
+            loc = r.headers["location"]
+            t_end = time.monotonic() + 60
+            while time.monotonic() < t_end:
+                v = c.get(loc).json()
+                if v["state"] != "pending" and v["state"] != "running":
+                    break
+                time.sleep(0.2)
+            assert v["state"] == "settled"
+            st = c.get("/api/v1/units/cstr/status").json()
+            assert abs(st["cv"]["y"] - 5.0) < 0.05
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 0
+        time.sleep(0.2)
+        assert not [p for p in children if _alive(p)], "orphan node processes"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    # the recording and the store are complete after the shutdown
+    rr_chunk = pytest.importorskip("rerun.chunk")
+    reader = rr_chunk.RrdReader(str(tmp_path / "ssmpc-cstr.rrd"))
+    paths = {ch.entity_path for ch in reader.stream() if not ch.is_static}
+    expected = {"/" + p for p in entity_paths("cstr", ["y"], ["u"], ["PI"])}
+    assert expected <= paths
+    from services.store import UnitStore
+
+    store = UnitStore(tmp_path / "ssmpc-cstr.sqlite", "cstr")
+    assert [e["state"] for e in store.events()] == ["pending", "running", "settled"]
+    store.close()
+    assert os.path.getsize(tmp_path / "ssmpc-cstr.rrd") > 0
