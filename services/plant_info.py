@@ -44,14 +44,25 @@ def variable_dict(v: Variable) -> dict:
             "upper": v.upper if math.isfinite(v.upper) else None}
 
 
+#: Plants with more outputs than this list no outputs per operating point (the TE
+#: measurement model is compiled on first use, which would dominate a listing).
+MAX_LISTED_OUTPUTS = 12
+
+
 def describe_plant(plant: PlantModel) -> dict:
-    """JSON-ready description of a plant and its operating points."""
+    """JSON-ready description of a plant and its operating points.
+
+    ``y`` of an operating point is ``None`` for plants with more than
+    :data:`MAX_LISTED_OUTPUTS` outputs.
+    """
     ops = []
     for op in plant.operating_points.values():
-        try:
-            y = plant.outputs(op.x, op.u).tolist()
-        except (ValueError, PlantInputError):  # pragma: no cover - defensive
-            y = None
+        y = None
+        if plant.ny <= MAX_LISTED_OUTPUTS:
+            try:
+                y = plant.outputs(op.x, op.u).tolist()
+            except (ValueError, PlantInputError):  # pragma: no cover - defensive
+                y = None
         ops.append({
             "name": op.name, "stability": op.stability,
             "stability_detail": op.stability_detail, "valid": op.valid,

@@ -219,3 +219,14 @@ def test_sim_calcium_plot(tmp_path, capsys):
     assert doc["time_unit"] == "s" and doc["reconstructed"] is True
     # more trigger influx raises cytosolic Ca (the seed's sign convention, doc §2)
     assert doc["final"]["x"]["x5"] > 0.167 and png.exists()
+
+
+def test_plants_lists_every_registered_plant(capsys):
+    from plant_sim import plant_names
+
+    assert main(["plants", "--json"]) == 0
+    docs = last_json(capsys.readouterr().out)["plants"]
+    assert [d["name"] for d in docs] == plant_names()
+    for d in docs:
+        if d["name"] != "te":
+            assert d["available"] and all(op["y"] is not None for op in d["operating_points"])

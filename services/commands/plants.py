@@ -39,7 +39,10 @@ def _run(args) -> int:
     return 0
 
 
-def _names(vars_):
+def _names(vars_, limit: int = 8):
+    if len(vars_) > limit:
+        head = ", ".join(f"{v['name']} [{v['unit']}]" for v in vars_[:3])
+        return f"{len(vars_)}: {head}, ... {vars_[-1]['name']} [{vars_[-1]['unit']}]"
     return ", ".join(f"{v['name']} [{v['unit']}]" for v in vars_) or "-"
 
 
