@@ -36,6 +36,11 @@ Operating points are solved at construction with :func:`find_steady_state`:
 - OPII: **provisional reconstruction, low confidence** (the seed's Tables 3.1/3.2 are
   lost): F4 = 130 kmol/h, P = 2850 kPa, yA3 = 63.5 %, same ND, chosen in the facts
   because its eigenvalues fit the seed's to 1-3 %.
+- ``opii="eigenfit"``: the chapter-3 study's OPII instead (services/studies/ch3.py):
+  P = 2850 kPa, yA3 = 63 %, F4 = 130 kmol/h with x4bar kept at its OPI value, so the
+  proportional level loop settles at VL = 15.9 m^3. With ``inputs="flows"`` its
+  eigenvalues match the seed's OPII ones (-4.4591, -1.3009, -0.1107, -0.1001) to
+  0.1 %.
 """
 
 from __future__ import annotations
@@ -75,6 +80,9 @@ OP_SPECS = {
     "OPI": {"P": 2700.0, "yA3": 47.0, "F4": 100.0},
     "OPII": {"P": 2850.0, "yA3": 63.5, "F4": 130.0},
 }
+#: OPII of the chapter-3 eigenvalue fit (x4bar held at OPI's value, level free).
+OPII_EIGENFIT = {"P": 2850.0, "yA3": 63.0, "F4": 130.0}
+OPII_CHOICES = ("provisional", "eigenfit")
 _GUESS = {  # (NA, NB, NC, VL), (x1, x2, x3, x4bar) from facts §1.4
     "OPI": ([44.5, 13.533, 36.648, 13.253], [60.95, 25.02, 39.26, 47.03]),
     "OPII": ([63.454, 12.131, 24.356, 13.253], [78.68, 47.60, 58.03, 59.45]),
@@ -119,7 +127,10 @@ class TwoPhaseReactor(PlantModel):
 
     def __init__(self, *, Kc: float = -1.4,
                  VLsp: float = 100.0 * ND_NOMINAL / PARAMETERS["rhoL"] / PARAMETERS["VLmax"],
-                 inputs: str = "valves") -> None:
+                 inputs: str = "valves", opii: str = "provisional") -> None:
+        if opii not in OPII_CHOICES:
+            raise PlantInputError(f"opii: must be one of {OPII_CHOICES}, got {opii!r}")
+        self.opii = opii
         if inputs not in ("valves", "flows"):
             raise PlantInputError(f"inputs: must be 'valves' or 'flows', got {inputs!r}")
         self.input_mode = inputs
@@ -208,7 +219,7 @@ class TwoPhaseReactor(PlantModel):
     # -- operating points ----------------------------------------------------------------
     @property
     def operating_points(self) -> dict[str, OperatingPoint]:
-        key = (self.Kc, self.VLsp)
+        key = (self.Kc, self.VLsp, self.opii)
         if key not in _OP_CACHE:
             _OP_CACHE[key] = self._solve_ops()
         ops = dict(_OP_CACHE[key])
@@ -220,7 +231,7 @@ class TwoPhaseReactor(PlantModel):
         from plant_sim.steady_state import find_steady_state
 
         valve_plant = self if self.input_mode == "valves" else TwoPhaseReactor(
-            Kc=self.Kc, VLsp=self.VLsp)
+            Kc=self.Kc, VLsp=self.VLsp, opii=self.opii)
 
         VL = self.VLsp / 100.0 * PARAMETERS["VLmax"]
         ops = {}
@@ -242,4 +253,15 @@ class TwoPhaseReactor(PlantModel):
             ops[name] = OperatingPoint(name=name, x=ss.x, u=ss.u, d=np.zeros(0),
                                        description=desc, stability="stable",
                                        stability_detail="stable node", confidence=conf)
+        if self.opii == "eigenfit":
+            opi = ops["OPI"]
+            ss = find_steady_state(valve_plant, [78.78, 47.28, 58.46, float(opi.u[3])],
+                                   [61.46, 11.76, 24.31, 15.92],
+                                   free_inputs=("x1", "x2", "x3"), targets=OPII_EIGENFIT)
+            ops["OPII"] = OperatingPoint(
+                name="OPII", x=ss.x, u=ss.u, d=np.zeros(0),
+                description=("reconstruction fitted to the seed's OPII eigenvalues "
+                             "(chapter-3 study): F4 130 kmol/h, P 2850 kPa, yA3 63 %, x4bar "
+                             "of OPI, level free (VL 15.9 m^3)"),
+                stability="stable", stability_detail="stable node", confidence="reconstructed")
         return ops
