@@ -24,6 +24,12 @@ and y held over the sample (zero-order hold): ``n1 <- Fd n1 + Gd u``,
 ``estimates()`` are the models' values of y at the *next* sample; compare them
 with ``y_(k+1)`` (call :meth:`errors` before the next update).
 
+For prediction (MPC) each model closes the loop through its own output:
+:meth:`sampled_form` is exactly the sampled update fed with the model's own
+estimate (cheap, consistent with how the state moves), :meth:`prediction_form`
+the exact ZOH discretization of the continuous model (one matrix exponential,
+cached). They differ by O(dt) in the n2 coupling.
+
 Coefficient vectors are **lowest power first**: ``a = (a1, ..., an)`` with a1
 the constant term, as printed in the seed.
 
