@@ -54,20 +54,24 @@ def test_r6_3_inferred_yA3_within_8_h(capsys):
     assert row(doc, "maximum reactor pressure")["ours"] < P_LIMIT
 
 
-def test_r6_5_printed_calcium_models(capsys):
+def test_r6_5_calcium_linearization(capsys):
     doc = reproduce(capsys, "R6.5")
     assert doc["verdict"] == "reproduced"
-    assert row(doc, "RyR pole-zero")["ours"] == pytest.approx(-10.605, rel=0.01)
+    assert row(doc, "pole-zero pair removed")["ours"] == pytest.approx(-10.605, rel=0.01)
+    assert row(doc, "order after minimal realization")["ours"] == 4
     for i, v in enumerate((1.265, 0.500, 0.289), start=1):
-        assert row(doc, f"Hankel singular value {i}")["ours"] == pytest.approx(v, rel=0.05)
-    assert row(doc, "B column ratio q1/J, OPI")["ours"] == pytest.approx(-1.19, rel=0.03)
+        assert row(doc, f"Hankel singular value {i}, our")["ours"] == pytest.approx(v, rel=0.05)
+    assert row(doc, "B column ratio J/q1, our OPI")["ours"] == pytest.approx(-1.19, rel=0.03)
+    assert row(doc, "B: second/first")["ours"] < 1e-9
 
 
-def test_r6_6_calcium_j_nonnegative_and_back_to_opi_within_6_s(capsys):
+def test_r6_6_calcium_transitions_j_nonnegative_within_8_s(capsys):
     doc = reproduce(capsys, "R6.6")
     assert row(doc, "smallest J")["ours"] >= -1e-9
-    assert row(doc, "back to OPI: xp5 within")["ours"] <= 6.0
-    assert row(doc, "back to OPI: xp6 settles")["ours"] <= 6.0
-    # Unequal output weighting is at least as good for xp5 (Fig. 6.5).
-    assert row(doc, "ISE xp5 back to OPI, weights 50/1")["ours"] <= row(
-        doc, "ISE xp5 back to OPI, weights 1/1")["ours"]
+    for prefix in ("Fig. 6.4 OPII→OPI: xp5 within ±2", "Fig. 6.4 OPII→OPI: xp6 within ±2",
+                   "Fig. 6.5 OPI→OPII: xp5 within ±2", "Fig. 6.5 OPI→OPII: xp6 within ±2"):
+        assert row(doc, prefix)["ours"] <= 8.0  # catalogue: about 6 s, a pass is <= 8 s
+    assert abs(row(doc, "Fig. 6.4: J at the end")["ours"]) < 1e-3
+    # Unequal output weighting is better for xp5 (Fig. 6.5).
+    assert row(doc, "ISE xp5 OPI→OPII, weights 50/1")["ours"] < row(
+        doc, "ISE xp5 OPI→OPII, weights 1/1")["ours"]

@@ -40,7 +40,7 @@ from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
 from services.reproduce import ReproduceResult, Row, StudyContext
 
 __all__ = ["RESULTS", "ReactorCase", "ReactorRun", "run_reactor", "reactor_models",
-           "CalciumCase", "run_calcium", "reactor_settings"]
+           "CalciumCase", "run_calcium", "reactor_settings", "calcium_models"]
 
 MV = ("x1", "x2", "x3")
 CV = ("P", "yA3", "F4")
@@ -307,39 +307,47 @@ def run_reactor(case: ReactorCase = ReactorCase()) -> ReactorRun:
 
 
 # -- calcium --------------------------------------------------------------------------------
-#: Printed OPI order-3 model of R6.5 (inputs J, q1; outputs xp5, xp6 in µM; time in s).
+#: Printed order-3 models of R6.5 (time in s, outputs xp5, xp6 in µM). The printed B
+#: columns are ordered (q1, J): with that order the J coefficient of dxp5/dt is 1 (see
+#: plant_sim.calcium), so J/q1 = col 2 / col 1.
 CA_A = np.array([[-2.7566, 2.8145, -0.4583], [-2.8152, -0.6653, 1.0459],
                  [-0.4589, -1.0459, -0.1260]])
 CA_B = np.array([[1.6977, -2.0232], [0.5244, -0.6249], [0.1736, -0.2069]])
 CA_C = np.array([[-0.0289, 0.0372, -0.0137], [-2.6409, 0.8149, -0.2697]])
-#: Printed OPII A and B (its C is lost in the OCR).
 CA_A2 = np.array([[-1.0898, -2.9738, 0.6683], [2.9905, -0.0010, 0.0192],
                   [0.6684, -0.0292, -0.7040]])
 CA_B2 = np.array([[1.5888, -1.7938], [-0.0480, 0.0542], [-0.5919, 0.6683]])
-#: Operating points (xp5, xp6) in µM from the captions of Figs. 6.4–6.5.
-CA_OPI = np.array([0.1670, 39.262])
-CA_OPII = np.array([0.1370, 38.6162])
+#: Set points printed in the captions of Figs. 6.4–6.5, (xp5, xp6) µM. Following the
+#: reconstructed plant (plant_sim.calcium), OPI is the 0.1370 µM point.
+CA_PRINTED = {"OPI": (0.1370, 38.6162), "OPII": (0.1670, 39.262)}
 #: Tang–Othmer RyR rate constants (facts §2.3): k1, k-1, k2, k-2.
 RYR = (15.0, 7.6, 0.8, 0.84)
+#: Designer polynomial of the calcium state-shared model, s^3 + 3 s^2 + 2 s + 1 (§2.5).
+CA_A_DESIGN = (1.0, 2.0, 3.0)
 
 
 @dataclass(frozen=True)
 class CalciumCase:
-    """One MPC transition of §6.1.3 on the printed OPI model (deviation form).
+    """One MPC transition of §6.1.3 on the reconstructed nonlinear calcium plant.
 
-    ``start``/``target`` are (xp5, xp6) in µM. J is the first input and is bounded
-    below by 0 (its nominal value is 0); q1 is unbounded. Sample time ``dt`` in s.
+    The MPC runs on a state-shared model of the plant's OPI and OPII linearizations
+    (inputs J, q1; outputs xp5, xp6), each reduced to order 3 by balanced truncation
+    (as the seed), with switching by the performance index. J >= 0 (nominal 0) and
+    q1 >= 0; J has a small resting-value weight so it returns to 0 (Fig. 6.4).
+    Sample time ``dt`` in s.
     """
 
-    start: tuple[float, float] = (0.1670, 39.262)
-    target: tuple[float, float] = (0.1370, 38.6162)
+    start: str = "OPII"
+    target: str = "OPI"
     weights: tuple[float, float] = (50.0, 1.0)
     P: int = 10
     M: int = 4
     dt: float = 0.2
-    move_weight: float = 1.0
-    tau_ref: float = 1.0
+    move_weight: float = 0.1
+    j_rest_weight: float = 1.0
+    tau_ref: float = 0.5
     t_end: float = 10.0
+    order: int = 3
 
 
 @dataclass(frozen=True)
@@ -348,71 +356,96 @@ class CalciumRun:
     t: np.ndarray
     y: np.ndarray          # (K, 2) xp5, xp6 (µM)
     reference: np.ndarray  # (K, 2)
-    u: np.ndarray          # (K, 2) J, q1 (deviation from nominal; J nominal 0)
+    setpoint: np.ndarray   # (2,)
+    y_start: np.ndarray    # (2,)
+    u: np.ndarray          # (K, 2) J, q1
+    active: np.ndarray
     fallback: np.ndarray
-    x_final: np.ndarray    # plant state after the run (deviation)
+    model_names: tuple[str, ...] = ()
 
-    def settle_time(self, output: int, rel: float = 0.02) -> float:
-        """Time after which the output stays within ``rel`` of its total change from
-        its final value (s): when it stops moving, wherever that is."""
-        y = self.y[:, output]
-        band = rel * max(abs(y[-1] - y[0]), 1e-12)
-        outside = np.flatnonzero(np.abs(y - y[-1]) > band)
-        return 0.0 if outside.size == 0 else float(self.t[min(outside[-1] + 1, y.size - 1)])
+    def _after(self, outside) -> float:
+        idx = np.flatnonzero(outside)
+        if idx.size == 0:
+            return 0.0
+        return math.inf if idx[-1] == self.t.size - 1 else float(self.t[idx[-1] + 1])
 
     def reach_time(self, output: int, rel: float = 0.02) -> float:
         """Time after which the output stays within ``rel`` of its set point (s)."""
-        sp = self.case.target[output]
-        outside = np.flatnonzero(np.abs(self.y[:, output] - sp) > rel * abs(sp))
-        if outside.size == 0:
-            return 0.0
-        if outside[-1] == self.t.size - 1:
-            return math.inf
-        return float(self.t[outside[-1] + 1])
+        sp = self.setpoint[output]
+        return self._after(np.abs(self.y[:, output] - sp) > rel * abs(sp))
+
+    def settle_time(self, output: int, rel: float = 0.02) -> float:
+        """Time after which the output stays within ``rel`` of the *change* (s)."""
+        sp = self.setpoint[output]
+        band = rel * abs(sp - self.y_start[output])
+        return self._after(np.abs(self.y[:, output] - sp) > band)
 
     def ise(self, output: int) -> float:
-        return float(np.sum((self.y[:, output] - self.case.target[output]) ** 2) * self.case.dt)
+        return float(np.sum((self.y[:, output] - self.setpoint[output]) ** 2) * self.case.dt)
 
 
-def run_calcium(case: CalciumCase = CalciumCase(), x0=None, u0=None) -> CalciumRun:
-    """MPC transition on the printed OPI model, which is also the plant.
+def calcium_models(order: int = 3):
+    """State-shared model data of the calcium plant's OPI/OPII linearizations."""
+    from plant_sim import get_plant
+    from plant_sim.linearize import linearize
 
-    ``x0``, ``u0`` (deviation state and inputs) default to OPI itself (zeros); a
-    reverse transition starts where a forward run ended (``run.x_final``,
-    ``run.u[-1]``), because the linear model has no steady state at OPII (see R6.6).
-    """
-    from controller.linear import zoh_matrices
-    from controller.mpc import LinearModelState, MPCController
+    plant = get_plant("calcium", outputs=("x5", "x6"))
+    specs = []
+    for name in ("OPI", "OPII"):
+        lm = linearize(plant, name)
+        red = balanced_truncation(lm.A, lm.B, lm.C, order=order, method="matchdc").reduced
+        specs.append(StateSharedModel.model_from_linear(name, red.A, red.B, red.C, lm.u_op,
+                                                        lm.y_op, CA_A_DESIGN))
+    return specs, plant
 
-    Phi, Gam = zoh_matrices(CA_A, CA_B, case.dt)
+
+def run_calcium(case: CalciumCase = CalciumCase()) -> CalciumRun:
+    """Closed-loop transition between the calcium operating points (Figs. 6.4–6.5)."""
+    from plant_sim.integrate import step as plant_step
+
+    specs, plant = calcium_models(case.order)
+    ops = plant.operating_points
+    o1, o2 = ops[case.start], ops[case.target]
+    y1, y2 = plant.outputs(o1.x, o1.u), plant.outputs(o2.x, o2.u)
+    dt = case.dt
+    ssm = StateSharedModel(CA_A_DESIGN, 2, dt, specs)
     settings = MPCSettings(nu=2, ny=2, P=case.P, M=case.M, Xi=case.weights,
-                           Lambda=[case.move_weight, case.move_weight], u_min=[0.0, -np.inf],
+                           Lambda=[case.move_weight] * 2, u_min=[0.0, 0.0],
+                           u_target=[0.0, 0.0], u_target_weight=[case.j_rest_weight, 0.0],
                            budget_ms=50.0)
-    x = np.zeros(3) if x0 is None else np.asarray(x0, dtype=float).copy()
-    u = np.zeros(2) if u0 is None else np.asarray(u0, dtype=float).copy()
-    src = LinearModelState({"OPI": (Phi, Gam, CA_C)})
-    src.x["OPI"] = x.copy()
-    src.x_prev["OPI"] = x.copy()
-    ctrl = MPCController(settings, src, u0=u)
-    y_start = CA_OPI + CA_C @ x
-    reference = ReferenceTrajectory(
-        SetpointSchedule.step(y_start, np.asarray(case.target), 0.0),
-        case.tau_ref, case.dt, initial=y_start)
-    K = int(round(case.t_end / case.dt)) + 1
-    ts, ys, rs, us, fb = [], [], [], [], []
+    law = MPCLaw(settings)
+    law.prepare(ssm)
+    span = np.abs(y2 - y1)
+    index = PerformanceIndex(IndexSettings(mu=0.0, nu=1.0,
+                                           output_weights=tuple(1.0 / span ** 2)), 2, dt)
+    switcher = ModelSwitcher(2, 0.5, dt, initial=ssm.names.index(case.start))
+    reference = ReferenceTrajectory(SetpointSchedule.step(y1, y2, 0.0), case.tau_ref, dt,
+                                    initial=y1)
+    x, u = o1.x.copy(), o1.u.copy()
+    ssm.initialize(u, y1)
+    law.reset(u, y1)
+    K = int(round(case.t_end / dt)) + 1
+    ts, ys, rs, us, act, fb = [], [], [], [], [], []
     for k in range(K):
-        t = k * case.dt
-        y = CA_OPI + CA_C @ x
-        dec = ctrl.step(k, t, y, reference.horizon(case.P))
-        ts.append(t)
+        y = plant.outputs(x, u)
+        J = index.update(ssm.errors(y))
+        dec = switcher.step(J)
+        u_new, info = law.compute(k, dec.active, ssm, y, reference.horizon(case.P), u)
+        ssm.update(u_new, y)
+        ts.append(k * dt)
         ys.append(y)
         rs.append(reference.r.copy())
-        us.append(dec.u.copy())
-        fb.append(dec.fallback)
-        x = Phi @ x + Gam @ dec.u
+        us.append(u_new.copy())
+        act.append(dec.active)
+        fb.append(bool(info.get("fallback", False)))
+        if k == K - 1:
+            break
+        x = plant_step(plant, x, u_new, dt, t=k * dt)
+        u = u_new
         reference.advance()
-    return CalciumRun(case, np.asarray(ts), np.vstack(ys), np.vstack(rs), np.vstack(us),
-                      np.asarray(fb), x)
+    return CalciumRun(case, np.asarray(ts), np.vstack(ys), np.vstack(rs), y2, y1,
+                      np.vstack(us), np.asarray(act, dtype=int), np.asarray(fb),
+                      tuple(ssm.names))
 
 
 # -- reproduce ------------------------------------------------------------------------------
@@ -541,74 +574,100 @@ def ryr_mode(x5: float) -> float:
 
 
 def r6_5(ctx: StudyContext) -> ReproduceResult:
-    from controller.linear import hankel_singular_values
+    from controller.linear import hankel_singular_values, minimal_realization
+    from plant_sim import get_plant
+    from plant_sim.linearize import linearize
 
-    hsv = hankel_singular_values(CA_A, CA_B, CA_C)
-    G1 = -CA_C @ np.linalg.solve(CA_A, CA_B)
-    sv = np.linalg.svd(G1, compute_uv=False)
-    ratio1 = float(np.median(CA_B[:, 1] / CA_B[:, 0]))
-    ratio2 = float(np.median(CA_B2[:, 1] / CA_B2[:, 0]))
-    rank1 = float(np.linalg.svd(CA_B, compute_uv=False)[1] / np.linalg.svd(CA_B,
-                                                                        compute_uv=False)[0])
+    plant = get_plant("calcium", outputs=("x5", "x6"))
+    lm = linearize(plant, "OPI")
+    mr = minimal_realization(lm.A, lm.B, lm.C)
+    full, kept = np.linalg.eigvals(lm.A), np.linalg.eigvals(mr.A)
+    removed = [ev for ev in full if np.min(np.abs(kept - ev)) > 1e-6 * max(1.0, abs(ev))]
+    cancelled = float(np.real(removed[0])) if len(removed) == 1 else math.nan
+    hsv_ours = hankel_singular_values(lm.A, lm.B, lm.C)
+    i5 = 3  # x5 row of the state (x1, x2, x3, x5, x6)
+    ratio_ours = float(lm.B[i5, 0] / lm.B[i5, 1])  # J/q1
+    lm2 = linearize(plant, "OPII")
+    ratio_ours2 = float(lm2.B[i5, 0] / lm2.B[i5, 1])
+    b_sv = np.linalg.svd(lm.B, compute_uv=False)
+    hsv_printed = hankel_singular_values(CA_A, CA_B, CA_C)
     rows = [
-        Row("RyR pole-zero pair at OPII (xp5 = 0.137 µM), closed form", "1/s", -10.605,
-            ryr_mode(CA_OPII[0])),
-        Row("Hankel singular value 1, printed OPI model", "-", 1.265, float(hsv[0])),
-        Row("Hankel singular value 2, printed OPI model", "-", 0.500, float(hsv[1])),
-        Row("Hankel singular value 3, printed OPI model", "-", 0.289, float(hsv[2])),
-        Row("B column ratio q1/J, OPI", "-", -1.19, ratio1),
-        Row("B column ratio q1/J, OPII", "-", -1.13, ratio2),
-        Row("B: second/first singular value, OPI", "-", None, rank1),
-        Row("steady-state gain singular value 1, OPI", "-", 2.11, float(sv[0])),
-        Row("steady-state gain singular value 2, OPI", "-", 1.5e-7, float(sv[1])),
+        Row("pole-zero pair removed by minimal realization, OPI", "1/s", -10.605, cancelled),
+        Row("order after minimal realization", "-", 4, float(mr.A.shape[0])),
+        Row("Hankel singular value 1, our OPI linearization", "-", 1.265, float(hsv_ours[0])),
+        Row("Hankel singular value 2, our OPI linearization", "-", 0.500, float(hsv_ours[1])),
+        Row("Hankel singular value 3, our OPI linearization", "-", 0.289, float(hsv_ours[2])),
+        Row("B column ratio J/q1, our OPI linearization", "-", -1.19, ratio_ours),
+        Row("B column ratio J/q1, our OPII linearization", "-", -1.13, ratio_ours2),
+        Row("B: second/first singular value (rank 1)", "-", None, float(b_sv[1] / b_sv[0])),
+        Row("RyR mode -(k-1 + k-2 + (k1 + k2) xp5) at 0.137 µM, closed form", "1/s", -10.605,
+            ryr_mode(0.137)),
+        Row("Hankel singular value 1, printed OPI model", "-", 1.265, float(hsv_printed[0])),
+        Row("printed B column ratio (col 2 / col 1), OPI", "-", -1.19,
+            float(np.median(CA_B[:, 1] / CA_B[:, 0]))),
+        Row("printed B column ratio (col 2 / col 1), OPII", "-", -1.13,
+            float(np.median(CA_B2[:, 1] / CA_B2[:, 0]))),
     ]
-    ok = (abs(rows[0].ours - rows[0].seed) <= 0.01 * 10.605
-          and all(abs(r.ours - r.seed) <= 0.05 * abs(r.seed) for r in rows[1:4])
-          and all(abs(r.ours - r.seed) <= 0.03 * abs(r.seed) for r in rows[4:6]))
-    why = ("Computed from the printed order-3 matrices (R6.5) and the RyR rate constants "
-           "(facts §2.3): the nonlinear calcium plant cannot be rebuilt from the facts, so "
-           "the -10.605 cancellation comes from its closed form, not from a linearization.")
+    ok = (abs(cancelled + 10.605) <= 0.01 * 10.605
+          and all(abs(r.ours - r.seed) <= 0.05 * abs(r.seed) for r in rows[2:5])
+          and all(abs(r.ours - r.seed) <= 0.03 * abs(r.seed) for r in rows[5:7])
+          and rows[7].ours < 1e-9)
+    why = ("Linearization of the reconstructed calcium plant (plant_sim.calcium, fitted to "
+           "the seed's printed numbers) at OPI = 0.137 µM: the -10.605 mode is removed by "
+           "minimal realization (order 4), B has rank 1 and its J/q1 ratio and the order-3 "
+           "Hankel singular values match the print. The printed B columns are ordered "
+           "(q1, J).")
     return ReproduceResult("R6.5", rows, "reproduced" if ok else "differs", why, [])
 
 
-def calcium_runs(t_end: float = 10.0):
-    """Forward OPI→OPII (50/1), then back to OPI with weights 50/1 and 1/1."""
-    fwd = run_calcium(CalciumCase(t_end=t_end))
-    back = {}
-    for w in ((50.0, 1.0), (1.0, 1.0)):
-        back[w] = run_calcium(
-            CalciumCase(start=tuple(fwd.y[-1]), target=tuple(CA_OPI), weights=w, t_end=t_end),
-            x0=fwd.x_final, u0=fwd.u[-1])
-    return fwd, back
+def calcium_runs():
+    """Fig. 6.4 (OPII→OPI) and Fig. 6.5 (OPI→OPII, weights 50/1 and 1/1)."""
+    return {
+        "OPII->OPI": run_calcium(CalciumCase(start="OPII", target="OPI")),
+        "OPI->OPII": run_calcium(CalciumCase(start="OPI", target="OPII")),
+        "OPI->OPII 1/1": run_calcium(CalciumCase(start="OPI", target="OPII",
+                                                 weights=(1.0, 1.0))),
+    }
 
 
 def r6_6(ctx: StudyContext) -> ReproduceResult:
-    fwd, back = calcium_runs()
-    b50, b1 = back[(50.0, 1.0)], back[(1.0, 1.0)]
-    j_min = float(min(fwd.u[:, 0].min(), b50.u[:, 0].min(), b1.u[:, 0].min()))
+    runs = calcium_runs()
+    down, up, up1 = runs["OPII->OPI"], runs["OPI->OPII"], runs["OPI->OPII 1/1"]
+    j_min = float(min(r.u[:, 0].min() for r in runs.values()))
+    t_check = max(down.reach_time(0), down.reach_time(1), up.reach_time(0), up.reach_time(1))
     rows = [
-        Row("OPI→OPII: xp5 settles (2 % of its change)", "s", 6, fwd.settle_time(0)),
-        Row("OPI→OPII: xp6 settles (2 % of its change)", "s", 6, fwd.settle_time(1)),
-        Row("OPI→OPII: final xp5 (set point 0.1370)", "µM", 0.1370, float(fwd.y[-1, 0])),
-        Row("OPI→OPII: final xp6 (set point 38.6162)", "µM", 38.6162, float(fwd.y[-1, 1])),
-        Row("back to OPI: xp5 within 2 % of 0.1670", "s", 6, b50.reach_time(0)),
-        Row("back to OPI: xp6 settles (2 % of its change)", "s", 6, b50.settle_time(1)),
-        Row("back to OPI: final J (nominal 0)", "-", 0, float(b50.u[-1, 0])),
-        Row("smallest J over all runs (J >= 0)", "-", None, j_min),
-        Row("ISE xp5 back to OPI, weights 50/1", "µM^2 s", None, b50.ise(0)),
-        Row("ISE xp5 back to OPI, weights 1/1", "µM^2 s", None, b1.ise(0)),
+        Row("Fig. 6.4 OPII→OPI: xp5 within ±2 % of its set point", "s", 6, down.reach_time(0)),
+        Row("Fig. 6.4 OPII→OPI: xp6 within ±2 % of its set point", "s", 6, down.reach_time(1)),
+        Row("Fig. 6.4 OPII→OPI: xp5 within 2 % of its change", "s", 6, down.settle_time(0)),
+        Row("Fig. 6.4 OPII→OPI: xp6 within 2 % of its change", "s", 6, down.settle_time(1)),
+        Row("Fig. 6.4: J at the end (nominal 0)", "µM/s", 0, float(down.u[-1, 0])),
+        Row("Fig. 6.5 OPI→OPII: xp5 within ±2 % of its set point", "s", 6, up.reach_time(0)),
+        Row("Fig. 6.5 OPI→OPII: xp6 within ±2 % of its set point", "s", 6, up.reach_time(1)),
+        Row("Fig. 6.5 OPI→OPII: xp5 within 2 % of its change", "s", 6, up.settle_time(0)),
+        Row("smallest J over all runs (J >= 0)", "µM/s", None, j_min),
+        Row("ISE xp5 OPI→OPII, weights 50/1", "µM^2 s", None, up.ise(0)),
+        Row("ISE xp5 OPI→OPII, weights 1/1", "µM^2 s", None, up1.ise(0)),
+        Row("xp5 set point OPI (plant) vs printed 0.1370", "µM", 0.1370, float(down.setpoint[0])),
+        Row("xp6 set point OPI (plant) vs printed 38.6162", "µM", 38.6162,
+            float(down.setpoint[1])),
+        Row("xp6 set point OPII (plant) vs printed 39.262", "µM", 39.262, float(up.setpoint[1])),
     ]
-    why = ("Plant and model are the printed OPI order-3 model (the nonlinear plant cannot be "
-           "rebuilt; OPII's C is lost). Its steady-state gain has rank 1, and its steady-state "
-           "line through OPI misses OPII: with weights 50/1 the MPC settles at xp5 = "
-           f"{fwd.y[-1, 0]:.4f} µM instead of 0.1370, so OPI→OPII differs. Back to OPI both "
-           f"outputs settle in {max(b50.reach_time(0), b50.settle_time(1)):.1f} s (seed about "
-           f"6 s) with J >= 0 (min {j_min:.2g}); J ends at {b50.u[-1, 0]:.3g}, not exactly "
-           "at its nominal 0 (the two inputs are collinear, so q1 shares the move); "
-           "weights 50/1 give a "
-           f"{'smaller' if b50.ise(0) < b1.ise(0) else 'larger'} xp5 ISE than 1/1.")
-    figs = _plot(ctx, "plot_calcium", fwd, back, _path(ctx, "fig6_4_6_5.png"))
-    return ReproduceResult("R6.6", rows, "differs", why, figs)
+    better = up.ise(0) < up1.ise(0)
+    violated = j_min < -1e-9
+    # Judged on the stricter of the catalogue's ±2 % band and 2 % of xp5's change (the
+    # ±2 % band on xp6 is wider than its whole change).
+    t_strict = max(t_check, down.settle_time(0), up.settle_time(0))
+    verdict = _verdict_time(t_strict, 6.0, violated or not better, slack=2.0)
+    why = ("Reconstructed nonlinear calcium plant; MPC (P = 10, M = 4, weights 50/1, dt "
+           "0.2 s) on a state-shared model of its OPI/OPII order-3 linearizations with "
+           f"switching. Both directions reach ±2 % of the set points in {t_check:.1f} s "
+           f"(seed about 6 s; within 2 % of the change: "
+           f"{max(down.settle_time(0), up.settle_time(0)):.1f} s for xp5); J >= 0 "
+           f"throughout (min {j_min:.2g}) and back at 0 after OPII→OPI; weights 50/1 give "
+           f"{'a smaller' if better else 'a larger'} xp5 ISE than 1/1. Set points are the "
+           "plant's steady states (xp6 differs from the print by 0.7 %, see rows).")
+    figs = _plot(ctx, "plot_calcium", runs, _path(ctx, "fig6_4_6_5.png"))
+    return ReproduceResult("R6.6", rows, verdict, why, figs)
 
 
 RESULTS = {"R6.1": r6_1, "R6.2": r6_2, "R6.3": r6_3, "R6.4": r6_4, "R6.5": r6_5,

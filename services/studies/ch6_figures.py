@@ -67,27 +67,28 @@ def plot_reactor(run, path: Path, title: str, p_limit: float) -> list[str]:
     return _save(plt, fig, path)
 
 
-def plot_calcium(fwd, back: dict, path: Path) -> list[str]:
-    """Figs. 6.4–6.5: xp5, xp6 with references; inputs J and q1; weights 50/1 vs 1/1."""
+def plot_calcium(runs: dict, path: Path) -> list[str]:
+    """Figs. 6.4–6.5: xp5, xp6 with set point and reference; J and q1; weights 50/1
+    vs 1/1 for OPI → OPII."""
     plt, fig, ax = _figure(3, 2, (11.0, 9.0))
-    for col, (run, label) in enumerate(((fwd, "OPI → OPII"), (back[(50.0, 1.0)],
-                                                             "OPII → OPI"))):
+    for col, key in enumerate(("OPII->OPI", "OPI->OPII")):
+        run = runs[key]
         for row, (i, name) in enumerate(((0, "xp5 cytosol Ca [µM]"), (1, "xp6 SR Ca [µM]"))):
             a = ax[row, col]
-            a.plot(run.t, run.y[:, i], "b", label="output")
+            a.plot(run.t, run.y[:, i], "b", label="output, weights 50/1")
             a.plot(run.t, run.reference[:, i], "k:", label="reference")
-            a.axhline(run.case.target[i], color="k", ls="--", lw=0.8, label="set point")
-            if col == 1 and i == 0:
-                w1 = back[(1.0, 1.0)]
+            a.axhline(run.setpoint[i], color="k", ls="--", lw=0.8, label="set point")
+            if key == "OPI->OPII" and i == 0 and "OPI->OPII 1/1" in runs:
+                w1 = runs["OPI->OPII 1/1"]
                 a.plot(w1.t, w1.y[:, 0], "g-.", label="weights 1/1")
             a.set_ylabel(name)
-            a.set_title(label, fontsize=9)
+            a.set_title(key.replace("->", " → "), fontsize=9)
             a.legend(fontsize=7)
         a = ax[2, col]
-        a.plot(run.t, run.u[:, 0], label="J (>= 0)")
-        a.plot(run.t, run.u[:, 1], label="q1 (deviation)")
+        a.plot(run.t, run.u[:, 0], label="J (>= 0) [µM/s]")
+        a.plot(run.t, run.u[:, 1] - run.u[0, 1], label="q1 change [µM/s]")
         a.set_xlabel("Time [s]")
         a.set_ylabel("inputs")
         a.legend(fontsize=7)
-    fig.suptitle("Calcium MPC on the printed OPI model (P = 10, M = 4, weights 50/1)")
+    fig.suptitle("Calcium MPC (P = 10, M = 4, weights 50/1), reconstructed plant")
     return _save(plt, fig, path)
