@@ -17,9 +17,14 @@ Two-phase reactor (§6.1.2, R6.1–R6.4)
     seed's limit is lost; Ricker's shutdown is 3000 kPa).
 
 Calcium (§6.1.3, R6.5–R6.6)
-    The nonlinear Tang–Othmer plant cannot be rebuilt from the facts, so the plant is
-    the printed order-3 OPI model (R6.5) about its operating point. P = 10, M = 4,
-    Ξ = 50 (xp5), 1 (xp6), J >= 0.
+    Plant: the reconstructed Tang–Othmer model :mod:`plant_sim.calcium` (fluxes fitted
+    to the seed's printed numbers), outputs xp5, xp6, inputs J, q1. Following it, OPI
+    is the 0.1370 µM point and OPII the 0.1670 µM point (the facts file has them the
+    other way round; the seed's Fig. 6.4 text says "OPII to OPI" for 0.1670 → 0.1370),
+    and the printed B columns are ordered (q1, J). The MPC runs on a state-shared model
+    of the plant's OPI/OPII linearizations reduced to order 3 (F_j companion of
+    s³ + 3s² + 2s + 1) with switching; P = 10, M = 4, Ξ = 50 (xp5), 1 (xp6), J >= 0,
+    and a small resting weight that returns J to its nominal 0.
 
 Everything here is deterministic for a given ``--seed``.
 """
