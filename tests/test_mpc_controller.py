@@ -240,3 +240,16 @@ def test_measured_disturbance_feedforward_reduces_the_upset():
         peaks[ff] = float(np.max(dev))
         np.testing.assert_allclose(C @ x, 0.0, atol=TRACK_ATOL)  # both reject it in the end
     assert peaks[True] < 0.5 * peaks[False]
+
+
+def test_input_outside_hard_limits_at_run_time_is_brought_back_and_loop_recovers():
+    """u(k-1) above u_max with a rate limit: the QP is infeasible; the documented safe
+    action holds the input clipped into its hard range, and the next sample solves."""
+    ctrl, plant = make()
+    ctrl.u = np.array([1.5, 0.0])  # u_max = 1, du_max = 0.2: unreachable in one move
+    d0 = ctrl.step(0, 0.0, plant.y(), np.array([0.5, 0.0]))
+    assert d0.fallback and d0.status == "infeasible" and d0.alarms
+    np.testing.assert_allclose(d0.u, [1.0, 0.0])
+    plant.apply(d0.u)
+    d1 = ctrl.step(1, 1.0, plant.y(), np.array([0.5, 0.0]))
+    assert d1.status == "solved" and np.all(d1.u <= 1.0 + LIMIT_TOL)

@@ -11,7 +11,10 @@
    vectors from ``x_a = [x(k) − x(k−1); y_f(k)]`` and solves it with an iteration limit;
 5. applies ``u(k) = u(k−1) + Δu(k)`` when the solve is optimal and inside the budget;
    otherwise the next move of the previous optimal plan (or a hold), flagged and
-   counted. Nothing raises out of :meth:`step`.
+   counted. Nothing raises out of :meth:`step`. A fallback input is always clipped
+   into ``[u_min, u_max]``: an input found outside its hard range (e.g. after a
+   manual override, which makes the QP infeasible under the rate limit) is brought
+   back in one sample, the hard range taking precedence over the rate limit.
 
 Because the Δu model starts from measured outputs and state increments, a model
 switch needs no state reset (bumpless).
