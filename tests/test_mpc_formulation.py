@@ -6,9 +6,12 @@ simulating the plain state-space model, numpy least squares and scipy's Riccati 
 
 from __future__ import annotations
 
+import hypothesis.extra.numpy as hnp
+import hypothesis.strategies as st
 import numpy as np
 import pytest
 import scipy.linalg as sla
+from hypothesis import given, settings
 
 from controller.mpc import (
     DAQPBackend,
@@ -268,3 +271,24 @@ def test_input_target_term_matches_least_squares(system):
     res = DAQPBackend(form.H, form.A).solve(v)
     assert res.ok
     np.testing.assert_allclose(res.x, dU_ref, atol=SOLVER_ATOL)
+
+
+_FEAS_SYS = random_stable(np.random.default_rng(11), 4, 2, 2)
+_FEAS_SETTINGS = MPCSettings(nu=2, ny=2, P=10, M=4, u_min=[-0.5, -1.0], u_max=[0.5, 1.0],
+                             du_max=[0.05, 0.1], y_min=[-0.1, -0.2], y_max=[0.1, 0.2])
+_FEAS_FORM = build_formulation(*_FEAS_SYS, _FEAS_SETTINGS)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    x_a=hnp.arrays(np.float64, 6, elements=st.floats(-1e4, 1e4)),
+    frac=hnp.arrays(np.float64, 2, elements=st.floats(0.0, 1.0)),
+    ref=hnp.arrays(np.float64, (10, 2), elements=st.floats(-1e3, 1e3)),
+)
+def test_soft_output_limits_feasible_from_any_state(x_a, frac, ref):
+    s = _FEAS_SETTINGS
+    u_prev = s.u_min + frac * (s.u_max - s.u_min)  # any admissible current input
+    res = DAQPBackend(_FEAS_FORM.H, _FEAS_FORM.A, warm_start=False).solve(
+        _FEAS_FORM.qp_vectors(x_a, u_prev, ref))
+    assert res.ok, res.status
+    assert res.x[-1] >= -1e-9  # slack
