@@ -66,3 +66,28 @@ def test_law_switches_models_without_rebuilds_and_never_raises():
     # Bad measurement: a flagged fallback, not an exception.
     u2, info = law.compute(30, 0, ssm, [np.nan, 0.0], np.zeros((8, 2)), u)
     assert info["fallback"] and np.all(np.isfinite(u2))
+
+
+def test_mpc_law_inside_the_multiple_model_controller_with_restart():
+    from controller.multimodel import MultiModelController
+
+    rng = np.random.default_rng(3)
+    ssm = small_ssm(rng)
+    s = MPCSettings(nu=2, ny=2, P=8, M=3, Lambda=[0.1, 0.1], du_max=[0.5, 0.5],
+                    budget_ms=1e3)
+    ctrl = MultiModelController(ssm, MPCLaw(s), u0=np.zeros(2))
+    ref = np.full((8, 2), 0.2)
+    plant = small_ssm(np.random.default_rng(3))  # same models: model 0 is the plant
+    plant.initialize(np.zeros(2), np.zeros(2))
+    for k in range(40):
+        y = plant.estimates()[0]
+        dec = ctrl.step(k, 0.1 * k, y, ref)
+        assert dec.status == "solved" and not dec.fallback
+        plant.update(dec.u, y)
+    state = ctrl.checkpoint()
+    twin = MultiModelController(small_ssm(np.random.default_rng(3)), MPCLaw(s),
+                                u0=np.zeros(2))
+    twin.restore(state)
+    y = plant.estimates()[0]
+    np.testing.assert_allclose(ctrl.step(40, 4.0, y, ref).u, twin.step(40, 4.0, y, ref).u,
+                               atol=1e-9)
