@@ -24,6 +24,8 @@ def register(sub) -> None:
     g.add_argument("--step", action="append", default=[], metavar="INPUT=VALUE@T",
                    help="step input INPUT to VALUE at time T (repeatable)")
     g.add_argument("--plot", help="also write a PNG figure of the run")
+    g.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                   help="plant option, e.g. gamma=inf, sigma=ref94, inputs=flows")
     g.add_argument("--sample", type=float, default=None,
                    help="output sample period (default: duration/500)")
     # Tennessee Eastman
