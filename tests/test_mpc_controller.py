@@ -253,3 +253,19 @@ def test_input_outside_hard_limits_at_run_time_is_brought_back_and_loop_recovers
     plant.apply(d0.u)
     d1 = ctrl.step(1, 1.0, plant.y(), np.array([0.5, 0.0]))
     assert d1.status == "solved" and np.all(d1.u <= 1.0 + LIMIT_TOL)
+
+
+def test_invalid_measurement_keeps_the_model_state_in_step_with_time():
+    ctrl, plant = make()
+    Phi, Gamma, _ = plant_model()
+    ref = np.array([0.5, 0.2])
+    x_model = np.zeros(3)
+    u_applied = []
+    for k in range(12):
+        y = [np.nan, 0.0] if k == 6 else plant.y()
+        d = ctrl.step(k, float(k), y, ref)
+        plant.apply(d.u)
+        u_applied.append(d.u)
+    for u in u_applied[:-1]:  # the state at the last sample has seen all but the last u
+        x_model = Phi @ x_model + Gamma @ u
+    np.testing.assert_allclose(ctrl.source.x["m"], x_model, atol=1e-12)

@@ -293,8 +293,11 @@ class MPCController:
             y = np.asarray(y, dtype=float).reshape(-1)
             if y.size != s.ny or not np.all(np.isfinite(y)):
                 self.counters["invalid_measurement"] += 1
+                if self.filter.state is not None:
+                    # Keep the model state in step with time, on the last good value.
+                    view = self.source.observe(self.u, self.filter.state.copy())
                 u, how = self._fallback_move()
-                return self._decision(u, None, fallback=True, status="invalid_measurement",
+                return self._decision(u, view, fallback=True, status="invalid_measurement",
                                       solve_ms=0.0, alarms=(
                                           f"sample {k}: invalid measurement {y.tolist()}; "
                                           f"{how}",),
@@ -376,6 +379,8 @@ class MPCController:
             "plan_index": self.plan_index,
             "counters": dict(self.counters),
             "source": src() if callable(src) else None,
+            "d": None if self.d is None else self.d.tolist(),
+            "d_prev": None if self.d_prev is None else self.d_prev.tolist(),
         }
 
     def restore(self, state: dict[str, Any]) -> None:
@@ -384,6 +389,9 @@ class MPCController:
         self.plan = None if state["plan"] is None else np.asarray(state["plan"], dtype=float)
         self.plan_index = int(state["plan_index"])
         self.counters.update(state.get("counters", {}))
+        for name in ("d", "d_prev"):
+            v = state.get(name)
+            setattr(self, name, None if v is None else np.asarray(v, dtype=float))
         src = getattr(self.source, "restore", None)
         if callable(src) and state.get("source") is not None:
             src(state["source"])
