@@ -15,7 +15,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.signal import ss2tf
 
 from plant_sim.base import OperatingPoint, PlantInputError, PlantModel, as_vector
 
@@ -207,6 +206,8 @@ class LinearModel:
         i = input if isinstance(input, int) else self._pos(self.input_names, input, "input")
         o = output if isinstance(output, int) else self._pos(self.output_names, output,
                                                              "output")
+        from scipy.signal import ss2tf  # lazy: scipy.signal costs ~1 s to import
+
         num, den = ss2tf(self.A, self.B, self.C, self.D, input=i)
         num = np.asarray(num[o], dtype=float)
         den = np.asarray(den, dtype=float)
