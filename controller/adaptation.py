@@ -102,6 +102,15 @@ class NLSSettings:
     max_abs_param : float
         A parameter larger than this in magnitude is treated as divergence: the
         update is rejected and the covariance reset (counted).
+    lowrank_min_params : int
+        From this many parameters on, the covariance is kept implicitly as
+        ``c I - V V'`` (c the last reset value, V one block of m columns per
+        update since) until V has ``lowrank_max_rank`` columns, then densified.
+        Exact same algorithm, but a sample costs O(N r m) instead of O(N^2 m)
+        while covariance resets keep r small (the seed's kappa = 10 with
+        lambda_min(P) > 1 resets every few samples).
+    lowrank_max_rank : int
+        Columns of V before switching to the dense form.
     dead_zone : float
         No update while every output's prediction error is within this band
         (output units; 0 = always adapt, the seed's law). The classic robust
@@ -116,6 +125,8 @@ class NLSSettings:
     reset_value: float | None = None
     exact_check_max_params: int = 64
     max_abs_param: float = 1e8
+    lowrank_min_params: int = 128
+    lowrank_max_rank: int = 80
     dead_zone: float = 0.0
 
     def __post_init__(self) -> None:
@@ -140,6 +151,8 @@ class NLSSettings:
             )
         if int(self.exact_check_max_params) < 0:
             raise ValueError("exact_check_max_params: must be >= 0")
+        if int(self.lowrank_min_params) < 1 or int(self.lowrank_max_rank) < 1:
+            raise ValueError("lowrank_min_params, lowrank_max_rank: must be >= 1")
 
     @property
     def reset_to(self) -> float:
@@ -226,13 +239,37 @@ class NormalizedLeastSquares:
         self.dt = float(dt)
         self.g_d = settings.per_sample_gain(self.dt)
         self.p = p0.copy()
-        self.P = settings.kappa * np.eye(p0.size)
-        self._lower = float(settings.kappa)  # lower bound on lambda_min(P)
+        self._lowrank = p0.size >= settings.lowrank_min_params
+        self._Pd: np.ndarray | None = None
+        self._c = 0.0
+        self._V = np.zeros((p0.size, 0))
+        self._set_identity(float(settings.kappa))
         self.n_updates = 0
         self.n_resets = 0
         self.n_skipped = 0
         self.n_dead_zone = 0
         self.reset_reasons: dict[str, int] = {}
+
+    # -- covariance representation --------------------------------------------------------
+    def _set_identity(self, value: float) -> None:
+        if self._lowrank:
+            self._Pd, self._c, self._V = None, value, np.zeros((self.p.size, 0))
+        else:
+            self._Pd = value * np.eye(self.p.size)
+        self._lower = value  # lower bound on lambda_min(P)
+        self._since_sym = 0
+
+    @property
+    def P(self) -> np.ndarray:
+        """The covariance (N, N); reading it in the implicit form makes it dense."""
+        if self._Pd is None:
+            self._Pd = self._c * np.eye(self.p.size) - self._V @ self._V.T
+            self._V = np.zeros((self.p.size, 0))
+        return self._Pd
+
+    @P.setter
+    def P(self, value) -> None:
+        self._Pd = np.array(value, dtype=float)
 
     @property
     def n_params(self) -> int:
@@ -240,9 +277,7 @@ class NormalizedLeastSquares:
 
     def reset_covariance(self, reason: str = "requested") -> None:
         """Set ``P = reset_value I`` and count the reset under ``reason``."""
-        value = self.settings.reset_to
-        self.P = value * np.eye(self.p.size)
-        self._lower = value
+        self._set_identity(self.settings.reset_to)
         self.n_resets += 1
         self.reset_reasons[reason] = self.reset_reasons.get(reason, 0) + 1
 
@@ -253,8 +288,7 @@ class NormalizedLeastSquares:
             raise ValueError(f"p: expected a finite vector of length {self.p.size}")
         self.p = p.copy()
         if reset_covariance:
-            self.P = self.settings.reset_to * np.eye(self.p.size)
-            self._lower = self.settings.reset_to
+            self._set_identity(self.settings.reset_to)
 
     def error(self, W, y) -> np.ndarray:
         """Prediction error ``y - W p``, shape ``(m,)``."""
@@ -274,8 +308,10 @@ class NormalizedLeastSquares:
         if W.shape != (m, self.p.size) or not (np.all(np.isfinite(W)) and np.all(np.isfinite(y))):
             self.n_skipped += 1
             return NLSStep(np.full(m, np.nan), False, reason="invalid_data")
-        if not np.all(np.isfinite(self.P)):
+        dense = self._Pd is not None
+        if not np.all(np.isfinite(self._Pd if dense else self._V)):
             self.reset_covariance("nonfinite")
+            dense = self._Pd is not None
         e = y - W @ self.p
         if freeze:
             self.n_skipped += 1
@@ -283,13 +319,20 @@ class NormalizedLeastSquares:
         if self.settings.dead_zone > 0 and np.max(np.abs(e)) <= self.settings.dead_zone:
             self.n_dead_zone += 1
             return NLSStep(e, False, reason="dead_zone")
-        PWt = self.P @ W.T  # (N, m)
+        Wt = W.T
+        if dense:
+            PWt = self._Pd @ Wt  # (N, m)
+        else:
+            PWt = self._c * Wt - self._V @ (self._V.T @ Wt)
         S = np.eye(m) + self.settings.rate * (W @ PWt)
+        S = 0.5 * (S + S.T)
         try:
-            K = np.linalg.solve(S, PWt.T).T  # P W' S^-1, (N, m)
+            L = np.linalg.cholesky(S)  # S is SPD for a PSD P; failing means P is broken
+            S_inv = np.linalg.inv(L).T @ np.linalg.inv(L)
         except np.linalg.LinAlgError:
             self.reset_covariance("singular")
             return NLSStep(e, False, True, "singular")
+        K = PWt @ S_inv  # P W' S^-1, (N, m)
         p_new = self.p + self.g_d * (K @ e)
         if not np.all(np.isfinite(p_new)) or np.max(np.abs(p_new)) > self.settings.max_abs_param:
             self.reset_covariance("diverged")
@@ -298,20 +341,31 @@ class NormalizedLeastSquares:
         if not np.array_equal(clipped, p_new):
             self.n_projections += 1
             p_new = clipped
-        dP = self.g_d * (K @ PWt.T)
-        P_new = self.P - dP
-        P_new = 0.5 * (P_new + P_new.T)
+        trace_dP = self.g_d * float(np.sum(K * PWt))  # trace(g_d K PWt')
         self.p = p_new
         self.n_updates += 1
-        if not np.all(np.isfinite(P_new)):
+        if not math.isfinite(trace_dP):
             self.reset_covariance("nonfinite")
             return NLSStep(e, True, True, "nonfinite")
-        self.P = P_new
+        if dense:
+            self._Pd -= self.g_d * (K @ PWt.T)
+            self._since_sym += 1
+            if self._since_sym >= 64:  # keep round-off from making P unsymmetric
+                self._Pd += self._Pd.T
+                self._Pd *= 0.5
+                self._since_sym = 0
+        else:
+            # g_d S^-1 = G G' with G = sqrt(g_d) L^-T: dP = (PWt G)(PWt G)'
+            G = math.sqrt(self.g_d) * np.linalg.inv(L).T
+            self._V = np.hstack((self._V, PWt @ G))
+            if self._V.shape[1] > self.settings.lowrank_max_rank:
+                _ = self.P  # densify
         # trace of the PSD decrement bounds its largest eigenvalue
-        self._lower -= float(np.trace(dP))
+        self._lower -= trace_dP
         if self._lower <= self.settings.eig_floor:
-            if self.p.size <= self.settings.exact_check_max_params:
-                lam = float(np.linalg.eigvalsh(self.P)[0])
+            exact = self._Pd is None or self.p.size <= self.settings.exact_check_max_params
+            if exact:
+                lam = self.smallest_eigenvalue()
                 if not math.isfinite(lam) or lam <= self.settings.eig_floor:
                     reason = "floor" if math.isfinite(lam) and lam > 0 else "singular"
                     self.reset_covariance(reason)
@@ -323,38 +377,60 @@ class NormalizedLeastSquares:
         return NLSStep(e, True)
 
     def smallest_eigenvalue(self) -> float:
-        """Exact ``lambda_min(P)`` (costly for large N; for diagnostics and tests)."""
-        return float(np.linalg.eigvalsh(self.P)[0])
+        """Exact ``lambda_min(P)`` (for the dense form costly at large N)."""
+        if self._Pd is not None:
+            return float(np.linalg.eigvalsh(self._Pd)[0])
+        if self._V.shape[1] == 0:
+            return float(self._c)
+        # nonzero eigenvalues of V V' are those of V' V (r x r)
+        return float(self._c - np.linalg.eigvalsh(self._V.T @ self._V)[-1])
 
     def counters(self) -> dict[str, int]:
         return {"updates": self.n_updates, "resets": self.n_resets, "skipped": self.n_skipped}
 
     def checkpoint(self) -> dict[str, Any]:
-        """JSON-serialisable state (parameters, covariance, bound, counters)."""
-        return {
+        """JSON-serialisable state (parameters, covariance, bound, counters).
+
+        The covariance is stored as given: dense ``P`` or the implicit ``c``, ``V``.
+        """
+        out = {
             "p": self.p.tolist(),
-            "P": self.P.tolist(),
             "lower": self._lower,
             "n_updates": self.n_updates,
             "n_resets": self.n_resets,
             "n_skipped": self.n_skipped,
+            "n_dead_zone": self.n_dead_zone,
             "reset_reasons": dict(self.reset_reasons),
         }
+        if self._Pd is not None:
+            out["P"] = self._Pd.tolist()
+        else:
+            out["c"], out["V"] = self._c, self._V.tolist()
+        return out
 
     def restore(self, state: dict[str, Any]) -> None:
         p = np.asarray(state["p"], dtype=float).reshape(-1)
-        P = np.asarray(state["P"], dtype=float)
-        if p.shape != self.p.shape or P.shape != (p.size, p.size):
-            raise ValueError(f"state: parameter size {p.size} does not match {self.p.size}")
-        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(P))):
-            raise ValueError("state: non-finite parameters or covariance")
+        if p.shape != self.p.shape or not np.all(np.isfinite(p)):
+            raise ValueError(f"state: parameters must be {self.p.size} finite values")
+        if state.get("P") is not None:
+            P = np.asarray(state["P"], dtype=float)
+            if P.shape != (p.size, p.size) or not np.all(np.isfinite(P)):
+                raise ValueError("state.P: wrong shape or non-finite covariance")
+            self._Pd = 0.5 * (P + P.T)
+        else:
+            c = float(state["c"])
+            V = np.asarray(state["V"], dtype=float).reshape(p.size, -1)
+            if not (math.isfinite(c) and np.all(np.isfinite(V))):
+                raise ValueError("state.V: non-finite covariance")
+            self._Pd, self._c, self._V = None, c, V
         self.p = p.copy()
-        self.P = 0.5 * (P + P.T)
-        if p.size <= self.settings.exact_check_max_params:
+        self._since_sym = 0
+        if self._Pd is None or p.size <= self.settings.exact_check_max_params:
             self._lower = self.smallest_eigenvalue()  # never trust a stored bound when cheap
         else:
             self._lower = float(state.get("lower", -math.inf))
         self.n_updates = int(state.get("n_updates", 0))
         self.n_resets = int(state.get("n_resets", 0))
         self.n_skipped = int(state.get("n_skipped", 0))
+        self.n_dead_zone = int(state.get("n_dead_zone", 0))
         self.reset_reasons = {str(k): int(v) for k, v in state.get("reset_reasons", {}).items()}

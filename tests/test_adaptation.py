@@ -171,3 +171,30 @@ def test_mimo_state_shared_parameters_converge_under_pe():
     for W, y in zip(rows, outs):
         est.update(W, y)
     np.testing.assert_allclose(est.p, p_true, rtol=PARAM_RTOL, atol=PARAM_RTOL * 0.1)
+
+
+def test_implicit_low_rank_covariance_runs_the_same_algorithm_as_the_dense_one():
+    # N = 130 >= lowrank_min_params: implicit c I - V V'; a twin forced dense must agree
+    rng = np.random.default_rng(9)
+    N, m = 130, 3
+    p_true = rng.standard_normal(N)
+    # exact floor checks in both (the dense form otherwise resets on the cheap bound)
+    implicit = NLSSettings(kappa=10.0, gain=5.0, rate=1.0, lowrank_max_rank=40,
+                           exact_check_max_params=200)
+    dense = NLSSettings(kappa=10.0, gain=5.0, rate=1.0, lowrank_min_params=10**6,
+                        exact_check_max_params=200)
+    a = NormalizedLeastSquares(implicit, np.zeros(N), 0.1)
+    b = NormalizedLeastSquares(dense, np.zeros(N), 0.1)
+    assert a._Pd is None and b._Pd is not None
+    for k in range(60):
+        W = rng.standard_normal((m, N)) / np.sqrt(N)
+        y = W @ p_true
+        sa, sb = a.update(W, y), b.update(W, y)
+        assert sa.reset == sb.reset
+        if k == 30:  # checkpoint of the implicit form restores exactly
+            twin = NormalizedLeastSquares(implicit, np.zeros(N), 0.1)
+            twin.restore(json.loads(json.dumps(a.checkpoint())))
+            np.testing.assert_allclose(twin.P, a.P, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(a.p, b.p, rtol=1e-9, atol=1e-10)
+    np.testing.assert_allclose(a.P, b.P, rtol=1e-9, atol=1e-9)
+    assert a.smallest_eigenvalue() == pytest.approx(b.smallest_eigenvalue(), rel=1e-9)
