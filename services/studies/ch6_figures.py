@@ -70,7 +70,7 @@ def plot_reactor(run, path: Path, title: str, p_limit: float) -> list[str]:
 def plot_calcium(runs: dict, path: Path) -> list[str]:
     """Figs. 6.4–6.5: xp5, xp6 with set point and reference; J and q1; weights 50/1
     vs 1/1 for OPI → OPII."""
-    plt, fig, ax = _figure(3, 2, (11.0, 9.0))
+    plt, fig, ax = _figure(4, 2, (11.0, 11.0))
     for col, key in enumerate(("OPII->OPI", "OPI->OPII")):
         run = runs[key]
         for row, (i, name) in enumerate(((0, "xp5 cytosol Ca [µM]"), (1, "xp6 SR Ca [µM]"))):
@@ -87,8 +87,12 @@ def plot_calcium(runs: dict, path: Path) -> list[str]:
         a = ax[2, col]
         a.plot(run.t, run.u[:, 0], label="J (>= 0) [µM/s]")
         a.plot(run.t, run.u[:, 1] - run.u[0, 1], label="q1 change [µM/s]")
-        a.set_xlabel("Time [s]")
         a.set_ylabel("inputs")
         a.legend(fontsize=7)
+        a = ax[3, col]
+        a.step(run.t, run.active + 1, where="post")
+        a.set_yticks(range(1, len(run.model_names) + 1), list(run.model_names))
+        a.set_xlabel("Time [s]")
+        a.set_ylabel("active model")
     fig.suptitle("Calcium MPC (P = 10, M = 4, weights 50/1), reconstructed plant")
     return _save(plt, fig, path)
