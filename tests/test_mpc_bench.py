@@ -1,0 +1,30 @@
+"""Shape of the MPC benchmarks' JSON (no timing is asserted)."""
+
+from __future__ import annotations
+
+import json
+
+from services.cli import main
+
+
+def test_bench_qp_json_shape(capsys):
+    assert main(["bench", "qp", "--json", "--samples", "30", "--repeat", "1"]) == 0
+    doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert doc["bench"] == "qp" and doc["machine"]
+    names = [c["case"] for c in doc["cases"]]
+    assert names[:3] == ["daqp", "daqp cold", "proxsuite"]
+    for c in doc["cases"]:
+        assert {"case", "unit", "median", "p99", "max", "n"} <= set(c)
+        assert c["n"] == 30 and c["variables"] == 29
+    daqp = doc["cases"][0]
+    assert daqp["default"] and daqp["failures"] == 0
+
+
+def test_bench_mpc_step_two_phase_case_shape():
+    from services.bench.mpc_step import two_phase_case
+
+    c = two_phase_case(samples=150, adapt=True)
+    assert c["case"] == "two-phase" and c["unit"] == "ms" and c["n"] == 300
+    assert c["fallbacks"] >= 0  # counted (a value depends on machine load, not asserted)
+    for part in ("errors", "adapt", "switch", "mpc", "update"):
+        assert f"{part}_median_ms" in c
