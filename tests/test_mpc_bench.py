@@ -25,6 +25,6 @@ def test_bench_mpc_step_two_phase_case_shape():
 
     c = two_phase_case(samples=150, adapt=True)
     assert c["case"] == "two-phase" and c["unit"] == "ms" and c["n"] == 300
-    assert c["fallbacks"] >= 0  # counted (a value depends on machine load, not asserted)
+    assert "fallbacks" in c  # counted; its value depends on machine load
     for part in ("errors", "adapt", "switch", "mpc", "update"):
         assert f"{part}_median_ms" in c
