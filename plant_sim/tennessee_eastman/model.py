@@ -102,7 +102,13 @@ def new_work() -> np.ndarray:
     return np.zeros(NWORK)
 
 
-@njit(cache=True)
+# In the enthalpy routines 2.D0, 3.D0 and 1.8D0 are double literals in both
+# builds; written inline, the compiler turns the division by 2 into an exact
+# multiplication. Components with a mole fraction of exactly zero are skipped:
+# their term is a signed zero, which leaves the running sum unchanged.
+
+
+@njit(cache=True, inline="always")
 def _enthalpy(K, z, t, ity):
     """Specific enthalpy of a mixture of mole fractions ``z`` at ``t`` deg C (TESUB1).
 
@@ -111,15 +117,17 @@ def _enthalpy(K, z, t, ity):
     h = 0.0
     if ity == 0:
         for i in range(8):
-            hi = t * (K[C.AH + i] + K[C.BH + i] * t / K[C.H_TWO]
-                      + K[C.CH + i] * (t * t) / K[C.H_THREE])
-            hi = K[C.H_CP] * hi
+            if z[i] == 0.0:
+                continue
+            hi = t * (K[C.AH + i] + K[C.BH + i] * t / 2.0 + K[C.CH + i] * (t * t) / 3.0)
+            hi = 1.8 * hi
             h = h + z[i] * K[C.XMW + i] * hi
     else:
         for i in range(8):
-            hi = t * (K[C.AG + i] + K[C.BG + i] * t / K[C.H_TWO]
-                      + K[C.CG + i] * (t * t) / K[C.H_THREE])
-            hi = K[C.H_CP] * hi
+            if z[i] == 0.0:
+                continue
+            hi = t * (K[C.AG + i] + K[C.BG + i] * t / 2.0 + K[C.CG + i] * (t * t) / 3.0)
+            hi = 1.8 * hi
             hi = hi + K[C.AV + i]
             h = h + z[i] * K[C.XMW + i] * hi
     if ity == 2:
@@ -127,26 +135,30 @@ def _enthalpy(K, z, t, ity):
     return h
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _enthalpy_slope(K, z, t, ity):
     """d(enthalpy)/dT of the mixture (TESUB3)."""
     dh = 0.0
     if ity == 0:
         for i in range(8):
+            if z[i] == 0.0:
+                continue
             dhi = K[C.AH + i] + K[C.BH + i] * t + K[C.CH + i] * (t * t)
-            dhi = K[C.H_CP] * dhi
+            dhi = 1.8 * dhi
             dh = dh + z[i] * K[C.XMW + i] * dhi
     else:
         for i in range(8):
+            if z[i] == 0.0:
+                continue
             dhi = K[C.AG + i] + K[C.BG + i] * t + K[C.CG + i] * (t * t)
-            dhi = K[C.H_CP] * dhi
+            dhi = 1.8 * dhi
             dh = dh + z[i] * K[C.XMW + i] * dhi
     if ity == 2:
         dh = dh - K[C.H_GAS_R]
     return dh
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _temperature(K, z, t_start, h, ity):
     """Temperature whose enthalpy is ``h``, by Newton from ``t_start`` (TESUB2).
 
@@ -163,16 +175,18 @@ def _temperature(K, z, t_start, h, ity):
     return t_start
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _density(K, x, t):
     """Liquid molar density (lb-mol/ft3) of mole fractions ``x`` at ``t`` deg C (TESUB4)."""
     v = 0.0
     for i in range(8):
+        if x[i] == 0.0:
+            continue
         v = v + x[i] * K[C.XMW + i] / (K[C.AD + i] + (K[C.BD + i] + K[C.CD + i] * t) * t)
     return K[C.ONE] / v
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _walk_value(mem, i, t):
     """Value of random process ``i`` (0-based) at time ``t`` (TESUB8)."""
     h = t - mem[M_TLAST + i]
