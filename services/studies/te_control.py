@@ -1,0 +1,403 @@
+"""The Tennessee Eastman cascade of seed §7.4/7.7 and its controllers (strategies a, b, PI).
+
+Layers (seed Fig. 7.2)
+    1. Inner PI loops of Table 7.10 (R7.11) at the plant's 1.8 s Euler step,
+       :class:`plant_sim.tennessee_eastman.regulatory.RegulatoryLayer`: reactor
+       temperature -> reactor coolant XMV(10), reactor level -> D feed XMV(1),
+       separator level -> separator underflow XMV(7), stripper level -> stripper
+       underflow XMV(8).
+    2. The supervisory controller, every :data:`SAMPLE_H` (36 s, 20 plant steps):
+       - grade references (:class:`services.studies.te_grades.TransitionPlan`): level
+         set points (reactor 75 -> 65 %), reactor temperature, G mol%;
+       - XMV(5) and XMV(9) follow first-order ramps to the grade's optimum (closed
+         toward modes 1-3, §7.7); XMV(12) (agitator) fixed;
+       - the E/D feed ratio (§7.7): XMV(2) = ratio x measured D feed (XMEAS 2), the
+         D share ``s = D/(D+E)`` from a grade feedforward plus a slow PI on the
+         product analyzer's G mol% (XMEAS 40, 0.25 h sample + 0.25 h dead time);
+       - the core on five handles, XMV(3), XMV(4), XMV(6), T_r*, XMV(11):
+         strategy ``"fixed"`` (a): MPC with three fixed models (modes 0, 2, 3)
+         switched by the performance index (§7.5-7.6); strategy ``"ssmpc"`` (b):
+         the same three plus a re-initialized adaptive model (§7.7); ``"pi"``: the
+         decentralized baseline of :mod:`services.studies.te_pi_baseline`.
+
+Sample period
+    36 s (0.01 h). The handles act on the reactor pressure within minutes (gas
+    holdup time constants of 0.05-0.3 h; the pressure filter is 12 s; IDV(6) trips
+    the open plant in 0.44 h), and the composition analyzers sample every 0.1 h
+    and 0.25 h, so 0.01 h resolves the pressure dynamics with about 10 samples per
+    dominant time constant while keeping a 48 h run at 4,800 supervisory samples.
+
+Use (service node and studies)::
+
+    ctl, spec = make_te_controller("ssmpc", plan=TransitionPlan("mode0", [Leg(1, "mode2")]))
+    # every spec.sample_steps plant steps, with xmeas = the plant's 41 measurements:
+    dec = ctl.step(k, t_h, xmeas, np.zeros((0, 41)))
+    # dec.u: 12 XMV targets, NaN where a Table 7.10 loop owns the valve (spec.loop_xmvs);
+    # dec.extra["setpoints"]: the four loop set points in spec.loops order.
+
+:func:`run_te` runs it against a :class:`plant_sim.tennessee_eastman.TESimulator`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from controller.interfaces import ControlDecision
+from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop, RegulatoryLayer
+from services.studies.te_grades import TransitionPlan, limit_margins
+from services.studies.te_pi_baseline import PI_BASELINE_LOOPS, VelocityPI
+
+__all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec", "TEController",
+           "make_te_controller", "TERun", "run_te", "RatioSettings", "TR_LIMITS"]
+
+#: The inner loops: Table 7.10 (R7.11) with one change, the reactor-temperature
+#: gain. As printed (-0.5 %/degC, Ti "i" read as 1 h) the linearized plant with the
+#: four loops closed has a growing 3 h oscillation at modes 0 and 2 (eigenvalues
+#: +0.35 +- 2.08j and +0.51 +- 2.02j 1/h; with -0.5 %/degC no Ti in 0.02-1 h is
+#: stable at both modes) and the nonlinear plant trips on reactor pressure after
+#: 40 h (mode 0) and 19 h (mode 2) with all other valves held. -2 %/degC with
+#: Ti = 0.5 h makes the linearizations Hurwitz at modes 0, 2 and 3, as the seed
+#: reports for its loops (R7.10). The three level loops are exactly Table 7.10.
+INNER_LOOPS = (PILoop("reactor temperature", cv=9, mv=10, gain=-2.0, ti_h=0.5),) + TABLE_7_10[1:]
+#: Supervisory sample period, h (36 s = 20 Euler steps of 1.8 s).
+SAMPLE_H = 0.01
+STRATEGIES = ("fixed", "ssmpc", "pi")
+#: The five core handles: XMV numbers, None = reactor-temperature set point (R7.15).
+CORE_XMVS = (3, 4, 6, None, 11)
+CORE_NAMES = ("XMV3", "XMV4", "XMV6", "Tr_sp", "XMV11")
+#: MPC controlled variables (XMEAS numbers, R7.15).
+CORE_CVS = (7, 11, 13, 16, 18)
+#: Reactor temperature set point range, degC (R7.12).
+TR_LIMITS = (110.0, 130.0)
+_D_FULL_KG_H = 5811.0
+_E_FULL_KG_H = 8354.0
+
+
+@dataclass(frozen=True)
+class RatioSettings:
+    """The G mol% loop on the D share of the D+E feed (§7.7's XMV(1)/XMV(2) ratio).
+
+    Parameters
+    ----------
+    gain : float
+        Change of the D share per mol% of G error (e = reference - XMEAS 40).
+    ti_h : float
+        Integral time, h.
+    s_min, s_max : float
+        Limits of the D share.
+    """
+
+    gain: float = 0.004
+    ti_h: float = 1.0
+    s_min: float = 0.03
+    s_max: float = 0.97
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.gain) and self.gain >= 0):
+            raise ValueError(f"gain: must be finite and >= 0, got {self.gain!r}")
+        if not (math.isfinite(self.ti_h) and self.ti_h > 0):
+            raise ValueError(f"ti_h: must be > 0 h, got {self.ti_h!r}")
+        if not 0 < self.s_min < self.s_max < 1:
+            raise ValueError(f"s_min/s_max: need 0 < s_min < s_max < 1, got "
+                             f"{self.s_min}, {self.s_max}")
+
+
+@dataclass(frozen=True)
+class TEControlSpec:
+    """What the plant side needs to apply a TE controller's decisions."""
+
+    strategy: str
+    sample_h: float
+    sample_steps: int
+    loops: tuple = INNER_LOOPS
+    loop_xmvs: tuple[int, ...] = tuple(lp.mv for lp in INNER_LOOPS)
+    written_xmvs: tuple[int, ...] = (2, 3, 4, 5, 6, 9, 11, 12)
+
+
+class TEController:
+    """Supervisory TE controller (:class:`controller.interfaces.SampleController`).
+
+    ``y`` is the 41-vector of XMEAS; ``reference`` is ignored (the references come
+    from the :class:`TransitionPlan`, change it with :meth:`retarget`).
+
+    Parameters
+    ----------
+    strategy : {"fixed", "ssmpc", "pi"}
+    plan : TransitionPlan
+    core : object
+        For "pi" a :class:`VelocityPI`; for the MPC strategies a
+        :class:`controller.multimodel.MultiModelController` on the five handles.
+    ratio : RatioSettings
+    sample_h : float
+    """
+
+    def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
+                 sample_h: float = SAMPLE_H, horizon: int = 10) -> None:
+        if strategy not in STRATEGIES:
+            raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
+        self.strategy = strategy
+        self.plan = plan
+        self.core = core
+        self.ratio = ratio
+        self.sample_h = float(sample_h)
+        self.horizon = int(horizon)
+        self.s: float | None = None
+        self.s_ff_prev: float | None = None
+        self.e_g_prev: float | None = None
+        self.last_g: float | None = None
+        self.n_samples = 0
+
+    def retarget(self, plan: TransitionPlan) -> None:
+        """Follow a new plan from now on (times are absolute, h)."""
+        self.plan = plan
+
+    # -- pieces ---------------------------------------------------------------------------
+    def _ratio_step(self, t: float, xmeas: np.ndarray) -> float:
+        ff = self.plan.d_fraction_ref(t)
+        if self.s is None:
+            self.s, self.s_ff_prev = ff, ff
+        s = self.s + (ff - self.s_ff_prev)
+        self.s_ff_prev = ff
+        g = float(xmeas[39])
+        if math.isfinite(g):
+            e = float(self.plan.xmeas_ref(t)[39] - g)
+            if self.e_g_prev is None:
+                self.e_g_prev = e
+            s += self.ratio.gain * ((e - self.e_g_prev) + self.sample_h / self.ratio.ti_h * e)
+            self.e_g_prev = e
+        self.s = min(max(s, self.ratio.s_min), self.ratio.s_max)
+        return self.s
+
+    def _core_ff(self, t: float) -> np.ndarray:
+        xv, ym = self.plan.xmv_ref(t), self.plan.xmeas_ref(t)
+        return np.array([xv[2], xv[3], xv[5], ym[8], xv[10]])
+
+    # -- the sample ------------------------------------------------------------------------
+    def step(self, k: int, t: float, y, reference=None) -> ControlDecision:
+        t0 = time.perf_counter()
+        self.n_samples += 1
+        xmeas = np.asarray(y, dtype=float).reshape(-1)
+        alarms: list[str] = []
+        if xmeas.shape != (41,):
+            return ControlDecision(u=np.full(12, np.nan), status="invalid_measurement",
+                                   fallback=True, alarms=(f"y: expected 41 XMEAS, got "
+                                                          f"{xmeas.shape}",))
+        s = self._ratio_step(t, xmeas)
+        xv = self.plan.xmv_ref(t)
+        ym = self.plan.xmeas_ref(t)
+        u = np.full(12, np.nan)
+        d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
+        u[1] = np.clip(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0, 100.0)
+        u[4], u[8], u[11] = xv[4], xv[8], xv[11]
+        ff = self._core_ff(t)
+        info: dict[str, Any] = {}
+        if self.strategy == "pi":
+            core_u = self.core.step(xmeas, ym, ff)
+            status, fallback, active, J, names = "solved", False, -1, np.zeros(0), ()
+        else:
+            yc = xmeas[[c - 1 for c in CORE_CVS]]
+            refs = np.array([self.plan.xmeas_ref(t + i * self.sample_h)[[c - 1 for c in CORE_CVS]]
+                             for i in range(1, self.horizon + 1)])
+            dec = self.core.step(k, t, yc, refs)
+            core_u, status, fallback = dec.u, dec.status, dec.fallback
+            active, J, names = dec.active_model, dec.J, dec.model_names
+            alarms.extend(dec.alarms)
+            info["solve_ms"] = dec.solve_ms
+        for j, xmv in enumerate(CORE_XMVS):
+            if xmv is not None:
+                u[xmv - 1] = core_u[j]
+        setpoints = np.array([core_u[3], ym[7], ym[11], ym[14]])
+        extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
+        extra.update(info)
+        return ControlDecision(u=u, active_model=active, model_names=tuple(names), J=J,
+                               solve_ms=(time.perf_counter() - t0) * 1e3, fallback=fallback,
+                               status=status, alarms=tuple(alarms), extra=extra)
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,
+                "core": self.core.checkpoint(), "n_samples": self.n_samples}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
+        self.core.restore(state["core"])
+        self.n_samples = int(state.get("n_samples", 0))
+
+
+def _core_limits():
+    lo = np.array([0.0, 0.0, 0.0, TR_LIMITS[0], 0.0])
+    hi = np.array([100.0, 100.0, 100.0, TR_LIMITS[1], 100.0])
+    return lo, hi
+
+
+def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
+                       sample_h: float = SAMPLE_H, plant_dt_s: float = 1.8,
+                       ratio: RatioSettings | None = None,
+                       **mpc_options) -> tuple[TEController, TEControlSpec]:
+    """A TE supervisory controller and what the plant side needs to apply it.
+
+    Parameters
+    ----------
+    strategy : {"fixed", "ssmpc", "pi"}
+        (a) fixed models + MPC, (b) state-shared MPC, or the PI baseline.
+    plan : TransitionPlan, optional
+        Grade references; default: hold mode 0.
+    sample_h : float
+        Supervisory sample, h; a whole number of plant steps.
+    plant_dt_s : float
+        The plant's Euler step, s.
+    **mpc_options
+        Passed to :func:`services.studies.te_mpc.make_mpc_core` (MPC strategies).
+
+    Returns
+    -------
+    (TEController, TEControlSpec)
+    """
+    if strategy not in STRATEGIES:
+        raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
+    if plan is None:
+        plan = TransitionPlan("mode0")
+    steps = sample_h * 3600.0 / plant_dt_s
+    if not (math.isfinite(steps) and steps >= 1 and abs(steps - round(steps)) < 1e-9):
+        raise ValueError(f"sample_h: must be a whole number (>= 1) of plant steps of "
+                         f"{plant_dt_s} s, got {sample_h} h")
+    lo, hi = _core_limits()
+    if strategy == "pi":
+        core = VelocityPI(PI_BASELINE_LOOPS, sample_h, lo, hi)
+        horizon = 1
+    else:
+        from services.studies.te_mpc import make_mpc_core
+
+        core, horizon = make_mpc_core(strategy, plan, sample_h, **mpc_options)
+    ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon)
+    return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
+
+
+# -- closed-loop runner ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class TERun:
+    """Signals of one closed-loop TE run, one row per supervisory sample.
+
+    Attributes
+    ----------
+    t : ndarray (K,)
+        Time, h.
+    xmeas : ndarray (K, 41)
+        Measurements the controller received.
+    xmv : ndarray (K, 12)
+        XMVs in force after the sample's decision.
+    setpoints : ndarray (K, 4)
+        Inner-loop set points (Table 7.10 order).
+    ref : ndarray (K, 41)
+        References of the XMEAS (grade trajectory).
+    cost : ndarray (K,)
+        Operating cost, $/h.
+    active : ndarray (K,)
+        Active model index (-1 for the PI baseline).
+    solve_ms : ndarray (K,)
+        Controller step wall time, ms.
+    shutdown : object
+        The plant's first trip or None.
+    """
+
+    strategy: str
+    t: np.ndarray
+    xmeas: np.ndarray
+    xmv: np.ndarray
+    setpoints: np.ndarray
+    ref: np.ndarray
+    cost: np.ndarray
+    active: np.ndarray
+    solve_ms: np.ndarray
+    shutdown: Any
+    model_names: tuple[str, ...] = ()
+    alarms: tuple[str, ...] = ()
+    fallbacks: int = 0
+    wall_s: float = 0.0
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def margins(self) -> dict:
+        return limit_margins(self.xmeas)
+
+
+def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = False,
+           input_snr: float | None = None, idv: dict[int, float] | None = None,
+           seed: int = 0, sample_h: float = SAMPLE_H, stop_on_trip: bool = True,
+           **options) -> TERun:
+    """Closed-loop run of the TE cascade from the plan's start grade.
+
+    Parameters
+    ----------
+    strategy : {"fixed", "ssmpc", "pi"}
+    plan : TransitionPlan
+    hours : float
+        Length, h.
+    noise : bool
+        The original measurement noise (Downs & Vogel).
+    input_snr : float, optional
+        Input noise on every supervisory valve command: Gaussian, standard
+        deviation = |command| / input_snr (amplitude SNR).
+    idv : dict, optional
+        IDV number -> switch-on time (h).
+    seed : int
+        Seed of the input noise; the plant's generator keeps the original seed.
+    """
+    from plant_sim.tennessee_eastman import TESimulator
+
+    ctl, spec = make_te_controller(strategy, plan, sample_h=sample_h, **options)
+    mode = plan.start[4:]
+    sim = TESimulator(noise=noise, mode="base" if mode == "0" else mode)
+    for k_idv, t_on in (idv or {}).items():
+        sim.set_idv(int(k_idv), True, at_h=float(t_on))
+    reg = RegulatoryLayer(sim, loops=spec.loops)
+    rng = np.random.default_rng(seed)
+    n = int(round(hours / spec.sample_h))
+    T = np.empty(n)
+    X = np.empty((n, 41))
+    U = np.empty((n, 12))
+    S = np.empty((n, 4))
+    R = np.empty((n, 41))
+    cost = np.empty(n)
+    act = np.empty(n, dtype=int)
+    ms = np.empty(n)
+    alarms: list[str] = []
+    fallbacks = 0
+    names: tuple[str, ...] = ()
+    w0 = time.perf_counter()
+    k = -1
+    for k in range(n):
+        t = sim.time
+        xmeas = sim.xmeas
+        dec = ctl.step(k, t, xmeas, None)
+        xmv = sim.xmv
+        u = np.asarray(dec.u, dtype=float)
+        for i in spec.written_xmvs:
+            v = u[i - 1]
+            if math.isfinite(v):
+                if input_snr and i != 12:
+                    v = v + rng.normal() * abs(v) / input_snr
+                xmv[i - 1] = v
+        sim.set_xmv(xmv)
+        reg.set_setpoints(dec.extra["setpoints"])
+        T[k], X[k], U[k], S[k] = t, xmeas, xmv, dec.extra["setpoints"]
+        R[k] = plan.xmeas_ref(t)
+        cost[k] = sim.cost()
+        act[k], ms[k] = dec.active_model, dec.solve_ms
+        names = names or dec.model_names
+        fallbacks += int(dec.fallback)
+        for a in dec.alarms:
+            if len(alarms) < 50:
+                alarms.append(f"t={t:.2f} h: {a}")
+        reg.run_steps(spec.sample_steps, stop_on_trip=stop_on_trip)
+        if stop_on_trip and sim.shutdown is not None:
+            break
+    m = k + 1
+    return TERun(strategy, T[:m], X[:m], U[:m], S[:m], R[:m], cost[:m], act[:m], ms[:m],
+                 sim.shutdown, names, tuple(alarms), fallbacks, time.perf_counter() - w0,
+                 {"sample_h": spec.sample_h, "noise": noise, "input_snr": input_snr,
+                  "idv": dict(idv or {})})

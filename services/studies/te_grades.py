@@ -1,0 +1,443 @@
+"""Tennessee Eastman grades, transition references and run metrics (seed ch. 7.1, 7.6-7.7).
+
+Grades
+    ``mode0`` is the Downs & Vogel base case, ``mode1`` ... ``mode6`` Ricker's (1995)
+    optimal steady states (seed Table 7.1, R7.1). Per grade: the measured outputs of
+    seed Table 7.3 (R7.3, the set points) and Ricker's steady-state valve positions
+    (the start state's states 39-50, :mod:`plant_sim.tennessee_eastman.modes`), which
+    serve as feedforward targets for the valves the control structure does not close
+    a loop on.
+
+Reachability
+    A grade is *reachable* by the §7.4/7.7 structure when every valve a loop or the
+    MPC manipulates keeps a margin from its range ends at the grade's optimum
+    (:data:`CONTROL_MARGIN`). Ricker's maximum-production optima put a feed valve at
+    100 % (mode 4 and mode 6: D feed, mode 5: E feed), so nothing is left to control
+    with there; asking for them, or for an unknown mode, raises :class:`GradeError`.
+
+Transition references
+    Between grades every target follows a first-order trajectory,
+    ``tau dr/dt = s(t) - r`` with ``s`` the grade in force (seed §7.7: "a first-order
+    reference trajectory"), evaluated in closed form so that it is exact at any
+    time. This covers the reactor level 75 -> 65 %, the G mol% in product, the
+    reactor temperature, the closing ramps of XMV(5) and XMV(9), and the valve
+    feedforwards.
+
+Metrics
+    Operating cost ($/h, Downs & Vogel, from the simulator), production (stripper
+    underflow, XMEAS 17), ISE per CV, time until the G mol% stays within a band of
+    its final set point, valve saturation time and margins to the interlock limits.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+
+from plant_sim.tennessee_eastman.modes import start_state
+
+__all__ = ["GradeError", "Grade", "GRADES", "CONTROL_MARGIN", "CONTROLLED_VALVES", "grade",
+           "parse_grade", "check_reachable", "Leg", "TransitionPlan", "TAU_DEFAULT_H",
+           "first_order_path", "time_to_band", "ise", "saturation_time", "SHUTDOWN_LIMITS",
+           "limit_margins", "production_change"]
+
+
+class GradeError(ValueError):
+    """A grade or a transition that the control structure cannot deliver; names the field."""
+
+
+#: Seed Table 7.3 (R7.3): XMEAS 1-41 at modes 0-6 (facts, copied as data).
+_TABLE_7_3 = """\
+1,0.251,0.267,0.309,0.194,0.503,0.325,0.219
+2,3664,3657,734,5179,5811,761,5811
+3,4509,4440,8038,700,7244,8354,788
+4,9.35,9.24,8.55,7.83,14.73,8.83,8.79
+5,26.90,32.18,31.69,19.67,29.22,31.27,20.08
+6,42.34,47.36,46.08,32.09,53.76,46.24,34.02
+7,2705,2800,2800,2800,2800,2800,2800
+8,75,65,65,65,65,65,65
+9,120.4,122.9,124.2,121.9,128.2,124.6,123
+10,0.337,0.211,0.361,0.087,0.462,0.384,0.099
+11,80.1,91.7,90.3,83.4,74.1,88.9,80.9
+12,50,50,50,50,50,50,50
+13,2634,2706,2705,2765,2699,2705,2761
+14,25.16,25.28,26.31,17.55,40.06,27.45,19.60
+15,50,50,50,50,50,50,50
+16,3102,3326,3327,2996,3365,3330,3015
+17,22.95,22.89,22.73,18.04,36.04,23.55,20.20
+18,65.73,66.5,65.4,62.3,51.5,63.9,60.5
+19,230,4.74,4.90,5.34,6.87,5.11,5.59
+20,341,278.9,274.7,272.6,263.2,271.17,293.2
+21,94.6,102.4,108.6,101.9,96.6,108.5,100.6
+22,77.3,92.0,91.6,45.0,73.5,89.8,45.7
+23,32.19,32.21,34.82,29.46,35.40,34.78,29.99
+24,8.89,14.93,8.18,27.74,8.78,7.85,26.34
+25,26.38,18.75,19.43,17.97,22.36,19.54,18.80
+26,6.88,6.03,1.20,12.68,7.95,1.24,13.23
+27,18.78,16.71,25.47,3.86,17.01,26.03,3.91
+28,1.66,4.04,5.60,1.29,3.88,5.60,1.33
+29,32.96,32.73,36.63,27.86,40.94,36.71,28.61
+30,13.82,21.83,11.77,45.07,15.90,11.47,44.41
+31,23.98,13.11,14.63,9.22,15.68,14.57,9.76
+32,1.26,0.90,0.13,2.18,0.68,0.13,2.09
+33,18.58,16.19,22.37,3.94,15.41,22.92,4.00
+34,2.26,5.39,7.37,1.82,5.72,7.44,1.91
+35,4.84,6.62,1.32,9.40,3.85,1.26,8.76
+36,2.30,3.23,5.79,0.50,1.82,5.51,0.46
+37,0.02,0.01,0.00,0.03,0.02,0.00,0.03
+38,0.84,0.58,0.92,0.16,1.21,1.01,0.18
+39,0.01,0.19,0.29,0.07,0.04,0.32,0.08
+40,53.72,53.83,11.66,90.09,53.35,11.65,90.07
+41,43.83,43.91,85.64,8.17,43.52,85.53,8.16
+"""
+
+GRADES = ("mode0", "mode1", "mode2", "mode3", "mode4", "mode5", "mode6")
+#: Valves a loop or the MPC of §7.4/7.7 manipulates (XMV numbers): the level loops'
+#: D feed, separator and stripper underflows, reactor coolant; the ratio's E feed;
+#: the MPC's A feed, A+C feed, purge, condenser coolant.
+CONTROLLED_VALVES = (1, 2, 3, 4, 6, 7, 8, 10, 11)
+#: Smallest distance (% of range) a controlled valve must keep from 0 % and 100 %
+#: at the grade's optimum for the grade to count as reachable.
+CONTROL_MARGIN = 0.5
+#: Default time constants (h) of the first-order references.
+TAU_DEFAULT_H = {"xmeas": 3.0, "xmv": 5.0}
+
+
+@lru_cache(maxsize=1)
+def _table() -> np.ndarray:
+    rows = list(csv.reader(io.StringIO(_TABLE_7_3)))
+    arr = np.array([[float(v) for v in r[1:]] for r in rows])
+    if arr.shape != (41, 7):
+        raise RuntimeError(f"Table 7.3: expected 41 x 7 values, got {arr.shape}")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class Grade:
+    """One product grade (operating mode).
+
+    Attributes
+    ----------
+    name : str
+        ``mode0`` ... ``mode6``.
+    xmeas : ndarray, shape (41,)
+        Seed Table 7.3 outputs (XMEAS 1-41, their units).
+    xmv : ndarray, shape (12,)
+        Ricker's (or the base case's) steady-state valve positions, %.
+    """
+
+    name: str
+    xmeas: np.ndarray
+    xmv: np.ndarray
+
+    @property
+    def index(self) -> int:
+        return int(self.name[4:])
+
+    @property
+    def g_mol(self) -> float:
+        """G in product, mol% (Table 7.3 row 40)."""
+        return float(self.xmeas[39])
+
+    @property
+    def reactor_level(self) -> float:
+        """Reactor level set point, % (row 8)."""
+        return float(self.xmeas[7])
+
+    @property
+    def reactor_temperature(self) -> float:
+        """Reactor temperature set point, degC (row 9)."""
+        return float(self.xmeas[8])
+
+    @property
+    def d_fraction(self) -> float:
+        """D share of the D+E feed mass, D/(D+E) (rows 2 and 3)."""
+        d, e = float(self.xmeas[1]), float(self.xmeas[2])
+        return d / (d + e)
+
+    def unreachable_reason(self) -> str | None:
+        """Why the §7.4 structure cannot hold this grade, or None."""
+        for v in CONTROLLED_VALVES:
+            x = float(self.xmv[v - 1])
+            if not CONTROL_MARGIN <= x <= 100.0 - CONTROL_MARGIN:
+                return (f"XMV({v}) sits at {x:g} % at the {self.name} optimum, outside "
+                        f"[{CONTROL_MARGIN:g}, {100 - CONTROL_MARGIN:g}] %: no control margin")
+        return None
+
+
+def parse_grade(value) -> str:
+    """Normalize ``0``, ``"2"``, ``"mode3"``, ``"base"`` to ``"modeN"``.
+
+    Raises
+    ------
+    GradeError
+        Unknown grade; the message lists the known ones.
+    """
+    text = str(value).strip().lower()
+    if text == "base":
+        text = "0"
+    if text.startswith("mode"):
+        text = text[4:]
+    name = f"mode{text}"
+    if name not in GRADES:
+        raise GradeError(f"grade: unknown grade {value!r}; known: {', '.join(GRADES)}")
+    return name
+
+
+@lru_cache(maxsize=8)
+def grade(value) -> Grade:
+    """The :class:`Grade` of a mode (see :func:`parse_grade` for accepted names)."""
+    name = parse_grade(value)
+    j = GRADES.index(name)
+    xmeas = np.array(_table()[:, j])
+    xmv = np.array(start_state("base" if j == 0 else str(j))[38:50])
+    xmeas.setflags(write=False)
+    xmv.setflags(write=False)
+    return Grade(name, xmeas, xmv)
+
+
+def check_reachable(current, target) -> tuple[Grade, Grade]:
+    """Validate a grade change ``current -> target``.
+
+    Returns
+    -------
+    (Grade, Grade)
+
+    Raises
+    ------
+    GradeError
+        Unknown grade (field ``grade``) or a target the structure cannot hold
+        (field ``target``, with the valve that has no margin).
+    """
+    a, b = grade(current), grade(target)
+    for field_name, g in (("current", a), ("target", b)):
+        why = g.unreachable_reason()
+        if why is not None:
+            raise GradeError(f"{field_name}: grade {g.name} is not reachable with this control "
+                             f"structure: {why}")
+    return a, b
+
+
+def first_order_path(t, t0: float, r0, switches) -> np.ndarray:
+    """First-order trajectory through piecewise-constant targets, in closed form.
+
+    ``tau dr/dt = s(t) - r``, ``r(t0) = r0``, ``s`` = the target of the last switch at
+    or before ``t``.
+
+    Parameters
+    ----------
+    t : float
+        Time (h), >= t0.
+    t0 : float
+    r0 : array_like, shape (n,)
+    switches : sequence of (time_h, target (n,), tau_h (n,) or float)
+        Ascending times >= t0. ``tau = 0`` gives a step.
+    """
+    r = np.array(r0, dtype=float)
+    for i, (ts, target, tau) in enumerate(switches):
+        if ts > t:
+            break
+        if ts < t0:
+            raise ValueError(f"switches: time {ts} before t0 = {t0}")
+        t_end = min(t, switches[i + 1][0]) if i + 1 < len(switches) else t
+        tau = np.broadcast_to(np.asarray(tau, dtype=float), r.shape)
+        r = _relax(r, np.asarray(target, dtype=float), tau, t_end - ts)
+    return r
+
+
+def _relax(r, target, tau, dt):
+    with np.errstate(divide="ignore", over="ignore"):
+        a = np.where(tau > 0, np.exp(-dt / np.where(tau > 0, tau, 1.0)), 0.0)
+    return target + (r - target) * a
+
+
+@dataclass(frozen=True)
+class Leg:
+    """From ``t_h`` on, head for ``grade`` (``modeN``)."""
+
+    t_h: float
+    grade: str
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.t_h, int | float) and math.isfinite(self.t_h) and self.t_h >= 0):
+            raise GradeError(f"t_h: leg start must be a finite time >= 0 h, got {self.t_h!r}")
+        object.__setattr__(self, "grade", parse_grade(self.grade))
+
+
+@dataclass(frozen=True)
+class TransitionPlan:
+    """A start grade and timed legs, with first-order references between grades.
+
+    Parameters
+    ----------
+    start : str
+        Grade at t = 0.
+    legs : tuple of Leg
+        Later grades, strictly increasing times; each change is validated by
+        :func:`check_reachable`.
+    tau_xmeas_h : float
+        Time constant of the measured-output references (h): G mol%, levels,
+        reactor temperature, pressures ...
+    tau_xmv_h : float
+        Time constant of the valve ramps and feedforwards (XMV(5), XMV(9) closing).
+    """
+
+    start: str = "mode0"
+    legs: tuple[Leg, ...] = ()
+    tau_xmeas_h: float = TAU_DEFAULT_H["xmeas"]
+    tau_xmv_h: float = TAU_DEFAULT_H["xmv"]
+    _grades: tuple = field(default=(), repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "start", parse_grade(self.start))
+        legs = tuple(lg if isinstance(lg, Leg) else Leg(*lg) for lg in self.legs)
+        for a, b in zip(legs[:-1], legs[1:], strict=False):
+            if b.t_h <= a.t_h:
+                raise GradeError(f"legs: times must increase ({a.t_h} then {b.t_h})")
+        for name in ("tau_xmeas_h", "tau_xmv_h"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise GradeError(f"{name}: must be a finite time >= 0 h, got {v!r}")
+        prev = self.start
+        grade(prev)
+        for lg in legs:
+            check_reachable(prev, lg.grade)
+            prev = lg.grade
+        object.__setattr__(self, "legs", legs)
+        object.__setattr__(self, "_grades", (grade(self.start),) + tuple(grade(lg.grade)
+                                                                            for lg in legs))
+
+    @property
+    def final(self) -> Grade:
+        return self._grades[-1]
+
+    def grade_at(self, t: float) -> Grade:
+        """Grade requested at time ``t`` (the target, not where the plant is)."""
+        g = self._grades[0]
+        for lg, gr in zip(self.legs, self._grades[1:], strict=True):
+            if lg.t_h <= t:
+                g = gr
+        return g
+
+    def _path(self, t: float, attr: str, tau: float) -> np.ndarray:
+        g0 = self._grades[0]
+        sw = [(lg.t_h, getattr(g, attr), tau) for lg, g in zip(self.legs, self._grades[1:],
+                                                               strict=True)]
+        return first_order_path(t, 0.0, getattr(g0, attr), sw)
+
+    def xmeas_ref(self, t: float) -> np.ndarray:
+        """References of XMEAS 1-41 at ``t`` (41,): Table 7.3 rows, first-order between."""
+        return self._path(t, "xmeas", self.tau_xmeas_h)
+
+    def xmv_ref(self, t: float) -> np.ndarray:
+        """Valve references at ``t`` (12,): the grades' steady valves, first-order between
+        (XMV(5) and XMV(9) close this way toward modes 1-3)."""
+        return self._path(t, "xmv", self.tau_xmv_h)
+
+    def d_fraction_ref(self, t: float) -> float:
+        """Feedforward D share of the D+E feed mass at ``t``."""
+        g0 = self._grades[0]
+        sw = [(lg.t_h, np.array([g.d_fraction]), self.tau_xmv_h)
+              for lg, g in zip(self.legs, self._grades[1:], strict=True)]
+        return float(first_order_path(t, 0.0, np.array([g0.d_fraction]), sw)[0])
+
+
+# -- metrics ------------------------------------------------------------------------------
+#: Interlock limits of the original plant (Downs & Vogel), checked on the noise-free
+#: values: name -> (low, high, unit).
+SHUTDOWN_LIMITS = {
+    "reactor pressure": (-math.inf, 3000.0, "kPa"),
+    "reactor temperature": (-math.inf, 175.0, "degC"),
+    "reactor liquid volume": (2.0, 24.0, "m3"),
+    "separator liquid volume": (1.0, 12.0, "m3"),
+    "stripper liquid volume": (1.0, 8.0, "m3"),
+}
+
+
+def level_to_volume(level_pct, vessel: str):
+    """Liquid volume (m3) from a level (%): te.md §4 spans converted from ft3."""
+    ft3 = {"reactor": (84.6, 666.7), "separator": (27.5, 290.0), "stripper": (78.25, 156.5)}
+    off, span = ft3[vessel]
+    return (off + span * np.asarray(level_pct, dtype=float) / 100.0) * 0.0283168466
+
+
+def limit_margins(xmeas_rows) -> dict[str, dict]:
+    """Closest approach to each interlock limit over a run.
+
+    Parameters
+    ----------
+    xmeas_rows : array_like, shape (K, 41)
+
+    Returns
+    -------
+    dict
+        name -> {"min", "max", "limit", "margin", "unit"}, where ``margin`` is the
+        smallest distance to the nearer limit (negative: crossed).
+    """
+    y = np.asarray(xmeas_rows, dtype=float)
+    series = {"reactor pressure": y[:, 6], "reactor temperature": y[:, 8],
+              "reactor liquid volume": level_to_volume(y[:, 7], "reactor"),
+              "separator liquid volume": level_to_volume(y[:, 11], "separator"),
+              "stripper liquid volume": level_to_volume(y[:, 14], "stripper")}
+    out = {}
+    for name, s in series.items():
+        lo, hi, unit = SHUTDOWN_LIMITS[name]
+        m_hi = hi - float(np.max(s))
+        m_lo = float(np.min(s)) - lo
+        if m_hi <= m_lo:
+            limit, margin = hi, m_hi
+        else:
+            limit, margin = lo, m_lo
+        out[name] = {"min": float(np.min(s)), "max": float(np.max(s)), "limit": limit,
+                     "margin": margin, "unit": unit}
+    return out
+
+
+def time_to_band(t, y, target: float, band: float, t_request: float) -> float:
+    """Time after ``t_request`` from which ``|y - target| <= band`` holds to the end (h).
+
+    ``inf`` if the last sample is outside the band.
+    """
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    out = np.flatnonzero(np.abs(y - target) > band)
+    if out.size == 0:
+        return max(float(t[0]) - t_request, 0.0)
+    if out[-1] == y.size - 1:
+        return math.inf
+    return float(t[out[-1] + 1]) - t_request
+
+
+def ise(t, y, r) -> float:
+    """Integral of squared error ``∫ (y - r)^2 dt`` by the rectangle rule (unit² h)."""
+    t = np.asarray(t, dtype=float)
+    e = np.asarray(y, dtype=float) - np.asarray(r, dtype=float)
+    dt = np.diff(t, append=t[-1] + (t[-1] - t[-2] if t.size > 1 else 0.0))
+    return float(np.sum(e * e * dt))
+
+
+def saturation_time(t, u, low: float = 0.0, high: float = 100.0, tol: float = 1e-6) -> float:
+    """Time a valve spends at (or beyond) a limit (h), rectangle rule."""
+    t = np.asarray(t, dtype=float)
+    u = np.asarray(u, dtype=float)
+    dt = np.diff(t, append=t[-1] + (t[-1] - t[-2] if t.size > 1 else 0.0))
+    sat = (u >= high - tol) | (u <= low + tol)
+    return float(np.sum(dt[sat]))
+
+
+def production_change(t, production, t_before: float, window_h: float = 2.0) -> float:
+    """Relative change (%) of the mean production over the last ``window_h`` of the run
+    against its mean over ``window_h`` before ``t_before``."""
+    t = np.asarray(t, dtype=float)
+    p = np.asarray(production, dtype=float)
+    before = p[(t >= t_before - window_h) & (t < t_before)]
+    after = p[t >= t[-1] - window_h]
+    if before.size == 0 or after.size == 0:
+        raise ValueError("t_before/window_h: no samples in a window")
+    return float(100.0 * (after.mean() - before.mean()) / before.mean())
