@@ -30,6 +30,15 @@ def _reproduce(rid, capsys, *extra):
     return doc, {r["name"]: r for r in doc["rows"]}
 
 
+def test_r4_1_convergence_small_error_and_bumpless_switching(capsys):
+    doc, rows = _reproduce("R4.1", capsys)
+    assert rows["in-class plant: max relative error of theta (PE)"]["ours"] <= 0.01
+    assert rows["in-class plant: |e| over the last 200 samples / output range"]["ours"] <= 1e-3
+    assert rows["switches in the R5.5 1.3 -> 5.0 run"]["ours"] >= 1
+    assert (rows["largest jump of the active model's estimate at a switch"]["ours"]
+            <= rows["largest one-sample change of y"]["ours"])
+
+
 def test_r5_3_mrac_reaches_5_with_final_model_m2_or_m4(capsys, tmp_path):
     doc, rows = _reproduce("R5.3", capsys, "--plot", str(tmp_path))
     assert rows["MRAC 1.3->5.0: final |y - target|"]["ours"] <= 0.05
