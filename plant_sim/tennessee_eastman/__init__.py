@@ -16,6 +16,8 @@ gives the all-double variant.
 
 from __future__ import annotations
 
+# first: drops stale compiled code before any numba function is loaded
+from plant_sim.tennessee_eastman import _numba_cache  # noqa: F401
 from plant_sim.tennessee_eastman.batch import Scenario, ScenarioResult, run_batch
 from plant_sim.tennessee_eastman.plant import TennesseeEastman
 from plant_sim.tennessee_eastman.simulator import Shutdown, SimSettings, TESimulator
