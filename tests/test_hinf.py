@@ -77,3 +77,51 @@ def test_zero_numerator_is_a_synthesis_error():
 def test_weights_name_the_bad_field(kwargs, field):
     with pytest.raises(ValueError, match=field):
         HInfWeights(**kwargs)
+
+
+def _ssm_with_adaptive(tf):
+    from controller.state_shared import ModelSpec, StateSharedModel
+
+    sys = ct.ss(ct.tf(*tf))
+    spec = StateSharedModel.model_from_linear("M", np.asarray(sys.A), np.asarray(sys.B),
+                                              np.asarray(sys.C), [0.4], [1.3], [1.0, 1.0])
+    return StateSharedModel([1.0, 1.0], 1, 0.05,
+                            [spec, ModelSpec("A", spec.theta, spec.bias, "adaptive")])
+
+
+def test_hinf_law_resynthesizes_only_beyond_the_threshold():
+    from controller.hinf import HInfLaw
+
+    ssm = _ssm_with_adaptive(CSTR_OPI)
+    law = HInfLaw(HInfWeights.seed_cstr(a=3.0), 0.05, resynthesis_threshold=0.1)
+    law.reset([0.4], [1.3])
+    y, r = np.array([1.3]), np.array([[1.3]])
+    law.compute(0, 1, ssm, y, r, np.array([0.4]))
+    assert law.n_syntheses == 1
+    p = ssm.params_from_theta(ssm.theta(1), ssm.bias(1))
+    ssm.set_params(1, p * 1.02)  # 2 % change: below the threshold, same controller
+    law.compute(1, 1, ssm, y, r, np.array([0.4]))
+    assert law.n_syntheses == 1
+    ssm.set_params(1, p * 1.3)  # 30 % change: new synthesis
+    u, info = law.compute(2, 1, ssm, y, r, np.array([0.4]))
+    assert law.n_syntheses == 2 and info["status"] == "solved"
+    # the change of controller is bumpless: zero error keeps the input
+    assert u[0] == pytest.approx(0.4, abs=1e-12)
+    law.compute(3, 0, ssm, y, r, np.array([0.4]))  # the fixed model gets its own
+    assert law.n_syntheses == 3
+
+
+def test_hinf_law_keeps_its_controller_when_synthesis_fails():
+    from controller.hinf import HInfLaw
+
+    ssm = _ssm_with_adaptive(CSTR_OPI)
+    law = HInfLaw(HInfWeights.seed_cstr(a=3.0), 0.05)
+    law.reset([0.4], [1.3])
+    y, r = np.array([1.3]), np.array([[1.5]])
+    law.compute(0, 1, ssm, y, r, np.array([0.4]))
+    p = ssm.params_from_theta(ssm.theta(1), ssm.bias(1))
+    p[:2] = 0.0  # numerator zero: no controller exists
+    ssm.set_params(1, p)
+    u, info = law.compute(1, 1, ssm, y, r, np.array([0.4]))
+    assert law.n_synthesis_failures == 1 and np.isfinite(u[0])
+    assert any("synthesis" in a for a in info["alarms"])

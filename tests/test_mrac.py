@@ -44,3 +44,28 @@ def test_reference_model_step_is_exact():
     for _ in range(20):
         ym = reference_model_step(ym, 1.0, dt)
     assert ym == pytest.approx(1 - math.exp(-2.0), rel=1e-12)
+
+
+def test_mrac_law_rejects_a_model_with_an_unstable_zero_and_keeps_its_gains():
+    import control as ct
+
+    from controller.mrac import MRACLaw
+    from controller.state_shared import ModelSpec, StateSharedModel
+
+    def spec(name, num, den, kind="fixed"):
+        sys = ct.ss(ct.tf(num, den))
+        s = StateSharedModel.model_from_linear(name, np.asarray(sys.A), np.asarray(sys.B),
+                                               np.asarray(sys.C), [0.4], [1.3], [1.0, 1.0])
+        return ModelSpec(name, s.theta, s.bias, kind)
+
+    ssm = StateSharedModel([1.0, 1.0], 1, 0.05,
+                           [spec("good", [0.3, 0.3732], [1.0, 1.1605, 0.2337]),
+                            spec("bad", [0.3, -0.3], [1.0, 1.1605, 0.2337])])
+    law = MRACLaw(0.05)
+    law.reset([0.4], [1.3])
+    u0, _ = law.compute(0, 0, ssm, np.array([1.3]), np.array([[1.3]]), np.array([0.4]))
+    assert u0[0] == pytest.approx(0.4, abs=1e-9)  # steady state of the model is kept
+    gains = law.gains
+    u1, info = law.compute(1, 1, ssm, np.array([1.3]), np.array([[1.3]]), u0)
+    assert law.gains == gains and law.n_rejected == 1
+    assert any("rejected" in a for a in info["alarms"])
