@@ -77,3 +77,4 @@ def test_bench_te_sim_json_shape(capsys):
     assert names[:3] == ["single noise off", "single noise on", "batch"]
     for c in doc["cases"]:
         assert c["unit"] == "sim-h/s" and c["n"] >= 5 and c["median"] > 0
+        assert c["cpu_median"] > 0
