@@ -170,7 +170,8 @@ def _positive_int(value, field: str) -> int:
     return int(value)
 
 
-def theta_from_mfd(mfd: LeftMFD, a: ArrayLike, *, pad_root: float | None = None) -> np.ndarray:
+def theta_from_mfd(mfd: LeftMFD, a: ArrayLike, *, pad_root: float | None = None,
+                   square: bool = True) -> np.ndarray:
     """Theta (2nm x m) of eq. 3.16 from a left MFD ``d(s)^-1 N(s)`` (eq. 3.14-3.15).
 
     ``Theta = [Theta1; Theta2]``. Theta1 (nm x m) holds the numerator
@@ -182,6 +183,9 @@ def theta_from_mfd(mfd: LeftMFD, a: ArrayLike, *, pad_root: float | None = None)
     ----------
     mfd : LeftMFD
         Square (m x m), strictly proper (D0 = 0), degree of d at most n.
+        With ``square=False`` a p x m MFD gives Theta of shape (n(m+p), p)
+        (an extension of the seed: n1 is driven by the m inputs, n2 by the p
+        outputs, D(s) = d(s) I_p).
     a : array_like, shape (n,)
         Designer polynomial coefficients (lowest power first).
     pad_root : float, optional
@@ -200,10 +204,10 @@ def theta_from_mfd(mfd: LeftMFD, a: ArrayLike, *, pad_root: float | None = None)
     if not isinstance(mfd, LeftMFD):
         raise ValueError(f"mfd: expected a LeftMFD, got {type(mfd).__name__}")
     p, m = mfd.shape
-    if p != m:
+    if p != m and square:
         raise ValueError(
             f"mfd: the state-shared form needs a square model (as many outputs as "
-            f"inputs); got {p} outputs x {m} inputs"
+            f"inputs); got {p} outputs x {m} inputs (square=False allows it)"
         )
     if np.any(mfd.D0 != 0):
         raise ValueError("mfd.D0: the state-shared form needs a strictly proper model (D = 0)")
@@ -226,49 +230,57 @@ def theta_from_mfd(mfd: LeftMFD, a: ArrayLike, *, pad_root: float | None = None)
         for _ in range(n - deg):
             q = np.convolve(q, [pad_root, 1.0])  # (s + r), lowest power first
         d = np.convolve(d, q)
-        Np = np.zeros((m, m, n))
-        for i in range(m):
+        Np = np.zeros((p, m, n))
+        for i in range(p):
             for j in range(m):
                 Np[i, j] = np.convolve(np.concatenate((N[i, j], [0.0])), q)[:n]
         N = Np
-    theta = np.zeros((2 * n * m, m))
+    theta = np.zeros((n * (m + p), p))
     # Theta1[j*n + k, i] = N[i, j, k]
-    theta[: n * m, :] = N.transpose(1, 2, 0).reshape(n * m, m)
+    theta[: n * m, :] = N.transpose(1, 2, 0).reshape(n * m, p)
     t2 = a - d[:n]
-    for i in range(m):
+    for i in range(p):
         theta[n * m + i * n : n * m + (i + 1) * n, i] = t2
     return theta
 
 
-def mfd_from_theta(theta: ArrayLike, a: ArrayLike, m: int) -> LeftMFD:
-    """Inverse of :func:`theta_from_mfd` for a structured Theta (eq. 3.16 read backwards)."""
+def mfd_from_theta(theta: ArrayLike, a: ArrayLike, m: int, p: int | None = None) -> LeftMFD:
+    """Inverse of :func:`theta_from_mfd` for a structured Theta (eq. 3.16 read backwards).
+
+    ``m`` inputs, ``p`` outputs (default m).
+    """
     a = _hurwitz_coefficients(a)
     n = a.size
     m = _positive_int(m, "m")
-    theta = _theta_matrix(theta, n, m, "theta")
-    t2 = _theta2_column(theta, n, m, "theta")
+    p = m if p is None else _positive_int(p, "p")
+    theta = _theta_matrix(theta, n, m, "theta", p)
+    t2 = _theta2_column(theta, n, m, "theta", p)
     d = np.concatenate((a - t2, [1.0]))
-    N = theta[: n * m].reshape(m, n, m).transpose(2, 0, 1)
-    return LeftMFD(d, N, np.zeros((m, m)))
+    N = theta[: n * m].reshape(m, n, p).transpose(2, 0, 1)
+    return LeftMFD(d, N, np.zeros((p, m)))
 
 
-def _theta_matrix(theta, n: int, m: int, field: str) -> np.ndarray:
+def _theta_matrix(theta, n: int, m: int, field: str, p: int | None = None) -> np.ndarray:
+    p = m if p is None else p
     try:
         th = np.array(theta, dtype=float)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{field}: not a numeric matrix ({exc})") from exc
-    if th.shape != (2 * n * m, m):
-        raise ValueError(f"{field}: expected shape {(2 * n * m, m)} (2nm x m), got {th.shape}")
+    if th.shape != (n * (m + p), p):
+        raise ValueError(f"{field}: expected shape {(n * (m + p), p)} (n(m+p) x p, = 2nm x m "
+                         f"when square), got {th.shape}")
     if not np.all(np.isfinite(th)):
         raise ValueError(f"{field}: non-finite entries")
     return th
 
 
-def _theta2_column(theta: np.ndarray, n: int, m: int, field: str) -> np.ndarray:
+def _theta2_column(theta: np.ndarray, n: int, m: int, field: str,
+                   p: int | None = None) -> np.ndarray:
     """The n distinct entries of Theta2; raise if Theta2 lacks the D = dI structure."""
+    p = m if p is None else p
     t2 = theta[n * m :]
     col = t2[0:n, 0].copy()
-    expected = np.kron(np.eye(m), col[:, None])
+    expected = np.kron(np.eye(p), col[:, None])
     scale = max(1.0, float(np.max(np.abs(col))) if col.size else 1.0)
     if np.max(np.abs(t2 - expected)) > 1e-12 * scale:
         raise ValueError(
@@ -285,9 +297,9 @@ class ModelSpec:
     Parameters
     ----------
     name : str
-    theta : ndarray, shape (2nm, m)
+    theta : ndarray, shape (2nm, m) (n(m+p) x p for p outputs)
         Measurement matrix (eq. 3.16).
-    bias : ndarray, shape (m,)
+    bias : ndarray, shape (m,) (p,)
         Affine offset (see module notes); zero for deviation models.
     kind : {"fixed", "adaptive"}
     """
@@ -306,7 +318,7 @@ class ModelSpec:
             th = np.array(self.theta, dtype=float)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"theta: not a numeric matrix ({exc})") from exc
-        if th.ndim != 2 or th.shape[0] % (2 * max(th.shape[1], 1)) or th.shape[1] < 1:
+        if th.ndim != 2 or th.shape[1] < 1 or th.shape[0] <= th.shape[1]:
             raise ValueError(f"theta: expected shape (2nm, m), got {th.shape}")
         if not np.all(np.isfinite(th)):
             raise ValueError("theta: non-finite entries")
@@ -365,30 +377,38 @@ class StateSharedModel:
     a : array_like, shape (n,)
         Designer polynomial ``omega`` (lowest power first), Hurwitz.
     m : int
-        Inputs = outputs.
+        Inputs = outputs (the seed's square case).
     dt : float
         Sample time, > 0, in the models' time unit.
     models : sequence of ModelSpec, optional
+    p : int, optional
+        Number of outputs when it differs from the number of inputs m (an
+        extension of the seed: n1 has nm states driven by u, n2 has np states
+        driven by y, Theta is n(m+p) x p). Default m.
 
     Attributes
     ----------
     n : ndarray, shape (2nm,)
         The shared state [n1; n2] (a copy; use :meth:`set_state` to change it).
     F, G : ndarray
-        Continuous pair (nm x nm, nm x m).
+        Continuous pair (nm x nm, nm x m), the n1 (input) part.
     Fd, Gd : ndarray
         Exact ZOH discretization of (F, G) for dt.
+    F_y, G_y, Fd_y, Gd_y : ndarray
+        The same for the n2 (output) part; the very same arrays when p = m.
     n_params : int
-        ``n (m^2 + 1)``: free parameters of one structured model (without bias).
+        ``n (m^2 + 1)``: free parameters of one structured model (without bias);
+        ``n (m p + 1)`` in general.
     order : int
-        ``2 n m``.
+        ``2 n m`` (``n (m + p)``).
     """
 
     def __init__(self, a: ArrayLike, m: int, dt: float,
-                 models: Sequence[ModelSpec] | None = None) -> None:
+                 models: Sequence[ModelSpec] | None = None, *, p: int | None = None) -> None:
         self.a = _hurwitz_coefficients(a)
         self.a.setflags(write=False)
         self.m = _positive_int(m, "m")
+        self.p = self.m if p is None else _positive_int(p, "p")
         try:
             dt = float(dt)
         except (TypeError, ValueError) as exc:
@@ -397,26 +417,34 @@ class StateSharedModel:
             raise ValueError(f"dt: must be finite and > 0, got {dt}")
         self.dt = dt
         self.n_deg = self.a.size
-        n, m = self.n_deg, self.m
+        n, m, p = self.n_deg, self.m, self.p
         self.Fb, self.gb = companion_block(self.a)
         self.F = np.kron(np.eye(m), self.Fb)
         self.G = np.kron(np.eye(m), self.gb[:, None])
         self.Fbd, self.gbd = _zoh_block(self.Fb, self.gb, dt)
         self.Fd = np.kron(np.eye(m), self.Fbd)
         self.Gd = np.kron(np.eye(m), self.gbd[:, None])
-        for arr in (self.Fb, self.gb, self.F, self.G, self.Fbd, self.gbd, self.Fd, self.Gd):
+        if p == m:
+            self.F_y, self.G_y, self.Fd_y, self.Gd_y = self.F, self.G, self.Fd, self.Gd
+        else:
+            self.F_y = np.kron(np.eye(p), self.Fb)
+            self.G_y = np.kron(np.eye(p), self.gb[:, None])
+            self.Fd_y = np.kron(np.eye(p), self.Fbd)
+            self.Gd_y = np.kron(np.eye(p), self.gbd[:, None])
+        for arr in (self.Fb, self.gb, self.F, self.G, self.Fbd, self.gbd, self.Fd, self.Gd,
+                    self.F_y, self.G_y, self.Fd_y, self.Gd_y):
             arr.setflags(write=False)
-        self.order = 2 * n * m
-        self.n_params = n * (m * m + 1)
-        # Shared state as a (2m, n) matrix (rows 0..m-1 = n1 blocks, m..2m-1 = n2 blocks),
+        self.order = n * (m + p)
+        self.n_params = n * (m * p + 1)
+        # Shared state as an (m+p, n) matrix (rows 0..m-1 = n1 blocks, then the n2 blocks),
         # stored with one extra column holding the latest [u; y] so that one sample is a
         # single matmul: Z[:, :n] <- Z @ [Fbd^T; gbd^T].
-        self._Z = np.zeros((2 * m, n + 1))
+        self._Z = np.zeros((m + p, n + 1))
         self._M = np.vstack((self.Fbd.T, self.gbd[None, :]))
         self._slots: list[_Slot] = []
-        self._T = np.zeros((0, self.order))  # stacked Theta_j^T, (k m, 2nm)
-        self._Taug = np.zeros((0, 2 * m * (n + 1)))  # the same with zeros at the [u; y] column
-        self._B = np.zeros((0, m))
+        self._T = np.zeros((0, self.order))  # stacked Theta_j^T, (k p, n(m+p))
+        self._Taug = np.zeros((0, (m + p) * (n + 1)))  # the same, zeros at the [u; y] column
+        self._B = np.zeros((0, p))
         for spec in models or ():
             self.add_model(spec)
 
@@ -464,10 +492,11 @@ class StateSharedModel:
     def _check_spec(self, spec: ModelSpec) -> None:
         if not isinstance(spec, ModelSpec):
             raise ValueError(f"spec: expected a ModelSpec, got {type(spec).__name__}")
-        if spec.theta.shape != (self.order, self.m):
+        if spec.theta.shape != (self.order, self.p):
             raise ValueError(
-                f"theta of model {spec.name!r}: expected shape {(self.order, self.m)} "
-                f"(2nm x m with n={self.n_deg}, m={self.m}), got {spec.theta.shape}"
+                f"theta of model {spec.name!r}: expected shape {(self.order, self.p)} "
+                f"(n(m+p) x p with n={self.n_deg}, m={self.m} inputs, p={self.p} outputs), "
+                f"got {spec.theta.shape}"
             )
 
     def add_model(self, spec: ModelSpec) -> int:
@@ -486,10 +515,10 @@ class StateSharedModel:
             self._B = np.stack([s.spec.bias for s in self._slots])
         else:
             self._T = np.zeros((0, self.order))
-            self._B = np.zeros((0, self.m))
-        km, n = self._T.shape[0], self.n_deg
-        self._Taug = np.zeros((km, 2 * self.m, n + 1))
-        self._Taug[:, :, :n] = self._T.reshape(km, 2 * self.m, n)
+            self._B = np.zeros((0, self.p))
+        km, n, q = self._T.shape[0], self.n_deg, self.m + self.p
+        self._Taug = np.zeros((km, q, n + 1))
+        self._Taug[:, :, :n] = self._T.reshape(km, q, n)
         self._Taug = self._Taug.reshape(km, -1)
 
     def set_theta(self, j: int, theta: ArrayLike, bias: ArrayLike | None = None) -> None:
@@ -499,10 +528,11 @@ class StateSharedModel:
         spec = ModelSpec(old.name, theta, old.bias if bias is None else bias, old.kind)
         self._check_spec(spec)
         self._slots[j] = _Slot(spec)
-        rows = slice(j * self.m, (j + 1) * self.m)
+        q = self.m + self.p
+        rows = slice(j * self.p, (j + 1) * self.p)
         self._T[rows] = spec.theta.T
-        self._Taug.reshape(-1, 2 * self.m, self.n_deg + 1)[rows, :, : self.n_deg] = (
-            spec.theta.T.reshape(self.m, 2 * self.m, self.n_deg))
+        self._Taug.reshape(-1, q, self.n_deg + 1)[rows, :, : self.n_deg] = (
+            spec.theta.T.reshape(self.p, q, self.n_deg))
         self._B[j] = spec.bias
 
     def set_params(self, j: int, p: ArrayLike) -> None:
@@ -512,19 +542,21 @@ class StateSharedModel:
 
     @staticmethod
     def model_from_linear(name: str, A, B, C, u_op: ArrayLike, y_op: ArrayLike, a: ArrayLike,
-                          kind: str = "fixed", *, pad_root: float | None = None) -> ModelSpec:
+                          kind: str = "fixed", *, pad_root: float | None = None,
+                          square: bool = True) -> ModelSpec:
         """A ModelSpec from a linearization about (u_op, y_op).
 
         ``(A, B, C)`` is the deviation model ``dx' = A dx + B du``, ``dy = C dx``
         (D = 0). Theta follows from its left MFD (eq. 3.16) and the bias makes
         the model hold about its own point: ``b = y_op - Theta^T n_ss(u_op, y_op)``.
+        ``square=False`` admits p outputs != m inputs (see the ``p`` option).
         """
         mfd = left_mfd(A, B, C)
-        theta = theta_from_mfd(mfd, a, pad_root=pad_root)
+        theta = theta_from_mfd(mfd, a, pad_root=pad_root, square=square)
         a = np.asarray(a, dtype=float).reshape(-1)
-        m = theta.shape[1]
+        p, m = mfd.shape
         u_op = _vector(u_op, m, "u_op")
-        y_op = _vector(y_op, m, "y_op")
+        y_op = _vector(y_op, p, "y_op")
         n_ss = _steady_state(a, u_op, y_op)
         return ModelSpec(name, theta, y_op - theta.T @ n_ss, kind)
 
@@ -533,37 +565,39 @@ class StateSharedModel:
         """Structured parameter vector ``p = [vec Theta1^T; theta2; bias]``, length N_theta + m.
 
         ``p[i*nm:(i+1)*nm]`` = Theta1[:, i] (output i's numerator coefficients),
-        then the n entries ``theta2 = a - d`` (eq. 3.16), then the m biases.
-        Raises if Theta2 lacks the block structure of D(s) = d(s) I.
+        then the n entries ``theta2 = a - d`` (eq. 3.16), then the m biases
+        (one per output). Raises if Theta2 lacks the block structure of
+        D(s) = d(s) I.
         """
-        n, m = self.n_deg, self.m
-        th = _theta_matrix(theta, n, m, "theta")
-        t2 = _theta2_column(th, n, m, "theta")
-        b = np.zeros(m) if bias is None else _vector(bias, m, "bias")
+        n, m, q = self.n_deg, self.m, self.p
+        th = _theta_matrix(theta, n, m, "theta", q)
+        t2 = _theta2_column(th, n, m, "theta", q)
+        b = np.zeros(q) if bias is None else _vector(bias, q, "bias")
         return np.concatenate((th[: n * m].T.reshape(-1), t2, b))
 
     def theta_from_params(self, p: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Inverse of :meth:`params_from_theta`: (Theta (2nm, m), bias (m,))."""
-        n, m = self.n_deg, self.m
-        p = _vector(p, self.n_params + m, "p")
+        n, m, q = self.n_deg, self.m, self.p
+        p = _vector(p, self.n_params + q, "p")
         nm = n * m
-        theta = np.zeros((2 * nm, m))
-        theta[:nm] = p[: nm * m].reshape(m, nm).T
-        t2 = p[nm * m : nm * m + n]
-        for i in range(m):
+        theta = np.zeros((self.order, q))
+        theta[:nm] = p[: nm * q].reshape(q, nm).T
+        t2 = p[nm * q : nm * q + n]
+        for i in range(q):
             theta[nm + i * n : nm + (i + 1) * n, i] = t2
-        return theta, p[nm * m + n :].copy()
+        return theta, p[nm * q + n :].copy()
 
     def regressor(self) -> np.ndarray:
-        """W (m, N_theta + m) with ``y_j = W @ p_j`` for every structured model j."""
-        n, m = self.n_deg, self.m
+        """W (m, N_theta + m) with ``y_j = W @ p_j`` for every structured model j
+        (p rows when the outputs differ in number from the inputs)."""
+        n, m, q = self.n_deg, self.m, self.p
         nm = n * m
-        W = np.zeros((m, self.n_params + m))
+        W = np.zeros((q, self.n_params + q))
         n1 = self._N[:m].reshape(-1)
-        for i in range(m):
+        for i in range(q):
             W[i, i * nm : (i + 1) * nm] = n1
-        W[:, nm * m : nm * m + n] = self._N[m:]
-        W[np.arange(m), nm * m + n + np.arange(m)] = 1.0
+        W[:, nm * q : nm * q + n] = self._N[m:]
+        W[np.arange(q), nm * q + n + np.arange(q)] = 1.0
         return W
 
     # -- state ---------------------------------------------------------------------------
@@ -571,13 +605,13 @@ class StateSharedModel:
         try:
             uy = np.concatenate((np.asarray(u, dtype=float).reshape(-1),
                                  np.asarray(y, dtype=float).reshape(-1)))
-            fast = uy.size == 2 * self.m and np.isfinite(uy).all()
+            fast = uy.size == self.m + self.p and np.isfinite(uy).all()
         except (TypeError, ValueError):
             fast = False
         if fast and np.size(u) == self.m:
             return uy
         # slow path: precise messages naming the field
-        return np.concatenate((_vector(u, self.m, "u"), _vector(y, self.m, "y")))
+        return np.concatenate((_vector(u, self.m, "u"), _vector(y, self.p, "y")))
 
     def initialize(self, u: ArrayLike, y: ArrayLike) -> None:
         """Set n to the steady state for constant u and y (``F n1 + G u = 0`` etc.)."""
@@ -587,7 +621,7 @@ class StateSharedModel:
 
     def set_state(self, n: ArrayLike) -> None:
         """Overwrite the shared state, shape (2nm,)."""
-        self._N[:] = _vector(n, self.order, "n").reshape(2 * self.m, self.n_deg)
+        self._N[:] = _vector(n, self.order, "n").reshape(self.m + self.p, self.n_deg)
 
     def update(self, u: ArrayLike, y: ArrayLike) -> None:
         """Advance one sample with u and y held (ZOH): exact for piecewise-constant signals.
@@ -601,11 +635,11 @@ class StateSharedModel:
 
     def estimates(self) -> np.ndarray:
         """All models' outputs ``y_j = Theta_j^T n + b_j``, shape (k, m)."""
-        return (self._Taug @ self._Z.reshape(-1)).reshape(-1, self.m) + self._B
+        return (self._Taug @ self._Z.reshape(-1)).reshape(-1, self.p) + self._B
 
     def errors(self, y: ArrayLike) -> np.ndarray:
         """``y - y_j`` for every model, shape (k, m)."""
-        return _vector(y, self.m, "y")[None, :] - self.estimates()
+        return _vector(y, self.p, "y")[None, :] - self.estimates()
 
     # -- prediction form ---------------------------------------------------------------
     def continuous_form(self, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -617,16 +651,16 @@ class StateSharedModel:
         ``f_c = [0; G b]``, ``C = [Th1^T, Th2^T]``.
         """
         spec = self.model(j)
-        nm = self.n_deg * self.m
+        nm, N = self.n_deg * self.m, self.order
         th1, th2 = spec.theta[:nm], spec.theta[nm:]
-        A = np.zeros((2 * nm, 2 * nm))
+        A = np.zeros((N, N))
         A[:nm, :nm] = self.F
-        A[nm:, :nm] = self.G @ th1.T
-        A[nm:, nm:] = self.F + self.G @ th2.T
-        B = np.zeros((2 * nm, self.m))
+        A[nm:, :nm] = self.G_y @ th1.T
+        A[nm:, nm:] = self.F_y + self.G_y @ th2.T
+        B = np.zeros((N, self.m))
         B[:nm] = self.G
-        f = np.zeros(2 * nm)
-        f[nm:] = self.G @ spec.bias
+        f = np.zeros(N)
+        f[nm:] = self.G_y @ spec.bias
         return A, B, spec.theta.T.copy(), spec.bias.copy(), f
 
     def prediction_form(self, j: int) -> PredictionForm:
@@ -658,16 +692,16 @@ class StateSharedModel:
         exponential: cheap enough to rebuild every sample for adaptive models.
         """
         spec = self.model(j)
-        nm = self.n_deg * self.m
+        nm, N = self.n_deg * self.m, self.order
         th1, th2 = spec.theta[:nm], spec.theta[nm:]
-        Phi = np.zeros((2 * nm, 2 * nm))
+        Phi = np.zeros((N, N))
         Phi[:nm, :nm] = self.Fd
-        Phi[nm:, :nm] = self.Gd @ th1.T
-        Phi[nm:, nm:] = self.Fd + self.Gd @ th2.T
-        Gam = np.zeros((2 * nm, self.m))
+        Phi[nm:, :nm] = self.Gd_y @ th1.T
+        Phi[nm:, nm:] = self.Fd_y + self.Gd_y @ th2.T
+        Gam = np.zeros((N, self.m))
         Gam[:nm] = self.Gd
-        f = np.zeros(2 * nm)
-        f[nm:] = self.Gd @ spec.bias
+        f = np.zeros(N)
+        f[nm:] = self.Gd_y @ spec.bias
         return PredictionForm(Phi, Gam, spec.theta.T.copy(), spec.bias.copy(), f)
 
     # -- persistence ----------------------------------------------------------------
@@ -676,6 +710,7 @@ class StateSharedModel:
         return {
             "a": self.a.tolist(),
             "m": self.m,
+            "p": self.p,
             "dt": self.dt,
             "n": self._N.reshape(-1).tolist(),
             "models": [
@@ -697,28 +732,29 @@ class StateSharedModel:
             raise ValueError("state.a: designer polynomial differs from this model's")
         if state["m"] != self.m:
             raise ValueError(f"state.m: expected {self.m}, got {state['m']!r}")
+        if state.get("p", state["m"]) != self.p:
+            raise ValueError(f"state.p: expected {self.p}, got {state.get('p')!r}")
         if float(state["dt"]) != self.dt:
             raise ValueError(f"state.dt: expected {self.dt}, got {state['dt']!r}")
         n = _vector(state["n"], self.order, "state.n")
         specs = [ModelSpec(d["name"], d["theta"], d["bias"], d["kind"]) for d in state["models"]]
         for s in specs:
             self._check_spec(s)
-        self._Z[:, : self.n_deg] = n.reshape(2 * self.m, self.n_deg)
+        self._Z[:, : self.n_deg] = n.reshape(self.m + self.p, self.n_deg)
         self._slots = [_Slot(s) for s in specs]
         self._restack()
 
     @classmethod
     def from_checkpoint(cls, state: dict) -> StateSharedModel:
         """A new model from :meth:`checkpoint` output."""
-        obj = cls(state["a"], state["m"], state["dt"])
+        obj = cls(state["a"], state["m"], state["dt"], p=state.get("p"))
         obj.restore(state)
         return obj
 
 
 def _steady_state(a: np.ndarray, u: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Shared state in equilibrium with constant u and y: first entry of each block = v/a1."""
-    n, m = a.size, u.size
-    N = np.zeros((2 * m, n))
+    N = np.zeros((u.size + y.size, a.size))
     N[:, 0] = np.concatenate((u, y)) / a[0]
     return N.reshape(-1)
 

@@ -423,3 +423,59 @@ def test_sampled_form_reproduces_update_driven_by_own_output():
         S, P = m_.sampled_form(0).Phi, m_.prediction_form(0).Phi
         rel.append(np.max(np.abs(S - P)) / np.max(np.abs(P - np.eye(P.shape[0]))))
     assert rel[1] < 0.2 * rel[0]
+
+
+# -- p outputs != m inputs (extension of the seed) ----------------------------------------
+@pytest.mark.parametrize("seed,nx,m,p", [(50, 3, 2, 3), (51, 4, 3, 2), (52, 2, 1, 3)])
+def test_non_square_frequency_response_and_api(seed, nx, m, p):
+    rng = np.random.default_rng(seed)
+    A, B, C = random_stable(rng, nx, m, p)
+    a = hurwitz(nx, rng)
+    with pytest.raises(ValueError, match="square"):
+        theta_from_mfd(left_mfd(A, B, C), a)
+    theta = theta_from_mfd(left_mfd(A, B, C), a, square=False)
+    assert theta.shape == (nx * (m + p), p)
+    ssm = StateSharedModel(a, m, 0.1, [ModelSpec("M", theta)], p=p)
+    assert ssm.order == nx * (m + p) and ssm.n_params == nx * (m * p + 1)
+    Ac, Bc, Cc, _, _ = ssm.continuous_form(0)
+    w = np.logspace(-3, 3, 31)
+    ref = np.asarray(control.ss(A, B, C, np.zeros((p, m))).frequency_response(w).complex)
+    ours = np.asarray(control.ss(Ac, Bc, Cc, np.zeros((p, m))).frequency_response(w).complex)
+    assert np.max(np.abs(ours - ref)) <= FREQ_RTOL * np.max(np.abs(ref))
+    # step response through the exact prediction form vs ZOH of the original
+    dt = 0.1
+    Phi, Gam, Cj, b = ssm.prediction_form(0)
+    Ad, Bd, *_ = scipy.signal.cont2discrete((A, B, C, np.zeros((p, m))), dt, "zoh")
+    x, z = np.zeros(nx), np.zeros(ssm.order)
+    for _ in range(60):
+        x, z = Ad @ x + Bd[:, 0], Phi @ z + Gam[:, 0]
+    np.testing.assert_allclose(Cj @ z + b, C @ x, atol=1e-9 * max(1.0, np.max(np.abs(C @ x))))
+    # parameters, regressor, bias and checkpoint
+    bias = rng.standard_normal(p)
+    ssm.set_theta(0, theta, bias)
+    for _ in range(5):
+        ssm.update(rng.standard_normal(m), rng.standard_normal(p))
+    prm = ssm.params_from_theta(theta, bias)
+    assert prm.size == ssm.n_params + p
+    np.testing.assert_allclose(ssm.regressor() @ prm, ssm.estimates()[0], rtol=1e-12)
+    th2, b2 = ssm.theta_from_params(prm)
+    np.testing.assert_array_equal(th2, theta)
+    other = StateSharedModel.from_checkpoint(json.loads(json.dumps(ssm.checkpoint())))
+    np.testing.assert_array_equal(other.estimates(), ssm.estimates())
+    with pytest.raises(ValueError, match="y"):
+        ssm.update(np.zeros(m), np.zeros(m + p))
+    back = mfd_from_theta(theta, a, m, p)
+    assert back.shape == (p, m)
+
+
+def test_non_square_model_from_linear_holds_its_point():
+    rng = np.random.default_rng(53)
+    A, B, C = random_stable(rng, 3, 2, 3)
+    a = designer_polynomial([-1.0, -2.0, -3.0])
+    spec = StateSharedModel.model_from_linear("M", A, B, C, [1.0, 2.0], [3.0, 4.0, 5.0], a,
+                                              square=False)
+    ssm = StateSharedModel(a, 2, 0.1, [spec], p=3)
+    ssm.initialize([1.0, 2.0], [3.0, 4.0, 5.0])
+    np.testing.assert_allclose(ssm.estimates()[0], [3.0, 4.0, 5.0], rtol=1e-12)
+    with pytest.raises(ValueError, match="theta"):
+        StateSharedModel(a, 2, 0.1, p=2).add_model(spec)  # a 3-output model in a square set
