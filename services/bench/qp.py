@@ -130,13 +130,15 @@ def run(args) -> list[dict]:
     seq = record_te_sequence(getattr(args, "seed", 0), n)
     ref = solve_sequence(seq, "daqp", warm=False)
     cases = []
-    for name, backend, warm, unsafe in (("daqp", "daqp", True, False),
-                                        ("daqp cold", "daqp", False, False),
-                                        ("proxsuite", "proxsuite", False, False),
-                                        ("proxsuite warm (unsafe)", "proxsuite", True, True)):
+    for name, backend, warm, unsafe, eps in (
+            ("daqp", "daqp", True, False, None),
+            ("daqp cold", "daqp", False, False, None),
+            ("proxsuite", "proxsuite", False, False, 1e-8),
+            ("proxsuite eps 1e-5", "proxsuite", False, False, 1e-5),
+            ("proxsuite warm (unsafe)", "proxsuite", True, True, 1e-8)):
         times, fails, worst = [], 0, 0.0
         for _ in range(repeat):
-            results = [r for _, r in _timed(seq, backend, warm, times, unsafe)]
+            results = [r for _, r in _timed(seq, backend, warm, times, unsafe, eps)]
             for r, r0 in zip(results, ref):
                 if not r.ok:
                     fails += 1
@@ -144,7 +146,7 @@ def run(args) -> list[dict]:
                     worst = max(worst, float(np.max(np.abs(r.x - r0.x))))
         cases.append(latency_case(
             name, times, unit="us", backend=backend, warm_start=warm,
-            default=(backend == "daqp" and warm),
+            default=(backend == "daqp" and warm), eps_abs=eps,
             variables=seq.nz, general_rows=int(seq.A.shape[0]),
             rows_with_bounds=seq.n_rows, qps=len(seq.vectors), failures=fails,
             max_abs_diff_vs_daqp_cold=worst))
@@ -156,11 +158,13 @@ def run(args) -> list[dict]:
 # its warm start is exact; proxsuite's warm start reports feasible QPs infeasible.
 
 
-def _timed(seq: QPSequence, backend: str, warm: bool, times: list, unsafe: bool = False):
+def _timed(seq: QPSequence, backend: str, warm: bool, times: list, unsafe: bool = False,
+           eps: float | None = None):
     if backend == "daqp":
         solver = DAQPBackend(seq.H, seq.A, warm_start=warm)
     else:
-        solver = ProxsuiteBackend(seq.H, seq.A, warm_start=warm, unsafe_warm_start=unsafe)
+        solver = ProxsuiteBackend(seq.H, seq.A, warm_start=warm, unsafe_warm_start=unsafe,
+                                  eps_abs=eps if eps is not None else 1e-8)
     for v in seq.vectors:
         t0 = time.perf_counter()
         r = solver.solve(v)
