@@ -169,3 +169,14 @@ def test_batch_rejects_bad_scenarios():
         Scenario(mode="9")
     with pytest.raises(PlantInputError, match="dt"):
         run_batch([Scenario()], 1.0, dt_s=0.0)
+
+
+def test_step_h_reproduces_the_demo_driver_single_precision_step():
+    # temain.f: DELTAT = 1. / 3600. is folded in float32
+    demo = float(np.float32(1.0) / np.float32(3600.0))
+    sim = TESimulator(step_h=demo)
+    sim.run_steps(3)
+    assert sim.dt_h == demo != 1.0 / 3600.0
+    assert sim.time == demo + demo + demo
+    with pytest.raises(PlantInputError, match="step_h"):
+        SimSettings(step_h=0.0)

@@ -53,6 +53,11 @@ class SimSettings:
         Published build (single-precision literals) or the all-double variant.
     mode : str
         Start mode: ``base`` or ``1`` ... ``6``.
+    step_h : float, optional
+        The Euler step in hours exactly as given, overriding ``dt_s / 3600``. The
+        demo driver ``temain.f`` writes ``DELTAT = 1. / 3600.``, which its compiler
+        folds in single precision: ``step_h=float(np.float32(1) / np.float32(3600))``
+        reproduces it (``dt_s`` is then ignored).
     """
 
     dt_s: float = DEFAULT_DT_S
@@ -60,6 +65,7 @@ class SimSettings:
     seed: float = ORIGINAL_SEED
     literals: str = "single"
     mode: str = "base"
+    step_h: float | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -79,11 +85,18 @@ class SimSettings:
                                   f"got {self.literals!r}")
         object.__setattr__(self, "mode", parse_mode(self.mode))
         object.__setattr__(self, "noise", bool(self.noise))
+        if self.step_h is not None:
+            h = float(self.step_h)
+            if not math.isfinite(h) or h <= 0.0:
+                raise PlantInputError(f"step_h: Euler step must be a positive number of hours, "
+                                      f"got {self.step_h!r}")
+            object.__setattr__(self, "step_h", h)
+            object.__setattr__(self, "dt_s", h * 3600.0)
 
     @property
     def dt_h(self) -> float:
-        """Euler step in hours (dt_s / 3600 in double, as the driver computes it)."""
-        return self.dt_s / 3600.0
+        """Euler step in hours: ``step_h`` if given, else dt_s / 3600 in double."""
+        return self.step_h if self.step_h is not None else self.dt_s / 3600.0
 
 
 @dataclass(frozen=True)
