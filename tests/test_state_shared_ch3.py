@@ -174,6 +174,9 @@ def test_r3_10_calcium_table(capsys, tmp_path):
         for name in ("x2", "x5", "x6"):
             assert rows[f"ARe 5L-4L {op} {name}"]["ours"] < 1e-6  # catalogue: round-off
     assert rows["ARe 4L-RE OPI x5"]["seed"] == 7.95
+    for op in ("OPI", "OPII"):
+        for name in ("x2", "x5", "x6"):
+            assert rows[f"ARe SS-RE {op} {name}"]["ours"] <= 0.1  # catalogue: SS close to RE
     # catalogue qualitative check: truncation hurts x5 far more than linearization
     assert rows["ARe 4L-RE OPI x5"]["ours"] > 5 * rows["ARe 4L-NL OPI x5"]["ours"]
     assert len(doc["figures"]) == 1
