@@ -233,8 +233,9 @@ class MultiModelController:
 
     def _step(self, k, t, y, reference, t0) -> ControlDecision:
         m = self.ssm.m
+        ny = getattr(self.ssm, "p", m)  # outputs (= inputs for the seed's square models)
         y = np.asarray(y, dtype=float).reshape(-1)
-        valid = y.shape == (m,) and bool(np.all(np.isfinite(y)))
+        valid = y.shape == (ny,) and bool(np.all(np.isfinite(y)))
         if not valid:
             self.n_invalid += 1
             alarm = (f"invalid measurement at sample {k}: sample skipped, input held, "
@@ -245,7 +246,7 @@ class MultiModelController:
                     self.ssm.update(self.u_last, y_sub)
             return self._decision(self.u_last, "invalid_measurement", True, [alarm], t0)
         ref = np.atleast_2d(np.asarray(reference, dtype=float))
-        if ref.shape[1] != m or not np.all(np.isfinite(ref)):
+        if ref.shape[1] != ny or not np.all(np.isfinite(ref)):
             return self._decision(self.u_last, "invalid_reference", True,
                                   [f"invalid reference at sample {k}: input held"], t0)
         if not self.initialized:

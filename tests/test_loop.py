@@ -221,3 +221,29 @@ def test_ise_and_settling_time_closed_forms():
     expected = dt * (1 - np.exp(-2 * 10.0)) / (1 - np.exp(-2 * dt))
     assert ise(t, y, np.ones_like(t)) == pytest.approx(expected, rel=1e-9)
     assert settling_time(t, y, 1.0, 0.02) == pytest.approx(np.log(50), abs=0.011)
+
+
+def test_non_square_model_validates_outputs_by_their_own_count():
+    # two inputs, one output: y has length p = 1, u has length m = 2
+    theta = np.zeros((2 * 2 + 2, 1))  # n = 2: n(m + p) = 6 rows, p = 1 column
+    theta[0, 0], theta[2, 0] = 0.3, 0.1
+    ssm = StateSharedModel(A_POLY, 2, DT, [ModelSpec("M", theta, np.zeros(1))], p=1)
+    ctl = MultiModelController(ssm, _HoldLaw(), [0.5, 0.5], kinds=["fixed"])
+    dec = ctl.step(0, 0.0, np.array([1.0]), np.array([[1.0]]))
+    assert dec.status == "solved" and dec.u.shape == (2,)
+    dec = ctl.step(1, DT, np.array([1.0, 2.0]), np.array([[1.0]]))
+    assert dec.status == "invalid_measurement"
+
+
+class _HoldLaw:
+    def reset(self, u, y):
+        pass
+
+    def compute(self, k, model, ssm, y, reference, u_last):
+        return u_last, {"status": "solved"}
+
+    def checkpoint(self):
+        return {}
+
+    def restore(self, state):
+        pass
