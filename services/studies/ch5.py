@@ -539,7 +539,11 @@ def r5_12(ctx: StudyContext) -> ReproduceResult:
         ss, single = run_case(case), run_case(_single(case, start))
         ise_single = single.ise if single.result.completed else math.inf
         rows += [Row(f"{label} (steps): ISE state-shared", "-", None, ss.ise),
-                 Row(f"{label} (steps): ISE single model ({start})", "-", None, ise_single)]
+                 Row(f"{label} (steps): ISE single model ({start})", "-", None, ise_single),
+                 Row(f"{label} (steps): final |y - target| state-shared", "-", None,
+                     ss.final_error),
+                 Row(f"{label} (steps): final |y - target| single model", "-", None,
+                     single.final_error)]
         ok = ok and ss.result.completed and ss.ise < ise_single
         # the same staircase through a first-order filter (tau 2), for the record
         fcase = replace(case, tau=2.0)
