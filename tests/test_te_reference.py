@@ -103,3 +103,45 @@ def test_floor_form_of_generator_is_bit_identical_to_fmod(g):
     # te.md 7: the original computes DMOD(G*9228907, 2**32) in double precision
     expected = math.fmod(float(g) * 9228907.0, 4294967296.0)
     assert sequence(float(g), 1)[0] == expected
+
+
+def _fmod_stream(seed: float, n: int) -> list[float]:
+    """The original generator with the C library's fmod (independent of the port's form)."""
+    out = []
+    g = seed
+    for _ in range(n):
+        g = math.fmod(g * 9228907.0, 4294967296.0)
+        out.append(g)
+    return out
+
+
+XNS = (0.0012, 18.0, 22.0, 0.05, 0.2, 0.21, 0.3, 0.5, 0.01, 0.0017, 0.01, 1.0, 0.3, 0.125, 1.0,
+       0.3, 0.115, 0.01, 1.15, 0.2, 0.01, 0.01, 0.25, 0.1, 0.25, 0.1, 0.25, 0.025)  # te.md 4
+
+
+def _noise(draws: list[float], std: float) -> float:
+    x = 0.0
+    for g in draws:
+        x = x + g / 4294967296.0
+    return (x - 6.0) * std
+
+
+def test_measurement_noise_follows_the_original_draw_order():
+    # te.md 7: no draws at t = 0; from the first evaluation at t > 0, XMEAS 1..22
+    # take 12 draws each in order. At step 200 (t = 0.1 h) the random-process knots
+    # come first: 3 draws for each of signals 1-9, 1 for each spike signal 10-12
+    # (value 0 <= 0.1), even with every IDV off. At the first gas sample (step 201)
+    # the gas analyzer outputs take theirs after the continuous ones.
+    knots = 9 * 3 + 3
+    on = TESimulator(noise=True).run_steps(202, record_every=1)
+    off = TESimulator(noise=False).run_steps(202, record_every=1)
+    stream = _fmod_stream(ORIGINAL_SEED, 201 * 264 + knots + 14 * 12)
+    for step, base in ((1, 0), (2, 264), (199, 198 * 264), (200, 199 * 264 + knots)):
+        for i in range(22):
+            expected = off[step, 1 + i] + _noise(stream[base + 12 * i:base + 12 * i + 12], XNS[i])
+            assert on[step, 1 + i] == expected, (step, i + 1)
+    base = 201 * 264 + knots
+    for j in range(6):  # reactor-feed analyzer, XMEAS 23..28: the value captured at t = 0
+        i = 22 + j
+        expected = off[0, 1 + i] + _noise(stream[base + 12 * j:base + 12 * j + 12], XNS[i])
+        assert on[201, 1 + i] == expected, i + 1
