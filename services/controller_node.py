@@ -98,8 +98,13 @@ class ControllerNode:
         self.u_last = np.asarray(grades[cfg.initial_grade]["mv"], float)
         self.controller = controller if controller is not None else build_controller(
             cfg, plant, self.u_last, grades)
+        # Transitions follow the tracked CVs (cfg.track; all CVs when empty).
+        self.track_names = cfg.track or self.info.cv_names
+        self.track_idx = [self.info.cv_names.index(n) for n in self.track_names]
+        tracked = {k: {**g, "setpoints": [g["setpoints"][i] for i in self.track_idx]}
+                   for k, g in grades.items()}
         self.tm = TransitionManager(
-            cfg.unit, {k: g["setpoints"] for k, g in grades.items()}, cv_scales(cfg, grades),
+            cfg.unit, {k: g["setpoints"] for k, g in tracked.items()}, cv_scales(cfg, tracked),
             cfg.initial_grade, cfg.sample_period_s, cfg.transition_duration_s,
             cfg.settle_tolerance, cfg.settle_samples)
         self.stats = DeadlineStats(self.budget.budget_s)
@@ -134,8 +139,8 @@ class ControllerNode:
         if cp is None:
             return
         st = cp["state"]
-        self.controller.restore(st["controller"])
         self.tm.restore(st["transitions"])
+        self.controller.restore(st["controller"])
         self.u_last = np.asarray(st["u_last"], float)
         self.mv_seq = int(st["mv_seq"])
         self.stats.misses = int(st.get("deadline_misses", 0))
@@ -152,6 +157,12 @@ class ControllerNode:
                      "mv_seq": self.mv_seq, "deadline_misses": self.stats.misses,
                      "fallback_moves": self.stats.fallbacks}
             self.store.save_checkpoint(max(self.k, 0), self.t, state)
+
+    def _notify(self, tr, event: str) -> None:
+        """Tell a controller that follows its own plans (TE) about a transition event."""
+        hook = getattr(self.controller, "on_transition", None)
+        if hook is not None:
+            hook(event, tr.grade, self.t)
 
     def _persist(self, tr, event: str, detail: str = "") -> None:
         self.store.save_transition(tr.as_dict(), event=event, process_time=self.t,
@@ -234,6 +245,7 @@ class ControllerNode:
                     was = self.tm.active.state
                     tr = self.tm.abort(tid, self.t)
                     if tr.state == "aborted" and was != "aborted":
+                        self._notify(tr, "aborted")
                         self._persist(tr, "aborted")
                         self.checkpoint()
                     return Reply(200, tr.view(self.t, self.budget.speed))
@@ -273,7 +285,7 @@ class ControllerNode:
                 "unit": self.cfg.unit, "plant": self.cfg.plant, "sample": self.k,
                 "process_time_s": self.t, "speed": self.budget.speed,
                 "cv": named(self.info.cv_names, self.y),
-                "ref": named(self.info.cv_names, self.r),
+                "ref": named(self.track_names, self.r),
                 "mv": named(self.info.mv_names, self.u_last),
                 "active_model": None if d is None else int(d.active_model),
                 "active_model_name": (None if d is None or not d.model_names
@@ -315,8 +327,11 @@ class ControllerNode:
                 self.alarms.append(f"plant shut down at t={msg.t:.1f} s")
                 tr = self.tm.fail(msg.t, "plant shut down")
                 if tr is not None:
+                    self._notify(tr, "failed")
                     self._persist(tr, "failed")
-            changes = self.tm.update(msg.t, self.y)
+            changes = self.tm.update(msg.t, self.y[self.track_idx])
+            for tr, state in changes:
+                self._notify(tr, state)
             ref = self.tm.reference_at(msg.t, self.horizon)
             self.r = ref[0]
         decision = self.controller.step(msg.seq, msg.t, self.y, ref)

@@ -23,7 +23,8 @@ the configured speed.
 
 The node holds the liveliness token ``ssmpc/<unit>/alive/plant`` and answers
 queries on ``ssmpc/<unit>/plant/cmd/**``: ``status``, ``disturbance``
-(``{"name": ..., "value": ...}`` for ODE plants).
+(``{"name": ..., "value": ...}``: a disturbance variable of an ODE plant, or
+``IDV1``…``IDV20`` on/off for TE), ``noise`` (``{"on": bool}``, TE), ``reset_stats``.
 """
 
 from __future__ import annotations
@@ -99,6 +100,99 @@ class ODERunner:
         return dict(zip(self.plant.names("disturbance"), self.d.tolist()))
 
 
+class TERunner:
+    """The Tennessee Eastman plant: Euler at 1.8 s with the Table 7.10 PI loops closed.
+
+    The regulatory layer runs at every integration step, as a DCS runs it; the
+    unit's MVs are XMVs not driven by a loop and/or the loops' set points
+    (``services.units.TE_SETPOINTS``). Everything else holds its start value.
+    Disturbances: ``set_idv(k, on)``; measurement noise: ``set_noise(on)``.
+    """
+
+    def __init__(self, cfg: UnitConfig, *, noise: bool = False, seed: float | None = None
+                 ) -> None:
+        from plant_sim.tennessee_eastman import SimSettings, TESimulator
+        from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
+        from services.units import TE_EULER_STEP_S, TE_SETPOINTS
+
+        kw = {"mode": cfg.initial_grade, "noise": noise, "dt_s": TE_EULER_STEP_S}
+        if seed is not None:
+            kw["seed"] = seed
+        self.sim = TESimulator(SimSettings(**kw))
+        try:  # the inner loops issue 8's supervisory controller is tuned with
+            from services.studies.te_control import INNER_LOOPS as loops
+        except ImportError:
+            from plant_sim.tennessee_eastman.regulatory import TABLE_7_10 as loops
+        self.reg = RegulatoryLayer(self.sim, loops=loops)
+        self.steps = int(round(cfg.sample_period_s / TE_EULER_STEP_S))
+        self.cvi = [int(n[5:]) - 1 for n in cfg.cvs]
+        self._sp_index = {i: TE_SETPOINTS.index(n) for i, n in enumerate(cfg.mvs)
+                          if n in TE_SETPOINTS}
+        self._xmv_index = {i: int(n[3:]) - 1 for i, n in enumerate(cfg.mvs)
+                           if n not in TE_SETPOINTS}
+        self.t = 0.0
+        self.u_lower = np.array([-np.inf if i in self._sp_index else 0.0
+                                 for i in range(len(cfg.mvs))])
+        self.u_upper = np.array([np.inf if i in self._sp_index else 100.0
+                                 for i in range(len(cfg.mvs))])
+
+    @property
+    def shutdown(self) -> bool:
+        return self.sim.shutdown is not None
+
+    @property
+    def u(self) -> np.ndarray:
+        sp = self.reg.setpoints
+        xmv = self.sim.xmv
+        out = np.empty(len(self._sp_index) + len(self._xmv_index))
+        for i, j in self._sp_index.items():
+            out[i] = sp[j]
+        for i, j in self._xmv_index.items():
+            out[i] = xmv[j]
+        return out
+
+    def y(self) -> np.ndarray:
+        return self.sim.xmeas[self.cvi]
+
+    def advance(self, u, dt_s: float) -> None:
+        u = np.clip(np.asarray(u, float), self.u_lower, self.u_upper)
+        if self._sp_index:
+            sp = self.reg.setpoints
+            for i, j in self._sp_index.items():
+                sp[j] = u[i]
+            self.reg.set_setpoints(sp)
+        if self._xmv_index:
+            xmv = self.sim.xmv
+            for i, j in self._xmv_index.items():
+                xmv[j] = u[i]
+            self.sim.set_xmv(xmv)
+        self.reg.run_steps(self.steps)
+        self.t += dt_s
+
+    def set_idv(self, k: int, on: bool) -> None:
+        self.sim.set_idv(int(k), bool(on))
+
+    def set_noise(self, on: bool) -> None:
+        from dataclasses import replace
+
+        self.sim.settings = replace(self.sim.settings, noise=bool(on))
+
+    def set_disturbance(self, name: str, value: float) -> None:
+        if not name.upper().startswith("IDV"):
+            raise ValueError(f"name: TE disturbances are IDV1..IDV20, got {name!r}")
+        self.set_idv(int(name[3:]), bool(value))
+
+    def disturbances(self) -> dict[str, float]:
+        return {f"IDV{i + 1}": float(v) for i, v in enumerate(self.sim.idv)}
+
+
+def make_runner(cfg: UnitConfig, **kw):
+    """The plant runner of a unit: :class:`TERunner` for TE, else :class:`ODERunner`."""
+    if cfg.plant == "te":
+        return TERunner(cfg, **kw)
+    return ODERunner(cfg)
+
+
 @dataclass
 class PlantCounters:
     samples: int = 0
@@ -137,7 +231,7 @@ class PlantNode:
         self.expected_sender = expected_sender or f"{cfg.unit}-controller"
         self.lockstep = lockstep
         self.lockstep_timeout_s = float(lockstep_timeout_s)
-        self.runner = runner if runner is not None else ODERunner(cfg)
+        self.runner = runner if runner is not None else make_runner(cfg)
         self.nu = len(self.runner.u)
         self.counters = PlantCounters()
         self.k = 0
@@ -202,6 +296,13 @@ class PlantNode:
             with self._lock:
                 self.runner.set_disturbance(name, value)
             return Reply(200, {"disturbances": self.runner.disturbances()})
+        if req.action == "noise":
+            on = req.args.get("on")
+            if not isinstance(on, bool) or not hasattr(self.runner, "set_noise"):
+                return Reply(422, error="on: expected a boolean (TE plants only)")
+            with self._lock:
+                self.runner.set_noise(on)
+            return Reply(200, {"noise": on})
         if req.action == "reset_stats":
             with self._cond:
                 self.loop_latency_s.clear()

@@ -34,10 +34,11 @@ def _safe(name: str) -> str:
 
 
 def entity_paths(unit: str, cv_names: Sequence[str], mv_names: Sequence[str],
-                 model_names: Sequence[str]) -> list[str]:
+                 model_names: Sequence[str], ref_names: Sequence[str] | None = None
+                 ) -> list[str]:
     """All entity paths a unit's recording contains."""
     paths = [f"{unit}/cv/{_safe(n)}" for n in cv_names]
-    paths += [f"{unit}/ref/{_safe(n)}" for n in cv_names]
+    paths += [f"{unit}/ref/{_safe(n)}" for n in (cv_names if ref_names is None else ref_names)]
     paths += [f"{unit}/mv/{_safe(n)}" for n in mv_names]
     paths += [f"{unit}/model/active"]
     paths += [f"{unit}/model/J/{_safe(n)}" for n in model_names]
@@ -45,15 +46,22 @@ def entity_paths(unit: str, cv_names: Sequence[str], mv_names: Sequence[str],
     return paths
 
 
-def blueprint(unit: str, cv_names: Sequence[str]):
-    """Panels like Figs. 7.14–7.16: each CV with its reference, MVs, models, timing."""
+def blueprint(unit: str, cv_names: Sequence[str], ref_names: Sequence[str] | None = None):
+    """Panels like Figs. 7.14–7.16: each tracked CV with its reference, MVs, models, timing.
+
+    With more CVs than references (TE: 41 XMEAS, G in product tracked) the other
+    CVs share one extra panel.
+    """
     import rerun.blueprint as rrb
 
+    ref_names = list(cv_names if ref_names is None else ref_names)
     cv_views = [
         rrb.TimeSeriesView(name=n, origin=f"/{unit}",
                            contents=[f"/{unit}/cv/{_safe(n)}", f"/{unit}/ref/{_safe(n)}"])
-        for n in cv_names
+        for n in ref_names
     ]
+    if len(ref_names) < len(cv_names):
+        cv_views.append(rrb.TimeSeriesView(name="all outputs", origin=f"/{unit}/cv"))
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Grid(*cv_views, name="outputs and references"),
@@ -83,13 +91,16 @@ class TelemetryLogger:
         Samples per batch.
     recording_id : str, optional
         Rerun recording id (a restarted node may continue the same recording).
+    ref_names : sequence of str, optional
+        CVs that have a reference (default: all ``cv_names``).
     """
 
     def __init__(self, unit: str, cv_names: Sequence[str], mv_names: Sequence[str],
-                 sink: str | Path | None, batch: int = 50, recording_id: str | None = None
-                 ) -> None:
+                 sink: str | Path | None, batch: int = 50, recording_id: str | None = None,
+                 ref_names: Sequence[str] | None = None) -> None:
         self.unit = unit
         self.cv_names = tuple(cv_names)
+        self.ref_names = self.cv_names if ref_names is None else tuple(ref_names)
         self.mv_names = tuple(mv_names)
         self.batch = int(batch)
         self.model_names: tuple[str, ...] = ()
@@ -108,7 +119,7 @@ class TelemetryLogger:
         else:
             Path(sink).parent.mkdir(parents=True, exist_ok=True)
             self.rec.save(sink)
-        self.rec.send_blueprint(blueprint(unit, self.cv_names))
+        self.rec.send_blueprint(blueprint(unit, self.cv_names, self.ref_names))
 
     @property
     def enabled(self) -> bool:
@@ -150,6 +161,7 @@ class TelemetryLogger:
         U = np.vstack([r[4] for r in rows])
         for i, n in enumerate(self.cv_names):
             send(f"{self.unit}/cv/{_safe(n)}", Y[:, i])
+        for i, n in enumerate(self.ref_names):
             send(f"{self.unit}/ref/{_safe(n)}", R[:, i])
         for i, n in enumerate(self.mv_names):
             send(f"{self.unit}/mv/{_safe(n)}", U[:, i])

@@ -10,6 +10,10 @@ Controllers (``UnitConfig.controller``):
   decoupling (velocity form). An honest baseline so that the services run
   end to end; the state-shared MPC is meant to replace it as the default once
   its per-unit builder lands (:data:`CONTROLLER_BUILDERS`).
+- ``"hold"`` — :class:`HoldController`: MVs held ("MPC off"; for TE the
+  regulatory layer alone keeps the levels and the reactor temperature).
+- ``"te"`` — the TE controller of issue 8 (``services.studies.te_control``),
+  the default of the ``te`` unit; a clear error while it is not available.
 
 Process time in the services is in seconds: ``time_scale_s`` converts the
 plant's own time unit (3600 for ``h``; 1 for ``s``; the CSTR's dimensionless
@@ -45,8 +49,19 @@ __all__ = [
     "grade_setpoints",
 ]
 
-CONTROLLERS = ("pi",)
+CONTROLLERS = ("pi", "hold", "te")
 TIME_SCALE = {"h": 3600.0, "s": 1.0, "-": 1.0, "min": 60.0}
+
+#: TE regulatory-layer set points the controller may write, aligned with the
+#: loops of seed Table 7.10 (plant_sim.tennessee_eastman.regulatory.TABLE_7_10).
+TE_SETPOINTS = ("Tr_sp", "reactor_level_sp", "separator_level_sp", "stripper_level_sp")
+#: XMVs driven by those loops (1-based): the controller must not write them.
+TE_LOOP_XMVS = (10, 1, 7, 8)
+TE_EULER_STEP_S = 1.8
+TE_STRATEGIES = ("ssmpc", "fixed", "pi")
+TE_XMEAS = tuple(f"XMEAS{i}" for i in range(1, 42))
+#: The valves issue 8's TE controller writes (TEControlSpec.written_xmvs) + the loop set points.
+TE_MVS = ("XMV2", "XMV3", "XMV4", "XMV5", "XMV6", "XMV9", "XMV11", "XMV12") + TE_SETPOINTS
 
 
 @dataclass(frozen=True)
@@ -82,6 +97,11 @@ class UnitConfig:
         PI proportional gain relative to the inverse steady-state gain (dimensionless).
     pi_integral_time_s : float
         PI integral time, process seconds.
+    track : tuple of str
+        CVs that transitions follow (reference, ISE, settling, progress); empty = all.
+    strategy : str
+        TE only: ``ssmpc`` (state-shared MPC, seed §7.7), ``fixed`` (fixed models +
+        MPC, §7.5) or ``pi`` (decentralized PI baseline) of issue 8's TE controller.
     substeps : int
         Plant-node integration steps per sample (for ODE plants: solver calls).
     status_every, checkpoint_every, telemetry_every : int
@@ -103,6 +123,8 @@ class UnitConfig:
     pi_gain: float = 1.0
     pi_integral_time_s: float = 1.0
     substeps: int = 1
+    track: tuple[str, ...] = ()
+    strategy: str = "ssmpc"
     status_every: int = 10
     checkpoint_every: int = 50
     telemetry_every: int = 50
@@ -134,8 +156,13 @@ class UnitConfig:
         object.__setattr__(self, "cvs", tuple(self.cvs))
         object.__setattr__(self, "mvs", tuple(self.mvs))
         object.__setattr__(self, "cv_scales", tuple(float(s) for s in self.cv_scales))
+        object.__setattr__(self, "track", tuple(self.track))
+        if self.cvs and not set(self.track) <= set(self.cvs):
+            raise ValueError(f"track: {sorted(set(self.track) - set(self.cvs))} not among cvs")
         if any(not (math.isfinite(s) and s > 0) for s in self.cv_scales):
             raise ValueError("cv_scales: must be positive numbers")
+        if self.plant == "te":
+            _check_te_config(self)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -150,6 +177,26 @@ class UnitConfig:
         if base is None:
             return cls(**d)
         return replace(base, **d)
+
+
+def _check_te_config(cfg: UnitConfig) -> None:
+    if not cfg.mvs or not cfg.cvs:
+        raise ValueError("mvs/cvs: the TE unit needs explicit MV and CV names")
+    allowed = {f"XMV{i}" for i in range(1, 13)} | set(TE_SETPOINTS)
+    owned = {f"XMV{i}" for i in TE_LOOP_XMVS}
+    for name in cfg.mvs:
+        if name in owned:
+            raise ValueError(f"mvs: {name} is driven by a regulatory loop; write its set "
+                             f"point instead ({', '.join(TE_SETPOINTS)})")
+        if name not in allowed:
+            raise ValueError(f"mvs: unknown TE MV {name!r}; use XMV1..XMV12 or "
+                             f"{', '.join(TE_SETPOINTS)}")
+    if cfg.strategy not in TE_STRATEGIES:
+        raise ValueError(f"strategy: expected one of {TE_STRATEGIES}, got {cfg.strategy!r}")
+    n = cfg.sample_period_s / TE_EULER_STEP_S
+    if abs(n - round(n)) > 1e-9 or round(n) < 1:
+        raise ValueError(f"sample_period_s: must be a multiple of the TE Euler step "
+                         f"{TE_EULER_STEP_S} s, got {cfg.sample_period_s}")
 
 
 # Registry defaults. Sample periods: the seed's where printed, otherwise a choice
@@ -168,6 +215,20 @@ UNITS: dict[str, UnitConfig] = {
         initial_grade="OPI", mvs=("x1", "x2", "x3"), transition_duration_s=4 * 3600.0,
         pi_gain=0.5, pi_integral_time_s=3600.0, cv_scales=(100.0, 5.0, 30.0),
         description="Ricker two-phase reactor (level loop in the plant)"),
+    # Seed ch. 7: the supervisory controller (issue 8, services.studies.te_control)
+    # reads all 41 XMEAS and writes the free valves and the four loop set points;
+    # a transition is followed on G in product (XMEAS40), settled within +-1 mol%
+    # (seed R7.16 check). 36 s sample = 20 Euler steps (issue 8's choice).
+    # Strategy "pi" (issue 8's decentralized baseline) until its state-shared MPC
+    # ("ssmpc", R7.16) holds the plant through mode 0 -> 2: measured here, the
+    # current "ssmpc" trips on reactor pressure after ~1 h, offline and in the service.
+    "te": UnitConfig(
+        unit="te", plant="te", sample_period_s=36.0, initial_grade="mode0", controller="te",
+        strategy="pi",
+        cvs=TE_XMEAS, mvs=TE_MVS, track=("XMEAS40",), cv_scales=(10.0,),
+        transition_duration_s=12 * 3600.0, settle_tolerance=0.1, settle_samples=50,
+        status_every=10, checkpoint_every=100, telemetry_every=100,
+        description="Tennessee Eastman with the Table 7.10 regulatory layer (1.8 s Euler)"),
 }
 
 
@@ -214,6 +275,35 @@ def time_scale_s(plant) -> float:
     return TIME_SCALE[plant.time_unit]
 
 
+def te_grade_values(cfg: UnitConfig) -> dict[str, dict[str, Any]]:
+    """TE grades: noise-free XMEAS at each mode's start state as CV set points; the
+    mode's XMVs and its regulatory set points (the loops' CVs there) as MVs."""
+    from plant_sim.tennessee_eastman import SimSettings, TESimulator
+    from plant_sim.tennessee_eastman.modes import MODES, grade_name
+    from plant_sim.tennessee_eastman.regulatory import TABLE_7_10
+
+    cvi = [int(n[5:]) - 1 for n in cfg.cvs]
+    try:  # issue 8's grade table (seed Table 7.3 rows), else the modes' start measurements
+        from services.studies.te_grades import grade as te_grade
+    except ImportError:
+        te_grade = None
+    out = {}
+    for mode in MODES:
+        sim = TESimulator(SimSettings(mode=mode))
+        y0 = sim.initial_xmeas
+        if te_grade is not None:
+            y0 = np.asarray(te_grade(grade_name(mode)).xmeas, dtype=float)
+        mv = []
+        for name in cfg.mvs:
+            if name in TE_SETPOINTS:
+                mv.append(float(y0[TABLE_7_10[TE_SETPOINTS.index(name)].cv - 1]))
+            else:
+                mv.append(float(sim.xmv[int(name[3:]) - 1]))
+        out[grade_name(mode)] = {"setpoints": y0[cvi].tolist(), "mv": mv,
+                                 "description": f"TE mode {mode}", "stability": "unstable"}
+    return out
+
+
 def cv_indices(cfg: UnitConfig, plant) -> list[int]:
     names = cfg.cvs or tuple(plant.names("output"))
     return [plant.index("output", n) for n in names]
@@ -226,6 +316,8 @@ def mv_indices(cfg: UnitConfig, plant) -> list[int]:
 
 def grade_setpoints(cfg: UnitConfig, plant) -> dict[str, dict[str, Any]]:
     """Valid grades of the unit with their CV set points and steady MVs."""
+    if cfg.plant == "te":
+        return te_grade_values(cfg)
     cvi, mvi = cv_indices(cfg, plant), mv_indices(cfg, plant)
     out = {}
     for name, op in plant.operating_points.items():
@@ -329,8 +421,142 @@ def _build_pi(cfg: UnitConfig, plant, u0, grades) -> PIBaseline:
     return PIBaseline(K, cfg.sample_period_s, cfg.pi_integral_time_s, u0, lo, hi)
 
 
+class HoldController:
+    """Holds the MVs where they are: "MPC off" (for TE: the regulatory layer alone).
+
+    A documented safe mode, not a tracking controller: transitions do not move
+    the plant. Invalid measurements raise an alarm; the move is the same anyway.
+    """
+
+    def __init__(self, u0, names: tuple[str, ...] = ("hold",)) -> None:
+        self.u = np.asarray(u0, dtype=float).copy()
+        self.names = names
+
+    def step(self, k: int, t: float, y, reference) -> ControlDecision:
+        y = np.asarray(y, dtype=float)
+        bad = not np.all(np.isfinite(y))
+        return ControlDecision(u=self.u.copy(), active_model=0, model_names=self.names,
+                               J=np.zeros(1), solve_ms=0.0, fallback=bad,
+                               status="invalid_measurement" if bad else "hold",
+                               alarms=(f"invalid measurement at sample {k}",) if bad else ())
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {"u": self.u.tolist()}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.u = np.asarray(state["u"], dtype=float)
+
+
+class _FrozenPlan:
+    """A TE transition plan evaluated at a fixed time: the references hold (abort)."""
+
+    def __init__(self, plan, t_h: float) -> None:
+        self.plan, self.t_h = plan, float(t_h)
+
+    def xmeas_ref(self, t):
+        return self.plan.xmeas_ref(self.t_h)
+
+    def xmv_ref(self, t):
+        return self.plan.xmv_ref(self.t_h)
+
+    def d_fraction_ref(self, t):
+        return self.plan.d_fraction_ref(self.t_h)
+
+
+class TEServiceController:
+    """Issue 8's TE supervisory controller behind the service's MV vector.
+
+    ``y`` is the 41 XMEAS; the move is the unit's MVs (:data:`TE_MVS`): the valves
+    the controller writes and the four loop set points. Time on the wire is in
+    process seconds, the TE controller's in hours. Transitions reach it through
+    :meth:`on_transition` as a :class:`~services.studies.te_grades.TransitionPlan`
+    (its first-order references), an abort freezes the plan where it is.
+    """
+
+    def __init__(self, strategy: str, start_grade: str, mvs: tuple[str, ...],
+                 sample_h: float, u0) -> None:
+        from services.studies.te_control import make_te_controller
+        from services.studies.te_grades import TransitionPlan
+
+        self.strategy = strategy
+        self.sample_h = sample_h
+        self.plan_def = {"start": start_grade, "legs": [], "freeze_h": None}
+        self.ctl, self.spec = make_te_controller(strategy, TransitionPlan(start_grade),
+                                                 sample_h=sample_h)
+        self.mvs = tuple(mvs)
+        self.u = np.asarray(u0, dtype=float).copy()
+        self._map = []
+        for name in self.mvs:
+            if name in TE_SETPOINTS:
+                self._map.append(("sp", TE_SETPOINTS.index(name)))
+            else:
+                self._map.append(("xmv", int(name[3:]) - 1))
+
+    def _apply_plan(self) -> None:
+        from services.studies.te_grades import Leg, TransitionPlan
+
+        d = self.plan_def
+        plan = TransitionPlan(d["start"], tuple(Leg(t, g) for t, g in d["legs"]))
+        self.ctl.retarget(plan if d["freeze_h"] is None else _FrozenPlan(plan, d["freeze_h"]))
+
+    def on_transition(self, event: str, grade: str, t_s: float) -> None:
+        """``running``: head for ``grade`` from ``t_s``; ``aborted``/``failed``: hold."""
+        d = self.plan_def
+        if event == "running":
+            # After an abort the references jump from the held values to the plan's
+            # path; the new leg then moves them on with first-order dynamics.
+            d["freeze_h"] = None
+            d["legs"] = [*d["legs"], [t_s / 3600.0, grade]]
+        elif event in ("aborted", "failed"):
+            d["freeze_h"] = t_s / 3600.0
+        self._apply_plan()
+
+    def step(self, k: int, t: float, y, reference) -> ControlDecision:
+        dec = self.ctl.step(k, t / 3600.0, np.asarray(y, dtype=float), None)
+        u_full = np.asarray(dec.u, dtype=float)
+        sp = np.asarray(dec.extra.get("setpoints", np.full(4, np.nan)), dtype=float)
+        u = np.array([sp[j] if kind == "sp" else u_full[j] for kind, j in self._map])
+        fallback, alarms = dec.fallback, list(dec.alarms)
+        if not np.all(np.isfinite(u)):
+            u = np.where(np.isfinite(u), u, self.u)
+            fallback = True
+            alarms.append(f"TE controller left MVs undefined at sample {k}; held")
+        self.u = u
+        return ControlDecision(u=u, active_model=dec.active_model, model_names=dec.model_names,
+                               J=np.asarray(dec.J), solve_ms=dec.solve_ms, fallback=fallback,
+                               status=dec.status, alarms=tuple(alarms), extra=dec.extra)
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {"ctl": self.ctl.checkpoint(), "plan": self.plan_def, "u": self.u.tolist()}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.plan_def = state["plan"]
+        self._apply_plan()
+        self.ctl.restore(state["ctl"])
+        self.u = np.asarray(state["u"], dtype=float)
+
+
+def _build_te(cfg: UnitConfig, plant, u0, grades):
+    """Issue 8's TE controller (``cfg.strategy``) behind :class:`TEServiceController`."""
+    try:
+        import services.studies.te_control  # noqa: F401
+    except ImportError as exc:
+        raise ValueError("controller: the TE controller (services.studies.te_control, "
+                         "issue 8) is not available in this build") from exc
+    try:
+        return TEServiceController(cfg.strategy, cfg.initial_grade, cfg.mvs,
+                                   cfg.sample_period_s / 3600.0, u0)
+    except ImportError as exc:
+        raise ValueError(f"strategy: TE strategy {cfg.strategy!r} is not available in this "
+                         f"build ({exc}); use strategy \"pi\"") from exc
+
+
 #: Controller builders by ``UnitConfig.controller``: ``fn(cfg, plant, u0, grades)``.
-CONTROLLER_BUILDERS: dict[str, Callable] = {"pi": _build_pi}
+CONTROLLER_BUILDERS: dict[str, Callable] = {
+    "pi": _build_pi,
+    "hold": lambda cfg, plant, u0, grades: HoldController(u0),
+    "te": _build_te,
+}
 
 
 def build_controller(cfg: UnitConfig, plant=None, u0=None, grades=None):
@@ -354,6 +580,13 @@ class UnitInfo:
 
 
 def unit_info(cfg: UnitConfig, plant) -> UnitInfo:
+    if cfg.plant == "te":
+        cvi = cv_indices(cfg, plant)
+        return UnitInfo(
+            cv_names=tuple(cfg.cvs), mv_names=tuple(cfg.mvs),
+            cv_units=tuple(plant.output_vars[i].unit for i in cvi),
+            mv_units=tuple("degC" if n == "Tr_sp" else "%" for n in cfg.mvs),
+            grades=grade_setpoints(cfg, plant))
     cvi, mvi = cv_indices(cfg, plant), mv_indices(cfg, plant)
     return UnitInfo(
         cv_names=tuple(plant.output_vars[i].name for i in cvi),

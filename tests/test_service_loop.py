@@ -58,9 +58,12 @@ class Harness:
         self.store = UnitStore(self.store_path, self.cfg.unit)
         tel = None
         if self.telemetry:
-            tel = TelemetryLogger(self.cfg.unit, ["y"] if self.cfg.unit == "cstr" else [],
-                                  ["u"] if self.cfg.unit == "cstr" else [],
-                                  self.tmp / f"{self.cfg.unit}.rrd", batch=20)
+            from services.units import build_plant, unit_info
+
+            info = unit_info(self.cfg, build_plant(self.cfg))
+            tel = TelemetryLogger(self.cfg.unit, info.cv_names, info.mv_names,
+                                  self.tmp / f"{self.cfg.unit}.rrd", batch=20,
+                                  ref_names=self.cfg.track or None)
         self.stop_ctrl = threading.Event()
         self.ctrl = ControllerNode(self.cfg, self.s_ctrl, self.store, tel, speed=self.speed)
         th = threading.Thread(target=self.ctrl.run, args=(self.stop_ctrl,), daemon=True)

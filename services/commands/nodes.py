@@ -43,7 +43,7 @@ def session_settings(args):
 
 
 def _add_unit_arguments(p) -> None:
-    p.add_argument("--unit", default="cstr", help="unit name (see services.units; default cstr)")
+    p.add_argument("--unit", default="te", help="unit name (see services.units; default te)")
     p.add_argument("--unit-config", metavar="FILE", help="JSON overrides of the unit config")
     p.add_argument("--speed", type=float, default=1.0,
                    help="process seconds per wall second (default 1 = real time)")
@@ -160,7 +160,7 @@ def run_controller(args) -> int:
     if not args.no_telemetry:
         sink = args.rerun_addr or args.rrd or str(Path(args.state_dir) / f"ssmpc-{cfg.unit}.rrd")
     telemetry = TelemetryLogger(cfg.unit, info.cv_names, info.mv_names, sink,
-                                batch=cfg.telemetry_every)
+                                batch=cfg.telemetry_every, ref_names=cfg.track or None)
     session = open_session(session_settings(args))
     node = None
     try:

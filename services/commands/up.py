@@ -24,7 +24,7 @@ from services.output import CLIError
 
 __all__ = ["register", "run_up"]
 
-DEFAULT_UNIT = "cstr"
+DEFAULT_UNIT = "te"
 
 
 def register(sub) -> None:
