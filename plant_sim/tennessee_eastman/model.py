@@ -4,7 +4,9 @@ One call of :func:`tefunc` is one evaluation of the original model: it updates
 the random processes, computes the 50 time derivatives and the 41 measurements,
 adds noise, runs the sampled analyzers and checks the interlocks, in the
 original's order and with its floating-point operations in the same order
-(no fused multiply-add, integer powers as repeated products).
+(no contraction into fused multiply-adds, integer powers as repeated products;
+the generator's one explicit fused operation has an exact result, see
+:mod:`~plant_sim.tennessee_eastman.random`).
 
 The original keeps state between calls in COMMON blocks (temperature-solver
 start values, commanded valve positions, random-process knots, analyzer holds,

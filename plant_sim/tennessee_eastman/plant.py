@@ -142,8 +142,8 @@ class TennesseeEastman(PlantModel):
                     conf = "text"
                 ops[name] = OperatingPoint(name=name, x=x, u=x[38:50].copy(), d=np.zeros(20),
                                            description=desc, stability="unstable",
-                                           stability_detail="open-loop unstable (level and "
-                                           "pressure modes; trips open loop)",
+                                           stability_detail="open loop: levels and reactor "
+                                           "temperature unstable (seed ch. 7.3)",
                                            confidence=conf)
             self._ops = ops
         return self._ops
