@@ -38,7 +38,9 @@ state-shared form reproduces every reduced model's frequency response to
 ~1e-10; n = 10 would give Re <= 0.2 % but only 1e-5..1e-7 accuracy of the
 coefficient representation, and the seed's n = 40 none at all (see the
 numerical limits in :mod:`controller.state_shared`). The state-shared model
-has 2nm = 80 states and n(m^2+1) = 208 parameters per model.
+has 2nm = 80 states and n(m^2+1) = 208 parameters per model. With
+:data:`TE_LOOPS_TIGHT_TR` all three reduced models are stable with Re = 0.99 %,
+0.94 %, 0.70 % at n = 8.
 """
 
 from __future__ import annotations
