@@ -14,7 +14,9 @@ generator seed). Here that state is the float64 vector ``mem`` with the layout
 below, owned by the caller (one per simulated plant), so the function is
 re-entrant and several plants run side by side.
 
-Indices in comments are the original's (1-based); code is 0-based.
+Indices in comments are the original's (1-based); code is 0-based. Functions
+are compiled with numba's ``error_model="numpy"``: a division by zero gives
+inf/NaN as IEEE arithmetic (and the Fortran original) does, instead of raising.
 """
 
 from __future__ import annotations
@@ -110,7 +112,7 @@ def new_work() -> np.ndarray:
 # their term is a signed zero, which leaves the running sum unchanged.
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _enthalpy(K, z, t, ity):
     """Specific enthalpy of a mixture of mole fractions ``z`` at ``t`` deg C (TESUB1).
 
@@ -137,7 +139,7 @@ def _enthalpy(K, z, t, ity):
     return h
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _enthalpy_slope(K, z, t, ity):
     """d(enthalpy)/dT of the mixture (TESUB3)."""
     dh = 0.0
@@ -160,7 +162,7 @@ def _enthalpy_slope(K, z, t, ity):
     return dh
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _temperature(K, z, t_start, h, ity):
     """Temperature whose enthalpy is ``h``, by Newton from ``t_start`` (TESUB2).
 
@@ -177,7 +179,7 @@ def _temperature(K, z, t_start, h, ity):
     return t_start
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _density(K, x, t):
     """Liquid molar density (lb-mol/ft3) of mole fractions ``x`` at ``t`` deg C (TESUB4)."""
     v = 0.0
@@ -188,7 +190,7 @@ def _density(K, x, t):
     return K[C.ONE] / v
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _walk_value(mem, i, t):
     """Value of random process ``i`` (0-based) at time ``t`` (TESUB8)."""
     h = t - mem[M_TLAST + i]
@@ -196,7 +198,7 @@ def _walk_value(mem, i, t):
                                                            + h * mem[M_DDIST + i]))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _update_walks(K, t, idv, mem):
     """Knot updates of the 12 random processes (the draws of step 1 and 2 of te.md 7)."""
     for i in range(12):
@@ -257,7 +259,7 @@ def _update_walks(K, t, idv, mem):
             mem[M_TNEXT + i] = K[C.WLK_FIRST]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def tefunc(K, noise_on, t, yy, xmv, idv, mem, work, xmeas, yp):
     """One evaluation of the model at time ``t`` (h): derivatives, measurements, interlocks.
 
