@@ -44,3 +44,16 @@ def test_atomic_output_leaves_no_partial_file(tmp_path):
     with atomic_output(target) as fh:
         fh.write(json.dumps({"a": 1}))
     assert json.loads(target.read_text()) == {"a": 1}
+
+
+def test_atomic_output_has_ordinary_permissions(tmp_path):
+    import os
+
+    umask = os.umask(0o022)
+    try:
+        target = tmp_path / "fig.png"
+        with atomic_output(target, "wb") as fh:
+            fh.write(b"x")
+        assert (target.stat().st_mode & 0o777) == 0o644
+    finally:
+        os.umask(umask)
