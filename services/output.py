@@ -65,6 +65,18 @@ def check_writable(path: str | os.PathLike, field: str = "out") -> Path:
     return p
 
 
+def _current_umask() -> int:
+    """The process umask, read without changing it (os.umask would race other threads)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0o022
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, mode: str = "w", field: str = "out") -> Iterator[IO]:
     """Write to a temporary file beside ``path`` and rename it on success.
@@ -79,9 +91,7 @@ def atomic_output(path: str | os.PathLike, mode: str = "w", field: str = "out") 
             fh.flush()
             os.fsync(fh.fileno())
         # mkstemp creates 0600; give the file the permissions a plain open() would.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
+        os.chmod(tmp, 0o666 & ~_current_umask())
         os.replace(tmp, p)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
