@@ -99,7 +99,7 @@ def test_step_by_step_equals_run_steps():
 
 @settings(max_examples=300, deadline=None)
 @given(st.integers(min_value=0, max_value=2**36))
-def test_floor_form_of_generator_is_bit_identical_to_fmod(g):
+def test_generator_remainder_is_bit_identical_to_fmod(g):
     # te.md 7: the original computes DMOD(G*9228907, 2**32) in double precision
     expected = math.fmod(float(g) * 9228907.0, 4294967296.0)
     assert sequence(float(g), 1)[0] == expected
