@@ -103,9 +103,10 @@ class ODERunner:
 class TERunner:
     """The Tennessee Eastman plant: Euler at 1.8 s with the Table 7.10 PI loops closed.
 
-    The regulatory layer runs at every integration step, as a DCS runs it; the
-    unit's MVs are XMVs not driven by a loop and/or the loops' set points
-    (``services.units.TE_SETPOINTS``). Everything else holds its start value.
+    The inner loops (``services.units.te_structure``: issue 8's cascade, else seed
+    Table 7.10) run at every integration step, as a DCS runs them; the unit's MVs
+    are XMVs not driven by a loop and the loops' set points
+    (``services.units.te_mv_names``). Everything else holds its start value.
     Disturbances: ``set_idv(k, on)``; measurement noise: ``set_noise(on)``.
     """
 
@@ -113,28 +114,26 @@ class TERunner:
                  ) -> None:
         from plant_sim.tennessee_eastman import SimSettings, TESimulator
         from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
-        from services.units import TE_EULER_STEP_S, TE_SETPOINTS
+        from services.units import TE_EULER_STEP_S, te_mv_names, te_setpoint_name, te_structure
 
         kw = {"mode": cfg.initial_grade, "noise": noise, "dt_s": TE_EULER_STEP_S}
         if seed is not None:
             kw["seed"] = seed
         self.sim = TESimulator(SimSettings(**kw))
-        try:  # the inner loops issue 8's supervisory controller is tuned with
-            from services.studies.te_control import INNER_LOOPS as loops
-        except ImportError:
-            from plant_sim.tennessee_eastman.regulatory import TABLE_7_10 as loops
+        loops, _ = te_structure(cfg.strategy)
         self.reg = RegulatoryLayer(self.sim, loops=loops)
         self.steps = int(round(cfg.sample_period_s / TE_EULER_STEP_S))
         self.cvi = [int(n[5:]) - 1 for n in cfg.cvs]
-        self._sp_index = {i: TE_SETPOINTS.index(n) for i, n in enumerate(cfg.mvs)
-                          if n in TE_SETPOINTS}
-        self._xmv_index = {i: int(n[3:]) - 1 for i, n in enumerate(cfg.mvs)
-                           if n not in TE_SETPOINTS}
+        sp_names = [te_setpoint_name(lp) for lp in loops]
+        mvs = te_mv_names(cfg)
+        self._sp_index = {i: sp_names.index(n) for i, n in enumerate(mvs) if n in sp_names}
+        self._xmv_index = {i: int(n[3:]) - 1 for i, n in enumerate(mvs) if n not in sp_names}
+        mvs_len = len(mvs)
         self.t = 0.0
         self.u_lower = np.array([-np.inf if i in self._sp_index else 0.0
-                                 for i in range(len(cfg.mvs))])
+                                 for i in range(mvs_len)])
         self.u_upper = np.array([np.inf if i in self._sp_index else 100.0
-                                 for i in range(len(cfg.mvs))])
+                                 for i in range(mvs_len)])
 
     @property
     def shutdown(self) -> bool:

@@ -52,16 +52,41 @@ __all__ = [
 CONTROLLERS = ("pi", "hold", "te")
 TIME_SCALE = {"h": 3600.0, "s": 1.0, "-": 1.0, "min": 60.0}
 
-#: TE regulatory-layer set points the controller may write, aligned with the
-#: loops of seed Table 7.10 (plant_sim.tennessee_eastman.regulatory.TABLE_7_10).
-TE_SETPOINTS = ("Tr_sp", "reactor_level_sp", "separator_level_sp", "stripper_level_sp")
-#: XMVs driven by those loops (1-based): the controller must not write them.
-TE_LOOP_XMVS = (10, 1, 7, 8)
 TE_EULER_STEP_S = 1.8
 TE_STRATEGIES = ("ssmpc", "fixed", "pi")
 TE_XMEAS = tuple(f"XMEAS{i}" for i in range(1, 42))
-#: The valves issue 8's TE controller writes (TEControlSpec.written_xmvs) + the loop set points.
-TE_MVS = ("XMV2", "XMV3", "XMV4", "XMV5", "XMV6", "XMV9", "XMV11", "XMV12") + TE_SETPOINTS
+
+
+def te_setpoint_name(loop) -> str:
+    """MV name of a TE inner loop's set point: ``"reactor level"`` → ``reactor_level_sp``."""
+    return loop.name.replace(" ", "_") + "_sp"
+
+
+def te_structure(strategy: str = "pi") -> tuple[tuple, tuple[int, ...]]:
+    """``(inner loops, XMVs the supervisory controller writes)`` of the TE cascade.
+
+    From issue 8's controller spec (``services.studies.te_control``) when present,
+    else seed Table 7.10 with every other valve writable. The plant node runs these
+    loops; the controller node's MV vector is the written XMVs, then one set point
+    per loop (:func:`te_mv_names`).
+    """
+    try:
+        from services.studies.te_control import TEControlSpec
+    except ImportError:
+        from plant_sim.tennessee_eastman.regulatory import TABLE_7_10
+
+        owned = {lp.mv for lp in TABLE_7_10}
+        return TABLE_7_10, tuple(i for i in range(1, 13) if i not in owned)
+    spec = TEControlSpec(strategy, TE_EULER_STEP_S * 20 / 3600.0, 20)
+    return tuple(spec.loops), tuple(spec.written_xmvs)
+
+
+def te_mv_names(cfg) -> tuple[str, ...]:
+    """The TE unit's MV vector: explicit ``cfg.mvs``, else the cascade's (te_structure)."""
+    if cfg.mvs:
+        return tuple(cfg.mvs)
+    loops, written = te_structure(cfg.strategy)
+    return tuple(f"XMV{i}" for i in written) + tuple(te_setpoint_name(lp) for lp in loops)
 
 
 @dataclass(frozen=True)
@@ -180,17 +205,20 @@ class UnitConfig:
 
 
 def _check_te_config(cfg: UnitConfig) -> None:
-    if not cfg.mvs or not cfg.cvs:
-        raise ValueError("mvs/cvs: the TE unit needs explicit MV and CV names")
-    allowed = {f"XMV{i}" for i in range(1, 13)} | set(TE_SETPOINTS)
-    owned = {f"XMV{i}" for i in TE_LOOP_XMVS}
-    for name in cfg.mvs:
-        if name in owned:
-            raise ValueError(f"mvs: {name} is driven by a regulatory loop; write its set "
-                             f"point instead ({', '.join(TE_SETPOINTS)})")
-        if name not in allowed:
-            raise ValueError(f"mvs: unknown TE MV {name!r}; use XMV1..XMV12 or "
-                             f"{', '.join(TE_SETPOINTS)}")
+    if tuple(cfg.cvs) != TE_XMEAS:
+        raise ValueError("cvs: the TE unit measures all 41 XMEAS (XMEAS1..XMEAS41, in order)")
+    if cfg.mvs:
+        loops, _ = te_structure(cfg.strategy)
+        sps = {te_setpoint_name(lp) for lp in loops}
+        owned = {f"XMV{lp.mv}" for lp in loops}
+        allowed = {f"XMV{i}" for i in range(1, 13)} | sps
+        for name in cfg.mvs:
+            if name in owned:
+                raise ValueError(f"mvs: {name} is driven by an inner loop; write its set "
+                                 f"point instead ({', '.join(sorted(sps))})")
+            if name not in allowed:
+                raise ValueError(f"mvs: unknown TE MV {name!r}; use XMV1..XMV12 or "
+                                 f"{', '.join(sorted(sps))}")
     if cfg.strategy not in TE_STRATEGIES:
         raise ValueError(f"strategy: expected one of {TE_STRATEGIES}, got {cfg.strategy!r}")
     n = cfg.sample_period_s / TE_EULER_STEP_S
@@ -225,7 +253,7 @@ UNITS: dict[str, UnitConfig] = {
     "te": UnitConfig(
         unit="te", plant="te", sample_period_s=36.0, initial_grade="mode0", controller="te",
         strategy="pi",
-        cvs=TE_XMEAS, mvs=TE_MVS, track=("XMEAS40",), cv_scales=(10.0,),
+        cvs=TE_XMEAS, track=("XMEAS40",), cv_scales=(10.0,),
         transition_duration_s=12 * 3600.0, settle_tolerance=0.1, settle_samples=50,
         status_every=10, checkpoint_every=100, telemetry_every=100,
         description="Tennessee Eastman with the Table 7.10 regulatory layer (1.8 s Euler)"),
@@ -280,9 +308,11 @@ def te_grade_values(cfg: UnitConfig) -> dict[str, dict[str, Any]]:
     mode's XMVs and its regulatory set points (the loops' CVs there) as MVs."""
     from plant_sim.tennessee_eastman import SimSettings, TESimulator
     from plant_sim.tennessee_eastman.modes import MODES, grade_name
-    from plant_sim.tennessee_eastman.regulatory import TABLE_7_10
 
     cvi = [int(n[5:]) - 1 for n in cfg.cvs]
+    mvs = te_mv_names(cfg)
+    loops, _ = te_structure(cfg.strategy)
+    sp_cv = {te_setpoint_name(lp): lp.cv for lp in loops}
     try:  # issue 8's grade table (seed Table 7.3 rows), else the modes' start measurements
         from services.studies.te_grades import grade as te_grade
     except ImportError:
@@ -294,9 +324,9 @@ def te_grade_values(cfg: UnitConfig) -> dict[str, dict[str, Any]]:
         if te_grade is not None:
             y0 = np.asarray(te_grade(grade_name(mode)).xmeas, dtype=float)
         mv = []
-        for name in cfg.mvs:
-            if name in TE_SETPOINTS:
-                mv.append(float(y0[TABLE_7_10[TE_SETPOINTS.index(name)].cv - 1]))
+        for name in mvs:
+            if name in sp_cv:
+                mv.append(float(y0[sp_cv[name] - 1]))
             else:
                 mv.append(float(sim.xmv[int(name[3:]) - 1]))
         out[grade_name(mode)] = {"setpoints": y0[cvi].tolist(), "mv": mv,
@@ -466,7 +496,7 @@ class _FrozenPlan:
 class TEServiceController:
     """Issue 8's TE supervisory controller behind the service's MV vector.
 
-    ``y`` is the 41 XMEAS; the move is the unit's MVs (:data:`TE_MVS`): the valves
+    ``y`` is the 41 XMEAS; the move is the unit's MVs (:func:`te_mv_names`): the valves
     the controller writes and the four loop set points. Time on the wire is in
     process seconds, the TE controller's in hours. Transitions reach it through
     :meth:`on_transition` as a :class:`~services.studies.te_grades.TransitionPlan`
@@ -485,12 +515,16 @@ class TEServiceController:
                                                  sample_h=sample_h)
         self.mvs = tuple(mvs)
         self.u = np.asarray(u0, dtype=float).copy()
+        sp_names = [te_setpoint_name(lp) for lp in self.spec.loops]
         self._map = []
         for name in self.mvs:
-            if name in TE_SETPOINTS:
-                self._map.append(("sp", TE_SETPOINTS.index(name)))
-            else:
+            if name in sp_names:
+                self._map.append(("sp", sp_names.index(name)))
+            elif name.startswith("XMV"):
                 self._map.append(("xmv", int(name[3:]) - 1))
+            else:
+                raise ValueError(f"mvs: {name!r} is neither an XMV nor a set point of the "
+                                 f"TE controller's loops ({', '.join(sp_names)})")
 
     def _apply_plan(self) -> None:
         from services.studies.te_grades import Leg, TransitionPlan
@@ -514,7 +548,8 @@ class TEServiceController:
     def step(self, k: int, t: float, y, reference) -> ControlDecision:
         dec = self.ctl.step(k, t / 3600.0, np.asarray(y, dtype=float), None)
         u_full = np.asarray(dec.u, dtype=float)
-        sp = np.asarray(dec.extra.get("setpoints", np.full(4, np.nan)), dtype=float)
+        sp = np.asarray(dec.extra.get("setpoints", np.full(len(self.spec.loops), np.nan)),
+                        dtype=float)
         u = np.array([sp[j] if kind == "sp" else u_full[j] for kind, j in self._map])
         fallback, alarms = dec.fallback, list(dec.alarms)
         if not np.all(np.isfinite(u)):
@@ -544,7 +579,7 @@ def _build_te(cfg: UnitConfig, plant, u0, grades):
         raise ValueError("controller: the TE controller (services.studies.te_control, "
                          "issue 8) is not available in this build") from exc
     try:
-        return TEServiceController(cfg.strategy, cfg.initial_grade, cfg.mvs,
+        return TEServiceController(cfg.strategy, cfg.initial_grade, te_mv_names(cfg),
                                    cfg.sample_period_s / 3600.0, u0)
     except ImportError as exc:
         raise ValueError(f"strategy: TE strategy {cfg.strategy!r} is not available in this "
@@ -582,10 +617,11 @@ class UnitInfo:
 def unit_info(cfg: UnitConfig, plant) -> UnitInfo:
     if cfg.plant == "te":
         cvi = cv_indices(cfg, plant)
+        mvs = te_mv_names(cfg)
         return UnitInfo(
-            cv_names=tuple(cfg.cvs), mv_names=tuple(cfg.mvs),
+            cv_names=tuple(cfg.cvs), mv_names=mvs,
             cv_units=tuple(plant.output_vars[i].unit for i in cvi),
-            mv_units=tuple("degC" if n == "Tr_sp" else "%" for n in cfg.mvs),
+            mv_units=tuple("%" if n.startswith("XMV") else "CV unit" for n in mvs),
             grades=grade_setpoints(cfg, plant))
     cvi, mvi = cv_indices(cfg, plant), mv_indices(cfg, plant)
     return UnitInfo(

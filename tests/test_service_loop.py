@@ -29,7 +29,7 @@ class Harness:
     """A controller node and a plant node of one unit, each on its own session."""
 
     def __init__(self, tmp_path, unit="cstr", speed=100.0, lockstep=True, telemetry=True,
-                 start_plant=True, **cfg_over):
+                 start_plant=True, controller_factory=None, **cfg_over):
         from dataclasses import replace
 
         self.cfg = replace(get_unit(unit), **cfg_over)
@@ -38,6 +38,7 @@ class Harness:
         self.speed = speed
         self.lockstep = lockstep
         self.telemetry = telemetry
+        self.controller_factory = controller_factory
         self.s_ctrl = open_session(SessionSettings(listen=(self.ep,), lease_ms=LEASE_MS))
         self.s_plant = open_session(SessionSettings(connect=(self.ep,), lease_ms=LEASE_MS))
         self.s_client = open_session(SessionSettings(connect=(self.ep,), lease_ms=LEASE_MS))
@@ -65,7 +66,9 @@ class Harness:
                                   self.tmp / f"{self.cfg.unit}.rrd", batch=20,
                                   ref_names=self.cfg.track or None)
         self.stop_ctrl = threading.Event()
-        self.ctrl = ControllerNode(self.cfg, self.s_ctrl, self.store, tel, speed=self.speed)
+        ctl = None if self.controller_factory is None else self.controller_factory(self.cfg)
+        self.ctrl = ControllerNode(self.cfg, self.s_ctrl, self.store, tel, speed=self.speed,
+                                   controller=ctl)
         th = threading.Thread(target=self.ctrl.run, args=(self.stop_ctrl,), daemon=True)
         th.start()
         self.ctrl_thread = th

@@ -34,6 +34,7 @@ def register(sub) -> None:
 
     p = sub.add_parser("status", help="show a unit's status through the REST API")
     p.add_argument("unit")
+    p.add_argument("--all", action="store_true", help="list every CV")
     _common(p)
     p.set_defaults(func=run_status)
 
@@ -103,10 +104,14 @@ def run_status(args) -> int:
     print(f"unit {st['unit']} ({st['plant']})  sample {st['sample']}  "
           f"t = {st['process_time_s'] / 3600:.3f} h  grade {st['grade']}")
     print("  CV        value        reference")
-    for name, v in st["cv"].items():
-        r = st["ref"].get(name)
-        print(f"  {name:<8} {v if v is None else f'{v:12.5g}'}  "
-              f"{r if r is None else f'{r:12.5g}'}")
+    tracked = [n for n in st["cv"] if n in st["ref"]]
+    shown = list(st["cv"]) if args.all or len(st["cv"]) <= 8 else tracked
+    for name in shown:
+        v, r = st["cv"][name], st["ref"].get(name)
+        print(f"  {name:<8} {'-' if v is None else f'{v:12.5g}'}  "
+              f"{'-' if r is None else f'{r:12.5g}'}")
+    if len(shown) < len(st["cv"]):
+        print(f"  ({len(st['cv']) - len(shown)} more CVs: --all)")
     print("  MV: " + ", ".join(f"{k}={v:.5g}" for k, v in st["mv"].items() if v is not None))
     print(f"  active model {st['active_model_name']}  J "
           + ", ".join(f"{k}={v:.3g}" for k, v in st["J"].items() if v is not None))
