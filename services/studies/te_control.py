@@ -20,6 +20,23 @@ Layers (seed Fig. 7.2)
          the same three plus a re-initialized adaptive model (§7.7); ``"pi"``: the
          decentralized baseline of :mod:`services.studies.te_pi_baseline`.
 
+Pressure
+    The seed's MPC writes the purge valve XMV(6) directly. On the original plant
+    that structure did not survive the 0 -> 2 transition here: with the seed's
+    equal weights and P = 10 the reactor pressure reached the 3000 kPa interlock
+    after 2-3 h in every tuning tried (sample 0.01-0.05 h, P 10-60, move weights
+    1-1000, with and without input targets). As a control engineer would, the
+    fast safety variable gets its own inner loop like the reactor temperature:
+    reactor pressure -> purge (XMV 6, -0.15 %/kPa, Ti 0.5 h) at the Euler step,
+    and the MPC writes its set point P_r* (limited to 2500-2950 kPa) instead of
+    the valve. The five CVs, the other handles, P = 10 and M = 4 are the seed's.
+
+Alarms
+    Every sample the controller compares the measurements with alarm limits set
+    below the interlocks (:data:`ALARM_LIMITS`) and reports each crossing in
+    ``ControlDecision.alarms``; the MPC's soft limit on the reactor pressure
+    (:attr:`TEMPCOptions.pressure_soft_max`) acts in the same band.
+
 Sample period
     36 s (0.01 h). The handles act on the reactor pressure within minutes (gas
     holdup time constants of 0.05-0.3 h; the pressure filter is 12 s; IDV(6) trips
@@ -52,8 +69,10 @@ from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop, Regulator
 from services.studies.te_grades import TransitionPlan, limit_margins
 from services.studies.te_pi_baseline import PI_BASELINE_LOOPS, VelocityPI
 
-__all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec", "TEController",
-           "make_te_controller", "TERun", "run_te", "RatioSettings", "TR_LIMITS"]
+__all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec",
+           "TEController", "make_te_controller", "make_mpc_core", "TEMPCOptions", "TERun",
+           "run_te", "RatioSettings", "TR_LIMITS", "PR_LIMITS", "PRESSURE_LOOP",
+           "ALARM_LIMITS"]
 
 #: The inner loops: Table 7.10 (R7.11) with one change, the reactor-temperature
 #: gain. As printed (-0.5 %/degC, Ti "i" read as 1 h) the linearized plant with the
@@ -63,17 +82,29 @@ __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec"
 #: 40 h (mode 0) and 19 h (mode 2) with all other valves held. -2 %/degC with
 #: Ti = 0.5 h makes the linearizations Hurwitz at modes 0, 2 and 3, as the seed
 #: reports for its loops (R7.10). The three level loops are exactly Table 7.10.
-INNER_LOOPS = (PILoop("reactor temperature", cv=9, mv=10, gain=-2.0, ti_h=0.5),) + TABLE_7_10[1:]
+#: A fifth inner loop, reactor pressure -> purge (XMV 6), whose set point the core
+#: writes in place of the purge valve (see the module docstring, "Pressure").
+PRESSURE_LOOP = PILoop("reactor pressure", cv=7, mv=6, gain=-0.15, ti_h=0.5)
+INNER_LOOPS = ((PILoop("reactor temperature", cv=9, mv=10, gain=-2.0, ti_h=0.5),)
+               + TABLE_7_10[1:] + (PRESSURE_LOOP,))
 #: Supervisory sample period, h (36 s = 20 Euler steps of 1.8 s).
 SAMPLE_H = 0.01
 STRATEGIES = ("fixed", "ssmpc", "pi")
 #: The five core handles: XMV numbers, None = reactor-temperature set point (R7.15).
-CORE_XMVS = (3, 4, 6, None, 11)
-CORE_NAMES = ("XMV3", "XMV4", "XMV6", "Tr_sp", "XMV11")
+CORE_XMVS = (3, 4, None, None, 11)
+CORE_NAMES = ("XMV3", "XMV4", "Pr_sp", "Tr_sp", "XMV11")
+#: Reactor pressure set point range, kPa (the interlock trips at 3000).
+PR_LIMITS = (2500.0, 2950.0)
 #: MPC controlled variables (XMEAS numbers, R7.15).
 CORE_CVS = (7, 11, 13, 16, 18)
 #: Reactor temperature set point range, degC (R7.12).
 TR_LIMITS = (110.0, 130.0)
+#: Alarm limits below the interlocks (XMEAS number -> (low, high), XMEAS units):
+#: reactor pressure 2950 kPa (trip 3000), reactor temperature 170 degC (trip 175),
+#: levels 10-90 % (the liquid-volume trips correspond to reactor -2 % / 114 %,
+#: separator 3 % / 137 %, stripper -27 % / 131 % of the level spans).
+ALARM_LIMITS = {7: (-math.inf, 2950.0), 9: (-math.inf, 170.0), 8: (10.0, 90.0),
+                12: (10.0, 90.0), 15: (10.0, 90.0)}
 _D_FULL_KG_H = 5811.0
 _E_FULL_KG_H = 8354.0
 
@@ -116,7 +147,7 @@ class TEControlSpec:
     sample_steps: int
     loops: tuple = INNER_LOOPS
     loop_xmvs: tuple[int, ...] = tuple(lp.mv for lp in INNER_LOOPS)
-    written_xmvs: tuple[int, ...] = (2, 3, 4, 5, 6, 9, 11, 12)
+    written_xmvs: tuple[int, ...] = (2, 3, 4, 5, 9, 11, 12)
 
 
 class TEController:
@@ -173,9 +204,21 @@ class TEController:
         self.s = min(max(s, self.ratio.s_min), self.ratio.s_max)
         return self.s
 
+    def _set_input_target(self, target: np.ndarray) -> None:
+        # The MPC's input targets follow the plan. MPCSettings is frozen and has no
+        # setter for a time-varying target; its QP reads settings.u_target at every
+        # sample, so the one shared settings object is updated in place.
+        law = getattr(self.core, "law", None)
+        settings = getattr(law, "settings", None)
+        if settings is None or not np.any(settings.u_target_weight > 0):
+            return
+        tgt = np.asarray(target, dtype=float).copy()
+        tgt.setflags(write=False)
+        object.__setattr__(settings, "u_target", tgt)
+
     def _core_ff(self, t: float) -> np.ndarray:
         xv, ym = self.plan.xmv_ref(t), self.plan.xmeas_ref(t)
-        return np.array([xv[2], xv[3], xv[5], ym[8], xv[10]])
+        return np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
 
     # -- the sample ------------------------------------------------------------------------
     def step(self, k: int, t: float, y, reference=None) -> ControlDecision:
@@ -187,6 +230,12 @@ class TEController:
             return ControlDecision(u=np.full(12, np.nan), status="invalid_measurement",
                                    fallback=True, alarms=(f"y: expected 41 XMEAS, got "
                                                           f"{xmeas.shape}",))
+        for cv, (lo, hi) in ALARM_LIMITS.items():
+            v = xmeas[cv - 1]
+            if v > hi or v < lo:
+                side, lim = ("above", hi) if v > hi else ("below", lo)
+                alarms.append(f"XMEAS{cv} = {v:.1f} {side} its alarm limit {lim:g} "
+                              f"(interlock ahead)")
         s = self._ratio_step(t, xmeas)
         xv = self.plan.xmv_ref(t)
         ym = self.plan.xmeas_ref(t)
@@ -203,6 +252,7 @@ class TEController:
             yc = xmeas[[c - 1 for c in CORE_CVS]]
             refs = np.array([self.plan.xmeas_ref(t + i * self.sample_h)[[c - 1 for c in CORE_CVS]]
                              for i in range(1, self.horizon + 1)])
+            self._set_input_target(self._core_ff(t + self.horizon * self.sample_h))
             dec = self.core.step(k, t, yc, refs)
             core_u, status, fallback = dec.u, dec.status, dec.fallback
             active, J, names = dec.active_model, dec.J, dec.model_names
@@ -211,7 +261,7 @@ class TEController:
         for j, xmv in enumerate(CORE_XMVS):
             if xmv is not None:
                 u[xmv - 1] = core_u[j]
-        setpoints = np.array([core_u[3], ym[7], ym[11], ym[14]])
+        setpoints = np.array([core_u[3], ym[7], ym[11], ym[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
         extra.update(info)
         return ControlDecision(u=u, active_model=active, model_names=tuple(names), J=J,
@@ -229,15 +279,120 @@ class TEController:
 
 
 def _core_limits():
-    lo = np.array([0.0, 0.0, 0.0, TR_LIMITS[0], 0.0])
-    hi = np.array([100.0, 100.0, 100.0, TR_LIMITS[1], 100.0])
+    lo = np.array([0.0, 0.0, PR_LIMITS[0], TR_LIMITS[0], 0.0])
+    hi = np.array([100.0, 100.0, PR_LIMITS[1], TR_LIMITS[1], 100.0])
     return lo, hi
+
+
+@dataclass(frozen=True)
+class TEMPCOptions:
+    """Tuning of the MPC core (strategies a and b).
+
+    Parameters
+    ----------
+    P, M : int
+        Prediction and control horizons in samples (seed: 10 and 4, R7.12/R7.15).
+    output_scale : tuple of 5 float
+        Scale of each CV (kPa, degC, kPa, kPa, degC); the weights are equal on the
+        scaled errors, ``Xi = w / scale^2``.
+    output_weight : float
+        The common output weight w; strategy (b) uses half of it (R7.15).
+    output_relative : tuple of 5 float
+        Relative weight of each CV. The seed's are equal; here the separator and
+        stripper pressures get 0.01: they move with the reactor pressure (their
+        rows of the steady-state gain are nearly parallel to its row), so equal
+        weights make the MPC fight for unreachable pressure differences (in
+        this port the 0 -> 2 transition then trips on reactor pressure).
+    move_weight : float
+        Equal move weight on every handle per (% or degC)^2.
+    du_max : tuple of 5 float
+        Rate limits per sample: 50 % for valves, 10 degC for T_r* (R7.12), 20 kPa
+        for P_r*.
+    pressure_soft_max : float
+        Soft upper limit of the reactor pressure in the MPC, kPa (interlock 3000).
+    index_dwell_h : float
+        Minimum dwell of a model, h.
+    nls_gain : float
+        Adaptive gain of the normalized least squares (1/h), strategy (b).
+    target_weight : float
+        Weight (per (% or degC)^2) pulling each handle toward the grade's steady
+        value (Ricker's optimum, along the plan's first-order path): the MPC's
+        input targets. 0 = none (the seed's formulation; in this port the 0 -> 2
+        transition then trips on reactor pressure within 2-19 h, depending on
+        the weights).
+    """
+
+    P: int = 10
+    M: int = 4
+    output_scale: tuple = (20.0, 1.0, 20.0, 20.0, 1.0)
+    output_weight: float = 1.0
+    output_relative: tuple = (1.0, 1.0, 0.01, 0.01, 1.0)
+    move_weight: float = 1.0
+    du_max: tuple = (50.0, 50.0, 20.0, 10.0, 50.0)
+    pressure_soft_max: float = 2950.0
+    index_dwell_h: float = 0.25
+    nls_gain: float = 10.0
+    target_weight: float = 10.0
+
+    def __post_init__(self) -> None:
+        if len(self.output_scale) != 5 or min(self.output_scale) <= 0:
+            raise ValueError("output_scale: need 5 positive values")
+        if len(self.du_max) != 5 or min(self.du_max) <= 0:
+            raise ValueError("du_max: need 5 positive values")
+        for name in ("output_weight", "move_weight", "index_dwell_h", "nls_gain"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
+        if not 2000.0 < self.pressure_soft_max <= 3000.0:
+            raise ValueError(f"pressure_soft_max: must be in (2000, 3000] kPa, got "
+                             f"{self.pressure_soft_max!r}")
+
+
+def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | None = None):
+    """Multiple-model MPC on the five handles: (MultiModelController, P).
+
+    Strategy ``"fixed"`` (a): fixed models of modes 0, 2, 3, the active one chosen by
+    the performance index (eq. 4.6). ``"ssmpc"`` (b): the same plus a
+    re-initialized adaptive model (§7.7), output weights halved (R7.15).
+    """
+    from controller.adaptation import NLSSettings
+    from controller.mpc import MPCSettings
+    from controller.mpc.law import MPCLaw
+    from controller.multimodel import MultiModelController, MultiModelSettings
+    from controller.switching import IndexSettings
+    from services.studies.te_models import state_shared_model
+
+    opt = options or TEMPCOptions()
+    adaptive = strategy == "ssmpc"
+    ssm = state_shared_model(sample_h, adaptive)
+    scale = np.asarray(opt.output_scale, dtype=float)
+    w = opt.output_weight * (0.5 if adaptive else 1.0)
+    lo, hi = _core_limits()
+    y_max = np.full(5, np.inf)
+    y_max[0] = opt.pressure_soft_max
+    settings = MPCSettings(nu=5, ny=5, P=opt.P, M=opt.M,
+                           Xi=w * np.asarray(opt.output_relative, dtype=float) / scale ** 2,
+                           Lambda=np.full(5, opt.move_weight), u_min=lo, u_max=hi,
+                           du_max=np.asarray(opt.du_max, dtype=float), y_max=y_max,
+                           slack_scale=scale, budget_ms=50.0,
+                           u_target=u0, u_target_weight=np.full(5, opt.target_weight))
+    law = MPCLaw(settings)
+    law.prepare(ssm)
+    kinds = (["re-initialized"] if adaptive else []) + ["fixed"] * 3
+    mm = MultiModelSettings(
+        nls=NLSSettings(gain=opt.nls_gain),
+        index=IndexSettings(mu=1.0, nu=0.1, min_dwell=opt.index_dwell_h,
+                            output_weights=tuple(1.0 / scale ** 2)),
+        u_min=tuple(lo), u_max=tuple(hi), param_margin=1.0)
+    core = MultiModelController(ssm, law, np.asarray(u0, dtype=float), mm, kinds=kinds,
+                                initial_model=0)
+    return core, opt.P
 
 
 def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        sample_h: float = SAMPLE_H, plant_dt_s: float = 1.8,
                        ratio: RatioSettings | None = None,
-                       **mpc_options) -> tuple[TEController, TEControlSpec]:
+                       mpc: TEMPCOptions | None = None) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
     Parameters
@@ -250,8 +405,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         Supervisory sample, h; a whole number of plant steps.
     plant_dt_s : float
         The plant's Euler step, s.
-    **mpc_options
-        Passed to :func:`services.studies.te_mpc.make_mpc_core` (MPC strategies).
+    mpc : TEMPCOptions, optional
+        MPC tuning (strategies "fixed" and "ssmpc").
 
     Returns
     -------
@@ -270,9 +425,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         core = VelocityPI(PI_BASELINE_LOOPS, sample_h, lo, hi)
         horizon = 1
     else:
-        from services.studies.te_mpc import make_mpc_core
-
-        core, horizon = make_mpc_core(strategy, plan, sample_h, **mpc_options)
+        xv, ym = plan.xmv_ref(0.0), plan.xmeas_ref(0.0)
+        u0 = np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
+        core, horizon = make_mpc_core(strategy, sample_h, u0, mpc)
     ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
@@ -290,7 +445,7 @@ class TERun:
         Measurements the controller received.
     xmv : ndarray (K, 12)
         XMVs in force after the sample's decision.
-    setpoints : ndarray (K, 4)
+    setpoints : ndarray (K, 5)
         Inner-loop set points (Table 7.10 order).
     ref : ndarray (K, 41)
         References of the XMEAS (grade trajectory).
@@ -360,7 +515,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     T = np.empty(n)
     X = np.empty((n, 41))
     U = np.empty((n, 12))
-    S = np.empty((n, 4))
+    S = np.empty((n, len(spec.loops)))
     R = np.empty((n, 41))
     cost = np.empty(n)
     act = np.empty(n, dtype=int)

@@ -70,7 +70,6 @@ class PILoopSpec:
 
 #: The baseline's loops (tuned on this port; see the module docstring).
 PI_BASELINE_LOOPS = (
-    PILoopSpec("reactor pressure -> purge", cv=7, output=2, gain=-0.15, ti_h=0.5),
     PILoopSpec("separator temperature -> condenser CW", cv=11, output=4, gain=-2.0, ti_h=0.5),
     PILoopSpec("A in reactor feed -> A feed", cv=23, output=0, gain=2.0, ti_h=1.0),
 )
