@@ -69,6 +69,9 @@ from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop, Regulator
 from services.studies.te_grades import TransitionPlan, limit_margins
 from services.studies.te_pi_baseline import PI_BASELINE_LOOPS, VelocityPI
 
+#: The A-in-reactor-feed loop (shared with the PI baseline).
+A_FEED_LOOP = next(lp for lp in PI_BASELINE_LOOPS if lp.cv == 23)
+
 __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec",
            "TEController", "make_te_controller", "make_mpc_core", "TEMPCOptions", "TERun",
            "run_te", "RatioSettings", "TR_LIMITS", "PR_LIMITS", "PRESSURE_LOOP",
@@ -105,6 +108,12 @@ TR_LIMITS = (110.0, 130.0)
 #: separator 3 % / 137 %, stripper -27 % / 131 % of the level spans).
 ALARM_LIMITS = {7: (-math.inf, 2950.0), 9: (-math.inf, 170.0), 8: (10.0, 90.0),
                 12: (10.0, 90.0), 15: (10.0, 90.0)}
+#: High-pressure override on the A+C feed (production), as in Ricker's (1996)
+#: decentralized TE control: above this reactor pressure (kPa) the A+C feed is cut
+#: at OVERRIDE_GAIN %/(kPa h), at most OVERRIDE_MAX %; it is released below it.
+OVERRIDE_PRESSURE = 2900.0
+OVERRIDE_GAIN = 2.0
+OVERRIDE_MAX = 30.0
 _D_FULL_KG_H = 5811.0
 _E_FULL_KG_H = 8354.0
 
@@ -182,12 +191,39 @@ class TEController:
         self.e_g_prev: float | None = None
         self.last_g: float | None = None
         self.n_samples = 0
+        self.override = 0.0
+        self.a_trim = 0.0
+        self.e_a_prev: float | None = None
 
     def retarget(self, plan: TransitionPlan) -> None:
         """Follow a new plan from now on (times are absolute, h)."""
         self.plan = plan
 
     # -- pieces ---------------------------------------------------------------------------
+    def _a_trim_step(self, t: float, xmeas: np.ndarray) -> float:
+        """Outer composition loop of the MPC strategies: A in the reactor feed
+        (XMEAS 23, 0.1 h analyzer) trims the MPC's input target of the A feed (the
+        PI baseline's loop of the same tuning, :data:`A_FEED_LOOP`)."""
+        y = float(xmeas[A_FEED_LOOP.cv - 1])
+        if math.isfinite(y):
+            e = float(self.plan.xmeas_ref(t)[A_FEED_LOOP.cv - 1]) - y
+            if self.e_a_prev is None:
+                self.e_a_prev = e
+            self.a_trim += A_FEED_LOOP.gain * ((e - self.e_a_prev)
+                                               + self.sample_h / A_FEED_LOOP.ti_h * e)
+            self.a_trim = min(max(self.a_trim, -50.0), 50.0)
+            self.e_a_prev = e
+        return self.a_trim
+
+    def _override_step(self, xmeas: np.ndarray) -> float:
+        """High-pressure override: integral cut of the A+C feed (XMV 4) above
+        :data:`OVERRIDE_PRESSURE`, released below it (never negative)."""
+        p = float(xmeas[6])
+        if math.isfinite(p):
+            self.override += OVERRIDE_GAIN * self.sample_h * (p - OVERRIDE_PRESSURE)
+            self.override = min(max(self.override, 0.0), OVERRIDE_MAX)
+        return self.override
+
     def _ratio_step(self, t: float, xmeas: np.ndarray) -> float:
         ff = self.plan.d_fraction_ref(t)
         if self.s is None:
@@ -252,7 +288,9 @@ class TEController:
             yc = xmeas[[c - 1 for c in CORE_CVS]]
             refs = np.array([self.plan.xmeas_ref(t + i * self.sample_h)[[c - 1 for c in CORE_CVS]]
                              for i in range(1, self.horizon + 1)])
-            self._set_input_target(self._core_ff(t + self.horizon * self.sample_h))
+            target = self._core_ff(t + self.horizon * self.sample_h)
+            target[0] = min(max(target[0] + self._a_trim_step(t, xmeas), 0.0), 100.0)
+            self._set_input_target(target)
             dec = self.core.step(k, t, yc, refs)
             core_u, status, fallback = dec.u, dec.status, dec.fallback
             active, J, names = dec.active_model, dec.J, dec.model_names
@@ -261,6 +299,10 @@ class TEController:
         for j, xmv in enumerate(CORE_XMVS):
             if xmv is not None:
                 u[xmv - 1] = core_u[j]
+        cut = self._override_step(xmeas)
+        if cut > 0:
+            u[3] = max(u[3] - cut, 0.0)
+            alarms.append(f"pressure override: A+C feed cut by {cut:.1f} %")
         setpoints = np.array([core_u[3], ym[7], ym[11], ym[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
         extra.update(info)
@@ -270,12 +312,16 @@ class TEController:
 
     def checkpoint(self) -> dict[str, Any]:
         return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,
+                "override": self.override, "a_trim": self.a_trim, "e_a_prev": self.e_a_prev,
                 "core": self.core.checkpoint(), "n_samples": self.n_samples}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
         self.core.restore(state["core"])
         self.n_samples = int(state.get("n_samples", 0))
+        self.override = float(state.get("override", 0.0))
+        self.a_trim = float(state.get("a_trim", 0.0))
+        self.e_a_prev = state.get("e_a_prev")
 
 
 def _core_limits():
@@ -314,7 +360,7 @@ class TEMPCOptions:
         Minimum dwell of a model, h.
     nls_gain : float
         Adaptive gain of the normalized least squares (1/h), strategy (b).
-    target_weight : float
+    target_weight : float or tuple of 5 float
         Weight (per (% or degC)^2) pulling each handle toward the grade's steady
         value (Ricker's optimum, along the plan's first-order path): the MPC's
         input targets. 0 = none (the seed's formulation; in this port the 0 -> 2
@@ -332,13 +378,17 @@ class TEMPCOptions:
     pressure_soft_max: float = 2950.0
     index_dwell_h: float = 0.25
     nls_gain: float = 10.0
-    target_weight: float = 10.0
+    target_weight: float | tuple = 10.0
 
     def __post_init__(self) -> None:
         if len(self.output_scale) != 5 or min(self.output_scale) <= 0:
             raise ValueError("output_scale: need 5 positive values")
         if len(self.du_max) != 5 or min(self.du_max) <= 0:
             raise ValueError("du_max: need 5 positive values")
+        tw = np.asarray(self.target_weight, dtype=float)
+        if tw.size not in (1, 5) or not np.all(np.isfinite(tw)) or np.any(tw < 0):
+            raise ValueError(f"target_weight: one or 5 finite values >= 0, got "
+                             f"{self.target_weight!r}")
         for name in ("output_weight", "move_weight", "index_dwell_h", "nls_gain"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -375,7 +425,9 @@ def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | No
                            Lambda=np.full(5, opt.move_weight), u_min=lo, u_max=hi,
                            du_max=np.asarray(opt.du_max, dtype=float), y_max=y_max,
                            slack_scale=scale, budget_ms=50.0,
-                           u_target=u0, u_target_weight=np.full(5, opt.target_weight))
+                           u_target=u0,
+                           u_target_weight=np.broadcast_to(np.asarray(opt.target_weight,
+                                                                      dtype=float), (5,)))
     law = MPCLaw(settings)
     law.prepare(ssm)
     kinds = (["re-initialized"] if adaptive else []) + ["fixed"] * 3
