@@ -38,13 +38,14 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
+import scipy.linalg
 
 from controller.adaptation import AdaptiveKind, NLSSettings, NormalizedLeastSquares
 from controller.interfaces import ControlDecision
 from controller.state_shared import StateSharedModel
 from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
 
-__all__ = ["ControlLaw", "MultiModelSettings", "MultiModelController"]
+__all__ = ["ControlLaw", "MultiModelSettings", "MultiModelController", "OutputHoldCorrection"]
 
 
 class ControlLaw(Protocol):
@@ -91,6 +92,16 @@ class MultiModelSettings:
         fixed models' parameters widened by ``param_margin`` times its width
         (per parameter; at least ``param_margin`` times the parameter's size).
         None = no projection.
+    y_hold : {"zoh", "foh"}
+        How the measured outputs are taken to vary between samples when the
+        models are *compared and identified*. ``"zoh"`` (default): held, as
+        :meth:`StateSharedModel.update` does; an identified Theta is then the
+        sampled-equivalent model, O(dt) away from the continuous Theta of
+        eq. 3.16 that the fixed models carry. ``"foh"``: linear between samples
+        (see :class:`OutputHoldCorrection`); a-priori errors and the regressor
+        then hold to O(dt^2) for the continuous models, so fixed and adaptive
+        models live in the same (continuous) class. The shared state itself and
+        everything the control law reads are unchanged.
     """
 
     nls: NLSSettings = NLSSettings()
@@ -98,8 +109,11 @@ class MultiModelSettings:
     u_min: float | tuple[float, ...] | None = None
     u_max: float | tuple[float, ...] | None = None
     param_margin: float | None = None
+    y_hold: str = "zoh"
 
     def __post_init__(self) -> None:
+        if self.y_hold not in ("zoh", "foh"):
+            raise ValueError(f"y_hold: must be 'zoh' or 'foh', got {self.y_hold!r}")
         if self.param_margin is not None and not (
                 math.isfinite(self.param_margin) and self.param_margin >= 0):
             raise ValueError(f"param_margin: must be >= 0 or None, got {self.param_margin!r}")
@@ -113,6 +127,97 @@ class MultiModelSettings:
             raise ValueError("u_min, u_max: must not be NaN")
         if lo.shape == hi.shape and np.any(lo > hi):
             raise ValueError("u_min: must not exceed u_max")
+
+
+class OutputHoldCorrection:
+    """First-order hold of the measured outputs for comparing and identifying models.
+
+    :meth:`StateSharedModel.update` holds y over a sample (zero-order hold), which
+    is exact for the piecewise-constant input u but lags a continuous y by about
+    half a sample. With y taken linear between samples (first-order hold) the
+    output part of the shared state is, per output block (eq. 3.10 sampled)::
+
+        n2(t_k) = Fd n2(t_(k-1)) + Gd y_(k-1) + H (y_k - y_(k-1)),
+        H = (1/dt) int_0^dt exp(F (dt - s)) g s ds,
+
+    i.e. the held state z_k plus a correction ``c_k = Fd c_(k-1) + H (y_k - y_(k-1))``
+    (c = 0 in a steady state, so biases and steady states are unchanged). This
+    object carries ``c`` beside the shared state without changing it.
+
+    A model's a-priori estimate must not use y_k, yet n2(t_k) depends on it; it is
+    the solution of ``yhat = Theta1' n1 + theta2' (z_k + Fd c_(k-1) + H (yhat - y_(k-1))) + b``,
+    explicit because theta2' H is a scalar per output (O(dt)).
+
+    Parameters
+    ----------
+    ssm : StateSharedModel
+        The shared state (read only).
+    """
+
+    def __init__(self, ssm: StateSharedModel) -> None:
+        n = ssm.n_deg
+        self.ssm = ssm
+        self.n = n
+        # Van Loan: exp([[F, g, 0], [0, 0, 1], [0, 0, 0]] dt) holds Gd and H
+        M = np.zeros((n + 2, n + 2))
+        M[:n, :n] = ssm.Fb * ssm.dt
+        M[:n, n] = ssm.gb * ssm.dt
+        M[n, n + 1] = 1.0
+        E = scipy.linalg.expm(M)
+        self.Fbd_T = np.ascontiguousarray(E[:n, :n].T)
+        self.h = E[:n, n + 1].copy()
+        self.c = np.zeros((ssm.p, n))
+        self.y_prev = np.zeros(ssm.p)
+
+    def reset(self, y) -> None:
+        """Steady start (matches :meth:`StateSharedModel.initialize`): c = 0."""
+        self.c[:] = 0.0
+        self.y_prev = np.asarray(y, dtype=float).reshape(-1).copy()
+
+    def _theta2(self) -> np.ndarray:
+        """theta2 of every model, shape (k, n) (the same vector in every output block)."""
+        nm = self.n * self.ssm.m
+        return np.stack([self.ssm.theta(j)[nm : nm + self.n, 0] for j in range(self.ssm.k)])
+
+    def estimates(self) -> np.ndarray:
+        """A-priori estimates of all models with the first-order hold, shape (k, p)."""
+        est = self.ssm.estimates()
+        t2 = self._theta2()
+        free = self.c @ self.Fbd_T - self.y_prev[:, None] * self.h[None, :]  # (p, n)
+        num = est + t2 @ free.T  # (k, p)
+        den = 1.0 - t2 @ self.h  # (k,)
+        safe = np.abs(den) > 1e-6
+        out = est + t2 @ (self.c @ self.Fbd_T).T  # fallback: no slope over the sample
+        out[safe] = num[safe] / den[safe, None]
+        return out
+
+    def errors(self, y) -> np.ndarray:
+        """``y - yhat_j`` for every model, shape (k, p)."""
+        return np.asarray(y, dtype=float).reshape(1, -1) - self.estimates()
+
+    def advance(self, y) -> None:
+        """Take in y_k: ``c_k = Fd c_(k-1) + H (y_k - y_(k-1))`` (call after :meth:`errors`)."""
+        y = np.asarray(y, dtype=float).reshape(-1)
+        self.c = self.c @ self.Fbd_T + (y - self.y_prev)[:, None] * self.h[None, :]
+        self.y_prev = y.copy()
+
+    def regressor(self) -> np.ndarray:
+        """The shared regressor W with n2(t_k) = z_k + c_k (call after :meth:`advance`)."""
+        ssm = self.ssm
+        W = ssm.regressor()
+        start = self.n * ssm.m * ssm.p
+        W[:, start : start + self.n] += self.c
+        return W
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {"c": self.c.tolist(), "y_prev": self.y_prev.tolist()}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        c = np.asarray(state["c"], dtype=float).reshape(self.c.shape)
+        y = np.asarray(state["y_prev"], dtype=float).reshape(self.y_prev.shape)
+        if not (np.all(np.isfinite(c)) and np.all(np.isfinite(y))):
+            raise ValueError("state.hold: non-finite first-order-hold correction")
+        self.c, self.y_prev = c, y
 
 
 class MultiModelController:
@@ -176,6 +281,7 @@ class MultiModelController:
         self.index = PerformanceIndex(self.settings.index, ssm.k, dt)
         self.switcher = ModelSwitcher(ssm.k, self.settings.index.min_dwell, dt, initial_model,
                                       self.settings.index.hysteresis)
+        self.hold = OutputHoldCorrection(ssm) if self.settings.y_hold == "foh" else None
         self.initialized = False
         self.n_invalid = 0
         self.n_law_failures = 0
@@ -243,6 +349,8 @@ class MultiModelController:
             if self.initialized:
                 y_sub = self.ssm.estimates()[self.switcher.active]
                 if np.all(np.isfinite(y_sub)):
+                    if self.hold is not None:
+                        self.hold.advance(y_sub)
                     self.ssm.update(self.u_last, y_sub)
             return self._decision(self.u_last, "invalid_measurement", True, [alarm], t0)
         ref = np.atleast_2d(np.asarray(reference, dtype=float))
@@ -251,13 +359,19 @@ class MultiModelController:
                                   [f"invalid reference at sample {k}: input held"], t0)
         if not self.initialized:
             self.ssm.initialize(self.u_last, y)
+            if self.hold is not None:
+                self.hold.reset(y)
             self.law.reset(self.u_last, y)
             self.initialized = True
         alarms: list[str] = []
-        errors = self.ssm.errors(y)
+        if self.hold is None:
+            errors = self.ssm.errors(y)
+        else:
+            errors = self.hold.errors(y)
+            self.hold.advance(y)
         # adaptation (eq. 4.1) on the shared regressor
         if self.adaptive:
-            W = self.ssm.regressor()
+            W = self.ssm.regressor() if self.hold is None else self.hold.regressor()
             for j in self.adaptive:
                 est = self.estimators[j]
                 res = est.update(W, y)
@@ -320,6 +434,7 @@ class MultiModelController:
             "law": self.law.checkpoint(),
             "u_last": self.u_last.tolist(),
             "initialized": self.initialized,
+            **({"hold": self.hold.checkpoint()} if self.hold is not None else {}),
             "counters": {"n_invalid": self.n_invalid, "n_law_failures": self.n_law_failures,
                          "n_reinit": self.n_reinit, "n_restarts": self.n_restarts,
                          "n_samples": self.n_samples},
@@ -337,5 +452,10 @@ class MultiModelController:
             raise ValueError("state.u_last: wrong length or non-finite")
         self.u_last = u
         self.initialized = bool(state["initialized"])
+        if self.hold is not None:
+            if "hold" in state:
+                self.hold.restore(state["hold"])
+            else:  # a checkpoint from a zero-order-hold controller: start the slope afresh
+                self.hold.reset(self.ssm.estimates()[self.switcher.active])
         for key, value in state.get("counters", {}).items():
             setattr(self, key, int(value))
