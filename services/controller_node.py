@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import logging
 import math
+import queue
 import threading
 import time
 from collections import deque
@@ -60,6 +61,40 @@ from services.units import (
 __all__ = ["ControllerNode"]
 
 log = logging.getLogger("ssmpc.controller")
+
+
+class _Worker:
+    """One background thread for the slow chores of a sample (SQLite, Rerun, status),
+    in submission order, so that they never delay the next move."""
+
+    def __init__(self) -> None:
+        self._q: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, name="ssmpc-worker", daemon=True)
+        self._thread.start()
+
+    def submit(self, fn, *args) -> None:
+        self._q.put((fn, args, None))
+
+    def wait(self, timeout: float = 30.0) -> None:
+        """Block until everything submitted so far is done."""
+        done = threading.Event()
+        self._q.put((done.set, (), None))
+        done.wait(timeout)
+
+    def close(self, timeout: float = 30.0) -> None:
+        self._q.put(None)
+        self._thread.join(timeout)
+
+    def _run(self) -> None:
+        while True:
+            item = self._q.get()
+            if item is None:
+                return
+            fn, args, _ = item
+            try:
+                fn(*args)
+            except Exception:
+                log.exception("background task failed")
 
 
 class ControllerNode:
@@ -122,6 +157,7 @@ class ControllerNode:
         self._cond = threading.Condition()
         self._latest: tuple[float, Measurement] | None = None
         self._dropped = 0
+        self._worker = _Worker()
         self._restore()
         self._watchdog = Watchdog()
         self._mv_pub = session.declare_publisher(keys.mv(cfg.unit))
@@ -150,13 +186,22 @@ class ControllerNode:
         self.restored_from = self.k
         log.info("restored checkpoint at sample %d", self.k)
 
-    def checkpoint(self) -> None:
+    def checkpoint(self, wait: bool = True) -> None:
+        """Snapshot the node's state now and write it (in order with transition records);
+        ``wait`` blocks until it is on disk."""
         with self._lock:
             state = {"controller": self.controller.checkpoint(),
                      "transitions": self.tm.checkpoint(), "u_last": self.u_last.tolist(),
                      "mv_seq": self.mv_seq, "deadline_misses": self.stats.misses,
                      "fallback_moves": self.stats.fallbacks}
-            self.store.save_checkpoint(max(self.k, 0), self.t, state)
+            k, t = max(self.k, 0), self.t
+        self._worker.submit(self.store.save_checkpoint, k, t, state)
+        if wait:
+            self._worker.wait()
+
+    def flush(self) -> None:
+        """Wait until every record and checkpoint submitted so far is written."""
+        self._worker.wait()
 
     def _notify(self, tr, event: str) -> None:
         """Tell a controller that follows its own plans (TE) about a transition event."""
@@ -165,8 +210,11 @@ class ControllerNode:
             hook(event, tr.grade, self.t)
 
     def _persist(self, tr, event: str, detail: str = "") -> None:
-        self.store.save_transition(tr.as_dict(), event=event, process_time=self.t,
-                                   detail=detail or tr.detail)
+        self._worker.submit(self._save_transition, tr.as_dict(), event, self.t,
+                            detail or tr.detail)
+
+    def _save_transition(self, record, event, t, detail) -> None:
+        self.store.save_transition(record, event=event, process_time=t, detail=detail)
 
     # -- Zenoh callbacks -----------------------------------------------------------------
     def _on_meas(self, sample) -> None:
@@ -234,7 +282,8 @@ class ControllerNode:
                 self.checkpoint()
                 return Reply(202, tr.view(self.t, self.budget.speed))
             if op == "list":
-                return Reply(200, [t for t in self.store.transitions()])
+                self._worker.wait()
+                return Reply(200, self.store.transitions())
             tid = args.get("id")
             if not isinstance(tid, str):
                 return Reply(422, error="id: expected a transition id")
@@ -260,6 +309,7 @@ class ControllerNode:
 
         if self.tm.active is not None and self.tm.active.id == tid:
             return self.tm.active.view(self.t, self.budget.speed)
+        self._worker.wait()
         rec = self.store.transition(tid)
         if rec is None:
             raise UnknownTransition(f"id: no transition {tid!r}")
@@ -357,15 +407,21 @@ class ControllerNode:
         for tr, state in changes:
             self._persist(tr, state)
         if self.telemetry is not None:
-            self.telemetry.add(msg.seq, msg.t, self.y, self.r, u, decision.active_model,
-                               decision.model_names, decision.J, decision.solve_ms,
-                               self.stats.slack_ms(elapsed))
+            full = self.telemetry.add(msg.seq, msg.t, self.y, self.r, u,
+                                      decision.active_model, decision.model_names, decision.J,
+                                      decision.solve_ms, self.stats.slack_ms(elapsed),
+                                      auto_flush=False)
+            if full:
+                self._worker.submit(self.telemetry.flush)
         if changes or msg.seq % self.cfg.checkpoint_every == 0:
-            self.checkpoint()
+            self.checkpoint(wait=False)
         if msg.seq % self.cfg.status_every == 0:
-            from services.messages import encode
+            self._worker.submit(self._publish_status)
 
-            self._status_pub.put(encode({"schema": 1, "kind": "status", **self.status()}))
+    def _publish_status(self) -> None:
+        from services.messages import encode
+
+        self._status_pub.put(encode({"schema": 1, "kind": "status", **self.status()}))
 
     def run(self, stop: threading.Event) -> None:
         """Process measurements until ``stop`` is set."""
@@ -391,7 +447,8 @@ class ControllerNode:
             except Exception:
                 pass
         try:
-            self.checkpoint()
+            self.checkpoint(wait=True)
         finally:
             if self.telemetry is not None:
-                self.telemetry.close()
+                self._worker.submit(self.telemetry.close)
+            self._worker.close()

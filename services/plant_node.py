@@ -334,14 +334,14 @@ class PlantNode:
         self._pub.put(msg.to_bytes())
         self.counters.samples += 1
 
-    def _take_mv(self) -> MVMessage | None:
+    def _take_mv(self, timeout_s: float) -> MVMessage | None:
+        """The newest accepted MV; waits up to ``timeout_s`` for the one answering sample k."""
         with self._cond:
-            if self.lockstep:
-                ok = self._cond.wait_for(
-                    lambda: self._pending is not None and self._pending.meas_seq >= self.k,
-                    timeout=self.lockstep_timeout_s)
-                if not ok:
-                    self.counters.lockstep_timeouts += 1
+            ok = self._cond.wait_for(
+                lambda: self._pending is not None and self._pending.meas_seq >= self.k,
+                timeout=max(0.0, timeout_s))
+            if not ok and self.lockstep:
+                self.counters.lockstep_timeouts += 1
             msg, self._pending = self._pending, None
             if msg is None:
                 self.counters.mv_held += 1
@@ -350,22 +350,32 @@ class PlantNode:
             return msg
 
     def run(self, stop: threading.Event, max_samples: int | None = None) -> None:
-        """Run until ``stop`` is set (or ``max_samples`` samples have been integrated)."""
+        """Run until ``stop`` is set (or ``max_samples`` samples have been integrated).
+
+        Real-time mode integrates the interval ``[t_k, t_k+1]`` as soon as the MV
+        answering sample k arrives (or at boundary k+1 with the held MV if it has
+        not), then publishes ``y(k+1)`` exactly at boundary k+1: the integration
+        stays off the critical path.
+        """
         clock = SampleClock(self.budget.wall_period_s)
         self._publish()
         n = 0
         while not stop.is_set() and (max_samples is None or n < max_samples):
-            if not self.lockstep:
-                clock.wait_next(stop)
-                if stop.is_set():
-                    break
-            msg = self._take_mv()
+            if self.lockstep:
+                msg = self._take_mv(self.lockstep_timeout_s)
+            else:
+                msg = self._take_mv(clock.deadline(clock.k + 1) - time.perf_counter())
             u = self.runner.u if msg is None else np.asarray(msg.u)
             if msg is not None:
                 self._applied_mv_seq = msg.seq
             with self._lock:
                 self.runner.advance(u, self.cfg.sample_period_s)
-            self.k += 1
+            if not self.lockstep:
+                clock.wait_next(stop)
+                if stop.is_set():
+                    break
+            with self._cond:
+                self.k += 1
             n += 1
             self._publish()
 

@@ -126,10 +126,14 @@ class TelemetryLogger:
         return self.rec is not None
 
     def add(self, sample: int, t: float, y, r, u, active: int, model_names: Sequence[str], J,
-            solve_ms: float, slack_ms: float) -> None:
-        """Buffer one sample; sends a batch when ``batch`` samples are buffered."""
+            solve_ms: float, slack_ms: float, *, auto_flush: bool = True) -> bool:
+        """Buffer one sample; return True when ``batch`` samples are buffered.
+
+        With ``auto_flush`` the batch is sent right away; otherwise the caller
+        sends it with :meth:`flush` (e.g. from a worker thread, off the sample loop).
+        """
         if self.rec is None:
-            return
+            return False
         if tuple(model_names) != self.model_names:
             if self._rows:
                 self.flush()
@@ -137,15 +141,17 @@ class TelemetryLogger:
         self._rows.append((int(sample), float(t), np.asarray(y, float), np.asarray(r, float),
                            np.asarray(u, float), int(active), np.asarray(J, float),
                            float(solve_ms), float(slack_ms)))
-        if len(self._rows) >= self.batch:
+        full = len(self._rows) >= self.batch
+        if full and auto_flush:
             self.flush()
+        return full
 
     def flush(self) -> None:
         """Send the buffered samples (one ``send_columns`` per entity)."""
         if self.rec is None or not self._rows:
             return
         rr = self._rr
-        rows, self._rows = self._rows, []
+        rows, self._rows = self._rows, []  # one swap: add() may run in another thread
         seq = np.array([r[0] for r in rows], dtype=np.int64)
         tp = np.array([r[1] for r in rows], dtype=float)
         idx = [rr.TimeColumn("sample", sequence=seq),

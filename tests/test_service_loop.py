@@ -151,6 +151,7 @@ def test_closed_loop_transition_settles_at_the_grade(harness):
     assert st["grade"] == "OPII"
     for key in ("active_model", "J", "solve_ms", "deadline_misses", "fallback_moves"):
         assert key in st
+    h.ctrl.flush()
     events = [e["state"] for e in h.store.events(rep.data["id"])]
     assert events == ["pending", "running", "settled"]
     ps = h.plant.status()

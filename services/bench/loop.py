@@ -99,13 +99,26 @@ def _client_session(nodes: _Nodes):
     return s
 
 
+def _wait_running(session, unit: str, samples: int = 50, timeout_s: float = 300.0) -> None:
+    """Wait until the loop has run ``samples`` samples (first-use JIT compiles may take a while)."""
+    from services import keys
+
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        if _query(session, keys.plant_cmd(unit, "status"), "status")["samples"] >= samples:
+            return
+        time.sleep(0.2)
+    raise RuntimeError(f"the {unit} loop did not start within {timeout_s:g} s")
+
+
 def _rung(unit: str, speed: float, seconds: float, state_dir: str) -> dict:
     from services import keys
 
     nodes = _Nodes(unit, speed, lockstep=False, api=False, state_dir=state_dir)
     s = _client_session(nodes)
     try:
-        time.sleep(1.0)  # warm-up: JIT, caches, connections
+        _wait_running(s, unit)
+        time.sleep(0.5)  # warm-up: caches, connections
         _query(s, keys.cmd(unit, "reset_stats"), "reset_stats")
         _query(s, keys.plant_cmd(unit, "reset_stats"), "reset_stats")
         time.sleep(seconds)
@@ -124,8 +137,9 @@ def speed_case(args, state_dir: str) -> dict:
     cfg = get_unit(args.unit)
     if args.speeds:
         ladder = [float(x) for x in args.speeds.split(",")]
-    else:  # wall periods from 20 ms down to 0.2 ms
-        ladder = [cfg.sample_period_s / w for w in (20e-3, 5e-3, 2e-3, 1e-3, 0.5e-3, 0.2e-3)]
+    else:  # wall periods from 20 ms down to 0.5 ms
+        ladder = [cfg.sample_period_s / w
+                  for w in (20e-3, 10e-3, 5e-3, 3.6e-3, 2.5e-3, 2e-3, 1.5e-3, 1e-3, 0.5e-3)]
     best = None
     rungs = []
     for speed in ladder:
@@ -156,7 +170,7 @@ def latency_and_rest(args, state_dir: str, want_latency: bool, want_rest: bool) 
     nodes = _Nodes(args.unit, 1.0, lockstep=True, api=want_rest, state_dir=state_dir)
     s = _client_session(nodes)
     try:
-        time.sleep(1.0)
+        _wait_running(s, args.unit)
         _query(s, keys.plant_cmd(args.unit, "reset_stats"), "reset_stats")
         if want_latency:
             time.sleep(args.latency_seconds)
