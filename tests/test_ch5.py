@@ -39,6 +39,13 @@ def test_r4_1_convergence_small_error_and_bumpless_switching(capsys):
             <= rows["largest one-sample change of y"]["ours"])
 
 
+def test_r4_1_first_order_hold_identifies_the_continuous_theta(capsys):
+    doc, rows = _reproduce("R4.1", capsys)
+    row = rows["continuous plant, first-order hold of y: max relative error of theta"]
+    assert row["ours"] <= 0.01  # R4.1: within 1 % of the true (continuous) Theta
+    assert doc["verdict"] == "reproduced"
+
+
 def test_r5_3_mrac_reaches_5_with_final_model_m2_or_m4(capsys, tmp_path):
     doc, rows = _reproduce("R5.3", capsys, "--plot", str(tmp_path))
     assert rows["MRAC 1.3->5.0: final |y - target|"]["ours"] <= 0.05
@@ -110,15 +117,22 @@ def test_r5_11_model_error_within_0_02(capsys):
     assert rows["OPII->OPI: final |y - target|"]["ours"] <= 0.02
 
 
-@pytest.mark.xfail(reason="known gap: with integral action and anti-windup a single fixed-model "
-                          "H-inf loop tracks the staircases better than the switched set",
-                   strict=True)
-def test_r5_12_state_shared_beats_single_model(capsys):
+def test_r5_12_state_shared_beats_the_single_model_on_the_down_staircase(capsys):
+    doc, rows = _reproduce("R5.12", capsys)
+    assert rows["down (steps): ISE state-shared"]["ours"] < rows[
+        "down (steps): ISE single model (OPII)"]["ours"]
+    for label, target in (("up", 5.0), ("down", 1.3)):
+        assert rows[f"{label} (steps): final |y - target| state-shared"]["ours"] <= (
+            CSTR_BAND * target)
+
+
+@pytest.mark.xfail(reason="known gap: the H-inf design on the OPI model alone is robust over the "
+                          "whole range and beats the switched set on the up staircase; see R5.12 "
+                          "why", strict=True)
+def test_r5_12_state_shared_beats_single_model_on_the_up_staircase(capsys):
     doc, rows = _reproduce("R5.12", capsys)
     assert rows["up (steps): ISE state-shared"]["ours"] < rows[
         "up (steps): ISE single model (OPI)"]["ours"]
-    assert rows["down (steps): ISE state-shared"]["ours"] < rows[
-        "down (steps): ISE single model (OPII)"]["ours"]
 
 
 def test_r5_13_state_shared_stays_bounded_on_pulses(capsys):
