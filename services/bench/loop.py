@@ -40,6 +40,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--latency-seconds", type=float, default=5.0,
                         help="wall seconds of the lock-step latency run")
     parser.add_argument("--rest-requests", type=int, default=500, help="REST requests")
+    parser.add_argument("--rt-priority", type=int, default=None,
+                        help="run plant and controller under SCHED_FIFO with this priority")
     parser.add_argument("--cases", default="speed,latency,rest",
                         help="comma-separated subset of speed, latency, rest")
 
@@ -47,7 +49,8 @@ def add_arguments(parser) -> None:
 class _Nodes:
     """Controller, plant and (optionally) api nodes as child processes."""
 
-    def __init__(self, unit: str, speed: float, lockstep: bool, api: bool, state_dir: str):
+    def __init__(self, unit: str, speed: float, lockstep: bool, api: bool, state_dir: str,
+                 rt_priority: int | None = None):
         from services.commands.up import _spawn, _wait_ready
         from services.zenoh_session import free_port
 
@@ -57,6 +60,8 @@ class _Nodes:
         self.ep_c, self.ep_p = ep_c, ep_p
         self.port = free_port()
         common = ["--unit", unit, "--speed", repr(float(speed)), "--lease-ms", "1000"]
+        if rt_priority is not None:
+            common += ["--rt-priority", str(rt_priority)]
         deadline = time.monotonic() + 120
         try:
             c = _spawn(["controller", *common, "--listen", ep_c, "--state-dir", state_dir,
@@ -111,10 +116,12 @@ def _wait_running(session, unit: str, samples: int = 50, timeout_s: float = 300.
     raise RuntimeError(f"the {unit} loop did not start within {timeout_s:g} s")
 
 
-def _rung(unit: str, speed: float, seconds: float, state_dir: str) -> dict:
+def _rung(unit: str, speed: float, seconds: float, state_dir: str,
+          rt_priority: int | None = None) -> dict:
     from services import keys
 
-    nodes = _Nodes(unit, speed, lockstep=False, api=False, state_dir=state_dir)
+    nodes = _Nodes(unit, speed, lockstep=False, api=False, state_dir=state_dir,
+                   rt_priority=rt_priority)
     s = _client_session(nodes)
     try:
         _wait_running(s, unit)
@@ -143,7 +150,7 @@ def speed_case(args, state_dir: str) -> dict:
     best = None
     rungs = []
     for speed in ladder:
-        r = _rung(args.unit, speed, args.rung_seconds, state_dir)
+        r = _rung(args.unit, speed, args.rung_seconds, state_dir, args.rt_priority)
         rungs.append(r)
         ok = r["deadline_misses"] == 0 and r["held"] == 0 and r["samples"] > 0
         if ok:
@@ -156,7 +163,8 @@ def speed_case(args, state_dir: str) -> dict:
     return {"case": "speed", "unit": "x real time", "median": best["speed"],
             "p99": best["speed"], "max": best["speed"], "n": best["samples"],
             "plant_unit": args.unit, "wall_period_ms": wall_period * 1e3,
-            "te_equivalent_speed": TE_SAMPLE_PERIOD_S / wall_period, "rungs": rungs}
+            "te_equivalent_speed": TE_SAMPLE_PERIOD_S / wall_period, "rungs": rungs,
+            "rt_priority": args.rt_priority}
 
 
 def latency_and_rest(args, state_dir: str, want_latency: bool, want_rest: bool) -> list[dict]:
@@ -167,7 +175,8 @@ def latency_and_rest(args, state_dir: str, want_latency: bool, want_rest: bool) 
 
     cfg = get_unit(args.unit)
     out = []
-    nodes = _Nodes(args.unit, 1.0, lockstep=True, api=want_rest, state_dir=state_dir)
+    nodes = _Nodes(args.unit, 1.0, lockstep=True, api=want_rest, state_dir=state_dir,
+                   rt_priority=args.rt_priority)
     s = _client_session(nodes)
     try:
         _wait_running(s, args.unit)

@@ -49,6 +49,8 @@ def _add_unit_arguments(p) -> None:
                    help="process seconds per wall second (default 1 = real time)")
     p.add_argument("--duration", type=float, default=None,
                    help="stop by itself after this many wall seconds")
+    p.add_argument("--rt-priority", type=int, default=None,
+                   help="run the node under SCHED_FIFO with this priority 1..99 (Linux)")
 
 
 def register(sub) -> None:
@@ -86,20 +88,32 @@ def register(sub) -> None:
     p.set_defaults(func=run_api)
 
 
-def _realtime_tuning() -> None:
+def _realtime_tuning(rt_priority: int | None = None) -> None:
     """Fewer, shorter pauses in a node's sample loop.
 
     The objects made at start-up (modules, models, JIT code) are moved out of the
     collector's way (``gc.freeze``) and young-generation collections become rarer;
     the GIL is handed between the Zenoh callback threads and the loop more often
-    than the default 5 ms.
+    than the default 5 ms. With ``rt_priority`` every thread of the process
+    (including Zenoh's) runs under ``SCHED_FIFO`` (Linux, needs CAP_SYS_NICE), as a
+    control loop on a shared machine should.
     """
     import gc
+    import os
 
     gc.collect()
     gc.freeze()
     gc.set_threshold(50_000, 50, 100)
     sys.setswitchinterval(0.0005)
+    if rt_priority is not None:
+        if not 1 <= rt_priority <= 99:
+            raise CLIError(f"rt_priority: must be 1..99, got {rt_priority}")
+        try:
+            param = os.sched_param(rt_priority)
+            for tid in os.listdir("/proc/self/task"):
+                os.sched_setscheduler(int(tid), os.SCHED_FIFO, param)
+        except (OSError, AttributeError) as exc:
+            raise CLIError(f"rt_priority: cannot switch to SCHED_FIFO ({exc})") from exc
 
 
 def _logging() -> None:
@@ -149,7 +163,7 @@ def run_plant(args) -> int:
     try:
         node = PlantNode(cfg, session, speed=args.speed, expected_sender=args.sender,
                          lockstep=args.lockstep, lockstep_timeout_s=args.lockstep_timeout)
-        _realtime_tuning()
+        _realtime_tuning(args.rt_priority)
         _ready("plant", cfg.unit, zid=session.zid())
         node.run(stop)
     finally:
@@ -183,7 +197,7 @@ def run_controller(args) -> int:
     try:
         node = ControllerNode(cfg, session, store, telemetry, speed=args.speed,
                               sender=args.sender)
-        _realtime_tuning()
+        _realtime_tuning(args.rt_priority)
         _ready("controller", cfg.unit, zid=session.zid(), store=store.path)
         node.run(stop)
     finally:
