@@ -1,0 +1,60 @@
+"""``ssmpc soak``: a long closed-loop run with random transitions, IDVs and injected faults.
+
+Writes the report of DESIGN.md (``--report F``, atomically) and prints it as the
+last stdout line. The fault grammar is in :mod:`services.faults`; the layout and
+the counting rules in :mod:`services.soak`.
+"""
+
+from __future__ import annotations
+
+import json
+
+from services.output import CLIError, atomic_output, check_writable, emit_json
+
+__all__ = ["register", "run"]
+
+
+def register(sub) -> None:
+    p = sub.add_parser("soak", help="long closed-loop run with random transitions, "
+                                    "disturbances and injected faults")
+    p.add_argument("--unit", default="te", help="unit (default te)")
+    p.add_argument("--hours", type=float, required=True, help="process hours to run")
+    p.add_argument("--speed", type=float, default=3600.0,
+                   help="process seconds per wall second (default 3600)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+    p.add_argument("--faults", default=None, metavar="SPEC",
+                   help="fault schedule, e.g. 'kill:controller@0.5h,drop:meas:5%%@1h-1.2h' "
+                        "(default: every kind once; 'none': no faults)")
+    p.add_argument("--transition-gap-h", type=float, default=2.0,
+                   help="mean process hours between transitions (default 2)")
+    p.add_argument("--idv-gap-h", type=float, default=6.0,
+                   help="mean process hours between disturbances (default 6)")
+    p.add_argument("--no-noise", action="store_true", help="TE measurement noise off")
+    p.add_argument("--state-dir", default=None,
+                   help="keep the store and node logs here (default: a temporary directory)")
+    p.add_argument("--report", required=True, metavar="FILE", help="report JSON file")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from services.faults import FaultSpecError, parse_faults
+    from services.soak import SoakSettings, run_soak
+    from services.units import load_unit_config
+
+    check_writable(args.report, "report")
+    try:
+        cfg = load_unit_config(args.unit)
+        faults = (None if args.faults is None
+                  else tuple(parse_faults(args.faults, cfg.sample_period_s)))
+        settings = SoakSettings(unit=args.unit, hours=args.hours, speed=args.speed,
+                                seed=args.seed, faults=faults,
+                                transition_gap_h=args.transition_gap_h,
+                                idv_gap_h=args.idv_gap_h, noise=not args.no_noise,
+                                state_dir=args.state_dir)
+    except (FaultSpecError, ValueError) as exc:
+        raise CLIError(str(exc)) from exc
+    report = run_soak(settings)
+    with atomic_output(args.report, field="report") as fh:
+        fh.write(json.dumps(report, indent=1, allow_nan=False) + "\n")
+    emit_json(report)
+    return 0 if report["records_lost"] == 0 and report["unhandled_errors"] == 0 else 1
