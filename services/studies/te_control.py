@@ -174,10 +174,17 @@ class TEController:
         :class:`controller.multimodel.MultiModelController` on the five handles.
     ratio : RatioSettings
     sample_h : float
+    horizon : int
+        Samples of reference handed to the core (the MPC's P).
+    outer_a_loop : bool
+        MPC strategies: let the A-in-feed loop trim the A-feed input target. Off by
+        default: it helped neither leg of 0 -> 2 -> 3 and, under IDV(6) (A feed
+        lost), it winds the target up to 100 % and the fixed-model run trips.
     """
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
-                 sample_h: float = SAMPLE_H, horizon: int = 10) -> None:
+                 sample_h: float = SAMPLE_H, horizon: int = 10,
+                 outer_a_loop: bool = False) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -186,6 +193,7 @@ class TEController:
         self.ratio = ratio
         self.sample_h = float(sample_h)
         self.horizon = int(horizon)
+        self.outer_a_loop = bool(outer_a_loop)
         self.s: float | None = None
         self.s_ff_prev: float | None = None
         self.e_g_prev: float | None = None
@@ -289,7 +297,8 @@ class TEController:
             refs = np.array([self.plan.xmeas_ref(t + i * self.sample_h)[[c - 1 for c in CORE_CVS]]
                              for i in range(1, self.horizon + 1)])
             target = self._core_ff(t + self.horizon * self.sample_h)
-            target[0] = min(max(target[0] + self._a_trim_step(t, xmeas), 0.0), 100.0)
+            if self.outer_a_loop:
+                target[0] = min(max(target[0] + self._a_trim_step(t, xmeas), 0.0), 100.0)
             self._set_input_target(target)
             dec = self.core.step(k, t, yc, refs)
             core_u, status, fallback = dec.u, dec.status, dec.fallback

@@ -1,0 +1,68 @@
+"""``ssmpc bench te-closed-loop``: the TE cascade offline, 0 -> 2 -> 3 over 48 h.
+
+For each strategy (SSMPC, fixed-model MPC, PI baseline) ``--runs`` closed-loop runs
+of ``--hours`` process hours (grade 2 requested at 1 h, grade 3 at 25 h) on the
+original plant at 1.8 s, supervisory sample 36 s (``services.studies.te_control``):
+
+- "<strategy> process rate": process hours per wall second of the whole loop
+  (plant, inner PI loops, supervisory controller, recording);
+- "<strategy> controller step": wall time of one supervisory step (for the MPC
+  strategies: adaptation, switching and the QP), median / p99 / max over all
+  samples of all runs, in ms.
+
+Runs do not stop at an interlock trip (the plant freezes as the original does), so
+every run covers the same process time; the first trip, if any, is reported with
+the case (``shutdown_h``). Model building and compilation happen before timing.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+NAME = "te-closed-loop"
+DESCRIPTION = ("TE cascade offline, 0->2->3 over 48 h: process hours per wall second and "
+               "the controller step median/p99/max, per strategy")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--runs", type=int, default=3, help="timed runs per strategy (>= 1)")
+    parser.add_argument("--hours", type=float, default=48.0, help="process hours per run")
+    parser.add_argument("--strategies", default="ssmpc,fixed,pi",
+                        help="comma-separated: ssmpc, fixed, pi")
+
+
+def run(args) -> list[dict]:
+    from services.benchmarking import latency_case, rate_case
+    from services.output import CLIError
+    from services.studies.te_control import STRATEGIES, run_te
+    from services.studies.te_grades import Leg, TransitionPlan
+
+    runs = int(args.runs)
+    hours = float(args.hours)
+    if runs < 1:
+        raise CLIError(f"runs: need at least one run, got {runs}")
+    if not 1.0 <= hours <= 200.0:
+        raise CLIError(f"hours: must be in [1, 200], got {hours}")
+    strategies = [s.strip() for s in str(args.strategies).split(",") if s.strip()]
+    for s in strategies:
+        if s not in STRATEGIES:
+            raise CLIError(f"strategies: unknown {s!r}; known: {', '.join(STRATEGIES)}")
+    plan = TransitionPlan("mode0", (Leg(1.0, "mode2"), Leg(25.0, "mode3")))
+    cases = []
+    for strat in strategies:
+        run_te(strat, plan, 0.5, stop_on_trip=False)  # build models, compile; not timed
+        rates, step_ms, trips = [], [], []
+        load = os.getloadavg()[0]
+        for _ in range(runs):
+            start = time.perf_counter()
+            r = run_te(strat, plan, hours, stop_on_trip=False)
+            rates.append(hours / (time.perf_counter() - start))
+            step_ms.extend(r.solve_ms.tolist())
+            trips.append(None if r.shutdown is None else round(r.shutdown.time_h, 3))
+        common = {"strategy": strat, "hours": hours, "plant_dt_s": 1.8,
+                  "sample_s": r.meta["sample_h"] * 3600, "load_avg_1min": round(load, 2),
+                  "shutdown_h": trips}
+        cases.append(rate_case(f"{strat} process rate", rates, "process-h/s", **common))
+        cases.append(latency_case(f"{strat} controller step", step_ms, "ms", **common))
+    return cases
