@@ -675,8 +675,8 @@ class Soak:
             last_poll = 0.0
             while True:
                 t = self.plant.t
-                if t >= t_end:
-                    break
+                if t >= t_end and not kills:
+                    break  # (a kill still due happens first: a restart can outlast the run)
                 if self.plant.runner.shutdown:
                     self._record_shutdown(t)
                     break

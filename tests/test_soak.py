@@ -1,0 +1,94 @@
+"""The soak over the real services: the CI soak (2 process hours of TE at 3600x, every fault
+kind once) and a focused run of the three node kills while a transition runs.
+
+What must hold (issue 10): no lost transition record, no unhandled error, no preventable
+shutdown; after a controller restart the running transition continues and the first move
+equals a replay from the checkpoint the killed node left (bumpless).
+"""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from services.faults import default_faults, parse_faults
+from services.soak import REPORT_KEYS, SoakSettings, run_soak
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(400)]
+
+CI_HOURS = 2.0
+CI_SPEED = 720.0
+
+
+def _check_shape(r):
+    assert set(REPORT_KEYS) <= set(r)
+    assert set(r["transitions"]) >= {"requested", "settled", "aborted", "failed"}
+    for key in ("deadline_misses", "fallback_moves", "restarts", "bumpless_resumes",
+                "records_lost", "unhandled_errors"):
+        assert isinstance(r[key], int) and r[key] >= 0, key
+    assert isinstance(r["shutdowns"], list)
+    assert all(isinstance(n, int) for n in r["faults_injected"].values())
+
+
+def _check_promise(r):
+    d = r["details"]
+    assert r["records_lost"] == 0, d["records_lost"]
+    assert r["unhandled_errors"] == 0, d["unhandled_errors"]
+    assert not [s for s in r["shutdowns"] if s["preventable"]], r["shutdowns"]
+
+
+@pytest.mark.slow
+def test_ci_soak_every_fault_kind_once(tmp_path):
+    report = tmp_path / "soak.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "services.cli", "soak", "--unit", "te", "--hours", str(CI_HOURS),
+         "--speed", str(CI_SPEED), "--seed", "3", "--transition-gap-h", "0.3",
+         "--state-dir", str(tmp_path / "state"), "--report", str(report)],
+        capture_output=True, text=True, timeout=380)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r = json.loads(report.read_text())
+    assert json.loads(proc.stdout.strip().splitlines()[-1]) == r
+    _check_shape(r)
+    _check_promise(r)
+    assert r["process_hours"] >= CI_HOURS
+    expected = {w.name for w in default_faults(CI_HOURS, 36.0)}
+    assert expected <= {k for k, n in r["faults_injected"].items() if n > 0}
+    assert r["restarts"] == 3 and r["bumpless_resumes"] == 1
+    assert r["deadline_misses"] >= 1  # the stalled solver
+    assert r["transitions"]["requested"] >= 1
+    probes = r["details"]["security_probes"]
+    assert probes.get("unauthorized write", 0) >= 1 and probes.get("malformed body", 0) >= 1
+
+
+@pytest.mark.slow
+def test_node_kills_during_a_transition(tmp_path):
+    faults = tuple(parse_faults("kill:controller@0.4h,kill:plant@0.5h,kill:api@0.6h", 36.0))
+    r = run_soak(SoakSettings(unit="te", hours=1.2, speed=1800.0, seed=5, faults=faults,
+                              transition_gap_h=0.05, abort_probability=0.0, idv_gap_h=100.0,
+                              state_dir=str(tmp_path / "state")))
+    _check_shape(r)
+    _check_promise(r)
+    d = r["details"]
+    assert d["restarts_by_node"] == {"controller": 1, "plant": 1, "api": 1}
+    # the transition that ran at the controller kill was running again after the restart
+    (check,) = d["transition_resume_checks"]
+    assert check["before"] == "running" and check["after"] == "running" and check["ok"]
+    # the restarted controller resumed from its checkpoint: held move = checkpoint's
+    # (up to one sample's move), first move = replay from that checkpoint
+    (resume,) = d["controller_resumes"]
+    assert resume["bumpless"], resume
+    assert r["bumpless_resumes"] == 1
+    assert r["transitions"]["requested"] >= 1
+
+
+def test_bad_soak_arguments_are_refused_before_running(tmp_path):
+    for argv, word in ((["--faults", "boom:meas@1h"], "kind"),
+                       (["--faults", "drop:meas:5@1h"], "percentage"),
+                       (["--speed", "-1"], "speed")):
+        proc = subprocess.run(
+            [sys.executable, "-m", "services.cli", "soak", "--hours", "1",
+             "--report", str(tmp_path / "r.json"), *argv],
+            capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2 and word in proc.stderr, (argv, proc.stderr)
+        assert not (tmp_path / "r.json").exists()
