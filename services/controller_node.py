@@ -133,6 +133,7 @@ class ControllerNode:
         self.u_last = np.asarray(grades[cfg.initial_grade]["mv"], float)
         self.controller = controller if controller is not None else build_controller(
             cfg, plant, self.u_last, grades)
+        self.horizon = int(getattr(self.controller, "horizon", self.horizon))
         # Transitions follow the tracked CVs (cfg.track; all CVs when empty).
         self.track_names = cfg.track or self.info.cv_names
         self.track_idx = [self.info.cv_names.index(n) for n in self.track_names]
@@ -267,48 +268,55 @@ class ControllerNode:
         return Reply(404, error=f"action: unknown action {req.action!r}")
 
     def _transition(self, args: dict) -> Reply:
+        # Records are written by the worker; waiting for it while holding the node's
+        # lock would deadlock (the worker's status snapshot takes that lock), so every
+        # wait happens after the lock is released.
         op = args.get("op")
-        with self._lock:
-            if op == "create":
-                grade = args.get("grade")
-                if not isinstance(grade, str):
-                    return Reply(422, error="grade: expected a grade name")
-                duration = args.get("duration_s")
-                if duration is not None and (isinstance(duration, bool)
-                                             or not isinstance(duration, int | float)):
-                    return Reply(422, error="duration_s: expected a number")
+        if op not in ("create", "list", "get", "abort"):
+            return Reply(422, error=f"op: expected create, get, abort or list, got {op!r}")
+        if op == "list":
+            self._worker.wait()
+            return Reply(200, self.store.transitions())
+        if op == "create":
+            grade = args.get("grade")
+            if not isinstance(grade, str):
+                return Reply(422, error="grade: expected a grade name")
+            duration = args.get("duration_s")
+            if duration is not None and (isinstance(duration, bool)
+                                         or not isinstance(duration, int | float)):
+                return Reply(422, error="duration_s: expected a number")
+            with self._lock:
                 tr = self.tm.request(grade, self.t, duration)
                 self._persist(tr, "pending", f"requested from {tr.from_grade}")
-                self.checkpoint()
-                return Reply(202, tr.view(self.t, self.budget.speed))
-            if op == "list":
-                self._worker.wait()
-                return Reply(200, self.store.transitions())
-            tid = args.get("id")
-            if not isinstance(tid, str):
-                return Reply(422, error="id: expected a transition id")
-            if op == "get":
-                return Reply(200, self._view(tid))
-            if op == "abort":
-                if self.tm.active is not None and self.tm.active.id == tid:
+                view = tr.view(self.t, self.budget.speed)
+            self.checkpoint(wait=True)
+            return Reply(202, view)
+        tid = args.get("id")
+        if not isinstance(tid, str):
+            return Reply(422, error="id: expected a transition id")
+        if op == "abort":
+            with self._lock:
+                active = self.tm.active is not None and self.tm.active.id == tid
+                if active:
                     was = self.tm.active.state
                     tr = self.tm.abort(tid, self.t)
-                    if tr.state == "aborted" and was != "aborted":
+                    changed = tr.state == "aborted" and was != "aborted"
+                    if changed:
                         self._notify(tr, "aborted")
                         self._persist(tr, "aborted")
-                        self.checkpoint()
-                    return Reply(200, tr.view(self.t, self.budget.speed))
-                rec = self.store.transition(tid)
-                if rec is None:
-                    raise UnknownTransition(f"id: no transition {tid!r}")
-                return Reply(200, self._view(tid))
-        return Reply(422, error=f"op: expected create, get, abort or list, got {op!r}")
+                    view = tr.view(self.t, self.budget.speed)
+            if active:
+                if changed:
+                    self.checkpoint(wait=True)
+                return Reply(200, view)
+        return Reply(200, self._view(tid))
 
     def _view(self, tid: str) -> dict:
         from services.transitions import Transition
 
-        if self.tm.active is not None and self.tm.active.id == tid:
-            return self.tm.active.view(self.t, self.budget.speed)
+        with self._lock:
+            if self.tm.active is not None and self.tm.active.id == tid:
+                return self.tm.active.view(self.t, self.budget.speed)
         self._worker.wait()
         rec = self.store.transition(tid)
         if rec is None:

@@ -12,6 +12,12 @@ Controllers (``UnitConfig.controller``):
   its per-unit builder lands (:data:`CONTROLLER_BUILDERS`).
 - ``"hold"`` — :class:`HoldController`: MVs held ("MPC off"; for TE the
   regulatory layer alone keeps the levels and the reactor temperature).
+- ``"hinf"``, ``"mrac"`` — the SISO units (cstr, bioreactor): the state-shared
+  multiple-model controller (fixed OPI/OPII models, a free-running and a
+  re-initialized adaptive model, eq. 4.1/4.6) with the H-infinity (§5.2) or MRAC
+  (§5.1) law, tuned as the chapter-5 study (:mod:`services.studies.ch5`).
+- ``"ssmpc"`` — two-phase reactor: the state-shared MPC of the chapter-6 study
+  (:mod:`services.studies.ch6`: reduced OPI/OPII models, Δu MPC).
 - ``"te"`` — the TE controller of issue 8 (``services.studies.te_control``),
   the default of the ``te`` unit; a clear error while it is not available.
 
@@ -49,7 +55,7 @@ __all__ = [
     "grade_setpoints",
 ]
 
-CONTROLLERS = ("pi", "hold", "te")
+CONTROLLERS = ("pi", "hold", "hinf", "mrac", "ssmpc", "te")
 TIME_SCALE = {"h": 3600.0, "s": 1.0, "-": 1.0, "min": 60.0}
 
 TE_EULER_STEP_S = 1.8
@@ -230,18 +236,22 @@ def _check_te_config(cfg: UnitConfig) -> None:
 # Registry defaults. Sample periods: the seed's where printed, otherwise a choice
 # that resolves the plant's dominant dynamics with ~20 samples.
 UNITS: dict[str, UnitConfig] = {
+    # Chapter 5 tunings (services.studies.ch5): sample 0.05, reference time constant 5
+    # (duration 20 = 4 tau), H-infinity law on the state-shared multiple models.
     "cstr": UnitConfig(
-        unit="cstr", plant="cstr", sample_period_s=0.1, initial_grade="OPI",
-        transition_duration_s=10.0, pi_gain=3.0, pi_integral_time_s=1.0, cv_scales=(1.0,),
-        description="exothermic CSTR (dimensionless time taken as seconds)"),
+        unit="cstr", plant="cstr", sample_period_s=0.05, initial_grade="OPI",
+        controller="hinf", transition_duration_s=20.0, pi_gain=3.0, pi_integral_time_s=1.0,
+        cv_scales=(1.0,), description="exothermic CSTR (dimensionless time taken as seconds)"),
     "bioreactor": UnitConfig(
-        unit="bioreactor", plant="bioreactor", sample_period_s=360.0, initial_grade="OPI",
-        transition_duration_s=36000.0, pi_gain=0.5, pi_integral_time_s=7200.0,
-        description="substrate-inhibited bioreactor"),
+        unit="bioreactor", plant="bioreactor", sample_period_s=72.0, initial_grade="OPI",
+        controller="hinf", transition_duration_s=8 * 3600.0, pi_gain=0.5,
+        pi_integral_time_s=7200.0, description="substrate-inhibited bioreactor (0.02 h sample)"),
+    # Chapter 6 (services.studies.ch6): state-shared MPC, 0.1 h sample.
     "two_phase_reactor": UnitConfig(
         unit="two_phase_reactor", plant="two_phase_reactor", sample_period_s=360.0,
-        initial_grade="OPI", mvs=("x1", "x2", "x3"), transition_duration_s=4 * 3600.0,
-        pi_gain=0.5, pi_integral_time_s=3600.0, cv_scales=(100.0, 5.0, 30.0),
+        initial_grade="OPI", mvs=("x1", "x2", "x3"), controller="ssmpc",
+        transition_duration_s=4 * 3600.0, pi_gain=0.5, pi_integral_time_s=3600.0,
+        cv_scales=(100.0, 10.0, 30.0), settle_tolerance=0.1,
         description="Ricker two-phase reactor (level loop in the plant)"),
     # Seed ch. 7: the supervisory controller (issue 8, services.studies.te_control)
     # reads all 41 XMEAS and writes the free valves and the four loop set points;
@@ -586,10 +596,87 @@ def _build_te(cfg: UnitConfig, plant, u0, grades):
                          f"build ({exc}); use strategy \"pi\"") from exc
 
 
+def _build_siso_multimodel(cfg: UnitConfig, plant, u0, grades, law_name: str):
+    """Chapter 5's multiple-model controller on a SISO unit plant (H-infinity or MRAC law)."""
+    from controller.hinf import HInfLaw
+    from controller.mrac import MRACLaw
+    from controller.multimodel import MultiModelController, MultiModelSettings
+    from controller.state_shared import ModelSpec, StateSharedModel
+    from plant_sim.linearize import linearize
+    from services.studies import ch5
+
+    if plant.nu != 1 or plant.ny != 1:
+        raise ValueError(f"controller: {law_name} is for the SISO units, {cfg.plant} is not SISO")
+    bio = cfg.plant == "bioreactor"
+    dt = cfg.sample_period_s / time_scale_s(plant)
+    specs, kinds = [], []
+    for name, kind, op in (("M1", "fixed", "OPI"), ("M2", "fixed", "OPII"),
+                           ("M3", "free-running", cfg.initial_grade),
+                           ("M4", "re-initialized", cfg.initial_grade)):
+        lm = linearize(plant, op)
+        spec = StateSharedModel.model_from_linear(name, lm.A, lm.B, lm.C, lm.u_op, lm.y_op,
+                                                  ch5.A_POLY)
+        specs.append(ModelSpec(name, spec.theta, spec.bias,
+                               "fixed" if kind == "fixed" else "adaptive"))
+        kinds.append(kind)
+    ssm = StateSharedModel(ch5.A_POLY, 1, dt, specs)
+    lo = float(plant.input_vars[0].lower) if bio else -3.0
+    hi = float(plant.input_vars[0].upper) if bio else 3.0
+    lo, hi = (0.0, 1.0) if bio and not (math.isfinite(lo) and math.isfinite(hi)) else (lo, hi)
+    if law_name == "hinf":
+        law = HInfLaw(ch5.BIO_WEIGHTS if bio else ch5.CSTR_WEIGHTS, dt, ch5.RESYNTHESIS, lo, hi)
+    else:
+        law = MRACLaw(dt, lo, hi)
+    settings = MultiModelSettings(ch5.BIO_NLS if bio else ch5.NLS, ch5.INDEX, lo, hi,
+                                  param_margin=0.0)
+    start = ["OPI", "OPII"].index(cfg.initial_grade) if cfg.initial_grade in ("OPI",
+                                                                              "OPII") else 0
+    return MultiModelController(ssm, law, np.asarray(u0, float), settings, kinds=kinds,
+                                initial_model=start)
+
+
+def _build_two_phase_ssmpc(cfg: UnitConfig, plant, u0, grades):
+    """Chapter 6's state-shared MPC on the two-phase reactor (OPI/OPII reduced models)."""
+    from controller.mpc import MPCSettings
+    from controller.mpc.law import MPCLaw
+    from controller.multimodel import MultiModelController, MultiModelSettings
+    from controller.state_shared import StateSharedModel
+    from controller.switching import IndexSettings
+    from services.studies import ch6
+
+    if cfg.plant != "two_phase_reactor":
+        raise ValueError("controller: ssmpc is configured for the two_phase_reactor unit here; "
+                         "the TE unit uses controller 'te'")
+    case = ch6.ReactorCase()
+    specs, a, _ = ch6.reactor_models(case.order)
+    dt = cfg.sample_period_s / time_scale_s(plant)
+    ssm = StateSharedModel(a, 3, dt, specs)
+    y = np.array([g["setpoints"] for g in grades.values()])
+    span = np.maximum(y.max(axis=0) - y.min(axis=0), 1e-6)
+    settings = MPCSettings(
+        nu=3, ny=3, P=case.P, M=case.M, Xi=np.asarray(case.weights) / span ** 2,
+        Lambda=np.full(3, case.move_weight / 100.0 ** 2), u_min=np.zeros(3),
+        u_max=np.full(3, 100.0), du_max=np.full(3, case.du_max),
+        y_max=[ch6.P_LIMIT, np.inf, np.inf], slack_scale=[span[0], 1.0, 1.0],
+        slack_linear=1e3, slack_quadratic=1.0, budget_ms=50.0)
+    law = MPCLaw(settings)
+    law.prepare(ssm)
+    index = IndexSettings(mu=case.index_mu, nu=case.index_nu,
+                          output_weights=tuple(1.0 / span ** 2), min_dwell=case.dwell)
+    ctl = MultiModelController(ssm, law, np.asarray(u0, float),
+                               MultiModelSettings(index=index, u_min=0.0, u_max=100.0),
+                               kinds=["fixed"] * ssm.k)
+    ctl.horizon = case.P  # the node passes this many reference rows
+    return ctl
+
+
 #: Controller builders by ``UnitConfig.controller``: ``fn(cfg, plant, u0, grades)``.
 CONTROLLER_BUILDERS: dict[str, Callable] = {
     "pi": _build_pi,
     "hold": lambda cfg, plant, u0, grades: HoldController(u0),
+    "hinf": lambda cfg, plant, u0, grades: _build_siso_multimodel(cfg, plant, u0, grades, "hinf"),
+    "mrac": lambda cfg, plant, u0, grades: _build_siso_multimodel(cfg, plant, u0, grades, "mrac"),
+    "ssmpc": _build_two_phase_ssmpc,
     "te": _build_te,
 }
 

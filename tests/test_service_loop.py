@@ -260,3 +260,23 @@ def test_controller_gone_plant_holds_last_move(harness):
     assert st["sample"] > k0 + 10  # the plant keeps running in real time
     np.testing.assert_array_equal(h.plant.runner.u, u_before)
     assert st["mv_held"] >= 10
+
+
+@pytest.mark.parametrize("unit, controller, grade", [
+    ("cstr", "hinf", "OPII"),
+    ("cstr", "mrac", "OPII"),
+    ("bioreactor", "hinf", "OPII"),
+    ("two_phase_reactor", "ssmpc", "OPII"),
+])
+def test_each_unit_controller_runs_a_transition_over_zenoh(harness, unit, controller, grade):
+    h = harness(unit=unit, controller=controller, telemetry=False)
+    h.wait_samples(3)
+    tid = h.query("transition", {"op": "create", "grade": grade}).data["id"]
+    view = h.wait_transition(tid, timeout=90)
+    assert view["state"] == "settled"
+    st = h.query("status").data
+    target = h.query("grades").data["grades"][grade]["setpoints"]
+    scale = np.asarray(h.cfg.cv_scales or [1.0] * len(target))
+    err = np.abs([st["cv"][n] - v for n, v in target.items()])
+    assert np.all(err <= h.cfg.settle_tolerance * scale + 1e-12)
+    assert st["active_model_name"] in h.ctrl.last_decision.model_names

@@ -78,8 +78,9 @@ def test_up_transition_and_clean_shutdown(tmp_path):
     rr_chunk = pytest.importorskip("rerun.chunk")
     reader = rr_chunk.RrdReader(str(tmp_path / "ssmpc-cstr.rrd"))
     paths = {ch.entity_path for ch in reader.stream() if not ch.is_static}
-    expected = {"/" + p for p in entity_paths("cstr", ["y"], ["u"], ["PI"])}
+    expected = {"/" + p for p in entity_paths("cstr", ["y"], ["u"], [])}
     assert expected <= paths
+    assert any(p.startswith("/cstr/model/J/") for p in paths)
     from services.store import UnitStore
 
     store = UnitStore(tmp_path / "ssmpc-cstr.sqlite", "cstr")
