@@ -1,4 +1,4 @@
-"""Seed chapter 6 through the CLI (R6.1, R6.3, R6.5, R6.6) against the catalogue's checks."""
+"""Seed chapter 6 through the CLI (R6.1-R6.3, R6.5, R6.6) against the catalogue's checks."""
 
 from __future__ import annotations
 
@@ -75,3 +75,39 @@ def test_r6_6_calcium_transitions_j_nonnegative_within_8_s(capsys):
     # Unequal output weighting is better for xp5 (Fig. 6.5).
     assert row(doc, "ISE xp5 OPI→OPII, weights 50/1")["ours"] < row(
         doc, "ISE xp5 OPI→OPII, weights 1/1")["ours"]
+
+
+NOISE_STD_RTOL = 0.1  # sample std of ~150 draws vs the closed form (about 6 % sd)
+
+
+@pytest.mark.parametrize("dist, factor", [("normal", 1.0), ("uniform", 1.0 / np.sqrt(3.0))])
+def test_r6_2_noise_has_the_stated_size(dist, factor):
+    """Measurement minus true output: std = level x set-point change (normal) or
+    level x change / sqrt(3) (uniform on ±level x change), closed forms."""
+    from services.studies.ch6 import ReactorCase, run_reactor
+
+    run = run_reactor(ReactorCase(noise=True, noise_level=0.1, noise_dist=dist, t_end=15.0))
+    change = np.abs(run.setpoint[-1] - run.setpoint[0])
+    noise = run.y_meas - run.y_true
+    np.testing.assert_allclose(noise.std(axis=0), 0.1 * change * factor, rtol=NOISE_STD_RTOL)
+    if dist == "uniform":
+        assert np.all(np.abs(noise) <= 0.1 * change + 1e-9)
+
+
+def test_r6_2_noise_settings_are_validated_naming_the_field():
+    from services.studies.ch6 import ReactorCase
+
+    with pytest.raises(ValueError, match="noise_dist"):
+        ReactorCase(noise_dist="pink")
+    with pytest.raises(ValueError, match="noise_level"):
+        ReactorCase(noise_level=-0.1)
+
+
+def test_r6_2_noisy_transition_reports_every_reading_without_pressure_violation(capsys):
+    doc = reproduce(capsys, "R6.2")
+    assert row(doc, "maximum true pressure over all seeds")["ours"] < P_LIMIT
+    # the filter alone already slows F4 compared with R6.1 (the filter's lag)
+    assert row(doc, "filter only, no noise: F4 settles")["ours"] > row(
+        doc, "no noise, no filter (R6.1): F4 settles")["ours"]
+    # "achieves its set point" read as first reach: F4 within the seed's 8 ± 1 h
+    assert abs(row(doc, "std = change/10 (normal): F4 first within")["ours"] - 8.0) <= 1.0

@@ -61,6 +61,11 @@ class ReactorCase:
     ----------
     noise : bool
         Add measurement noise at SNR 10:1 (R6.2) and filter it (α = 0.2).
+    noise_level : float
+        Noise size relative to each output's set-point change: the standard deviation
+        for ``noise_dist="normal"``, the peak for ``"uniform"`` (SNR 10:1 -> 0.1).
+    noise_dist : {"normal", "uniform"}
+        Distribution of the measurement noise.
     infer : bool
         Replace the yA3 measurement by an inferential estimate (R6.3).
     order : int
@@ -93,10 +98,18 @@ class ReactorCase:
     t_step: float = 0.5
     du_max: float = 5.0
     seed: int = 0
+    noise_level: float = 0.1
+    noise_dist: str = "normal"
     weights: tuple[float, float, float] = (3.0, 1.0, 10.0)
     index_mu: float = 0.0
     index_nu: float = 1.0
     dwell: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.noise_dist not in ("normal", "uniform"):
+            raise ValueError(f"noise_dist: must be 'normal' or 'uniform', got {self.noise_dist!r}")
+        if not (math.isfinite(self.noise_level) and self.noise_level >= 0):
+            raise ValueError(f"noise_level: must be a finite number >= 0, got {self.noise_level!r}")
 
 
 @dataclass(frozen=True)
@@ -134,6 +147,14 @@ class ReactorRun:
         if outside[-1] == self.t.size - 1:
             return math.inf
         return float(self.t[outside[-1] + 1] - self.case.t_step)
+
+    def reach_time(self, output: int, band: float) -> float:
+        """First time after the set-point change at which the true output is within
+        ``band`` of its final set point (h; inf if never): "achieves its set point"."""
+        y = self.y_true[:, output]
+        after = self.t >= self.case.t_step
+        inside = np.flatnonzero(after & (np.abs(y - self.setpoint[-1, output]) <= band))
+        return float(self.t[inside[0]] - self.case.t_step) if inside.size else math.inf
 
     def sse(self, output: int) -> float:
         """Sum of squared errors between reference and measured value (Table 6.1)."""
@@ -257,7 +278,7 @@ def run_reactor(case: ReactorCase = ReactorCase()) -> ReactorRun:
     reference = ReferenceTrajectory(SetpointSchedule.step(y1, y2, case.t_step), case.tau_ref,
                                     dt, initial=y1)
     rng = np.random.default_rng(case.seed)
-    noise_sd = span / 10.0  # SNR 10:1 on the transition's amplitude
+    noise_size = span * case.noise_level  # SNR 10:1 on the transition's amplitude
     # The state-shared model is driven by the same (filtered) signal the MPC sees.
     meas_filter = FirstOrderFilter(0.2) if case.noise else None
     observer = _CompositionObserver(plant, op1.x) if case.infer else None
@@ -273,7 +294,9 @@ def run_reactor(case: ReactorCase = ReactorCase()) -> ReactorRun:
         y_true = plant.outputs(x, u4)
         y = y_true.copy()
         if case.noise:
-            y = y + rng.normal(size=3) * noise_sd
+            draw = (rng.normal(size=3) if case.noise_dist == "normal"
+                    else rng.uniform(-1.0, 1.0, size=3))
+            y = y + draw * noise_size
         if observer is not None:
             y[1] = observer.estimate(y[0], x[3], y[2], dt)
         y_model = meas_filter.update(y) if meas_filter is not None else y
@@ -510,23 +533,57 @@ def r6_1(ctx: StudyContext) -> ReproduceResult:
     return ReproduceResult("R6.1", rows, verdict, why, figs)
 
 
+#: Readings of "SNR 10:1" for R6.2: (label, noise_level, noise_dist). The signal is
+#: each output's set-point change; 10:1 as an amplitude ratio (std or peak) or as a
+#: power ratio (std = change / sqrt(10)).
+NOISE_READINGS = (
+    ("std = change/10 (normal)", 0.1, "normal"),
+    ("peak = change/10 (uniform)", 0.1, "uniform"),
+    ("power ratio 10 (std = change/sqrt 10)", 1.0 / math.sqrt(10.0), "normal"),
+)
+
+
+def _noise_stats(ctx: StudyContext, level: float, dist: str, noise: bool = True):
+    """Medians over NOISE_SEEDS runs: F4/P settled (1-h mean in band), F4/P first reach."""
+    runs = [run_reactor(ReactorCase(noise=noise, seed=ctx.seed + i, noise_level=level,
+                                    noise_dist=dist)) for i in range(NOISE_SEEDS)]
+    f4 = [r.settling_time(2, F4_BAND, NOISE_WINDOW) for r in runs]
+    p = [r.settling_time(0, P_BAND, NOISE_WINDOW) for r in runs]
+    f4_reach = [r.reach_time(2, F4_BAND) for r in runs]
+    p_reach = [r.reach_time(0, P_BAND) for r in runs]
+    p_max = max(float(r.y_true[:, 0].max()) for r in runs)
+    med = lambda v: float(np.median(v))  # noqa: E731
+    return runs, f4, {"f4": med(f4), "p": med(p), "f4_reach": med(f4_reach),
+                      "p_reach": med(p_reach), "p_max": p_max}
+
+
 def r6_2(ctx: StudyContext) -> ReproduceResult:
-    t_f4, t_p, p_max = [], [], []
-    first = None
-    for i in range(NOISE_SEEDS):
-        run = run_reactor(ReactorCase(noise=True, seed=ctx.seed + i))
-        first = first or run
-        t_f4.append(run.settling_time(2, F4_BAND, NOISE_WINDOW))
-        t_p.append(run.settling_time(0, P_BAND, NOISE_WINDOW))
-        p_max.append(float(run.y_true[:, 0].max()))
-    f4, pp = float(np.median(t_f4)), float(np.median(t_p))
+    runs, t_f4, main = _noise_stats(ctx, 0.1, "normal")
+    f4, pp = main["f4"], main["p"]
     rows = [
         Row("F4 settles (1-h mean within ±1 kmol/h), median of 5 noise seeds", "h", 8, f4),
         Row("P settles (1-h mean within ±15 kPa), median of 5 noise seeds", "h", 10, pp),
         Row("F4 settling, first noise seed", "h", 8, t_f4[0]),
-        Row("maximum true pressure over all seeds", "kPa", None, max(p_max)),
+        Row("maximum true pressure over all seeds", "kPa", None, main["p_max"]),
     ]
-    violated = max(p_max) > P_LIMIT
+    both = []  # readings x definitions where F4 = 8 ± 1 h and P = 10 ± 1 h together
+    # the other readings of the noise, and "achieves its set point" as first reach
+    _, _, filt = _noise_stats(ctx, 0.0, "normal")
+    r6_1_f4 = run_reactor(ReactorCase(seed=ctx.seed)).settling_time(2, F4_BAND)
+    rows += [Row("no noise, no filter (R6.1): F4 settles", "h", None, r6_1_f4),
+             Row("filter only, no noise: F4 settles", "h", None, filt["f4"]),
+             Row("filter only, no noise: P settles", "h", None, filt["p"])]
+    for label, level, dist in NOISE_READINGS:
+        st = main if (level, dist) == (0.1, "normal") else _noise_stats(ctx, level, dist)[2]
+        for kf, kp in (("f4", "p"), ("f4_reach", "p_reach")):
+            if abs(st[kf] - 8.0) <= 1.0 and abs(st[kp] - 10.0) <= 1.0:
+                both.append(f"{label} ({'settled' if kf == 'f4' else 'first reach'})")
+        rows += [Row(f"{label}: maximum true pressure", "kPa", None, st["p_max"]),
+                 Row(f"{label}: F4 settles (median)", "h", 8, st["f4"]),
+                 Row(f"{label}: P settles (median)", "h", 10, st["p"]),
+                 Row(f"{label}: F4 first within ±1 kmol/h (median)", "h", 8, st["f4_reach"]),
+                 Row(f"{label}: P first within ±15 kPa (median)", "h", 10, st["p_reach"])]
+    violated = main["p_max"] > P_LIMIT
     v1, v2 = _verdict_time(f4, 8.0, violated), _verdict_time(pp, 10.0, violated)
     verdict = "differs" if "differs" in (v1, v2) else (
         "beaten" if v1 == v2 == "beaten" else "reproduced")
@@ -534,8 +591,20 @@ def r6_2(ctx: StudyContext) -> ReproduceResult:
            f"(P 15 kPa, yA3 1.65 %, F4 3 kmol/h), filtered with y_f = 0.2 y + 0.8 y_f. "
            f"F4 settles in {f4:.1f} h (seed 8), P in {pp:.1f} h (seed 10), medians over "
            f"{NOISE_SEEDS} noise seeds (F4 range {min(t_f4):.1f}-{max(t_f4):.1f} h); "
-           f"no pressure violation: {not violated}.")
-    figs = _plot(ctx, "plot_reactor", first, _path(ctx, "fig6_2.png"),
+           f"no pressure violation: {not violated}. "
+           + (f"F4 8 ± 1 h and P 10 ± 1 h together only with: {', '.join(both)}. " if both
+              else "No reading of the noise or of 'achieve the set point' gives F4 8 ± 1 h "
+                   "and P 10 ± 1 h together (rows). ")
+           + f"The "
+           f"filter alone costs {filt['f4'] - r6_1_f4:.1f} h of F4 settling ({filt['f4']:.1f} "
+           f"h vs {r6_1_f4:.1f} h in R6.1), and at 1/10 of the change the filtered F4 noise "
+           f"(std about 3 sqrt(0.2/1.8) = 1 kmol/h) is as wide as the ±1 kmol/h band, so "
+           f"'settled' is noise-limited; F4 first reaches the band at {main['f4_reach']:.1f} "
+           f"h (seed 8), but P reaches its set point within {main['p_reach']:.1f} h; the P "
+           f"response depends on the reconstructed OPII and the lost P, M and sample time. "
+           f"Not retuned: the seed's weights and filter are used, and R6.1 keeps its "
+           f"tuning.")
+    figs = _plot(ctx, "plot_reactor", runs[0], _path(ctx, "fig6_2.png"),
                  "Fig. 6.2: same transition, measurement noise SNR 10:1, filter 0.2", P_LIMIT)
     return ReproduceResult("R6.2", rows, verdict, why, figs)
 
