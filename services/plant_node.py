@@ -246,6 +246,9 @@ class PlantNode:
         self._sub = session.declare_subscriber(keys.mv(cfg.unit), self._on_mv)
         self._qry = session.declare_queryable(keys.plant_cmd_all(cfg.unit), self._on_query)
         self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "plant"))
+        self.controller_alive = False
+        self._live = session.liveliness().declare_subscriber(
+            keys.alive(cfg.unit, "controller"), self._on_controller_liveliness, history=True)
 
     # -- Zenoh callbacks ---------------------------------------------------------------
     def _on_mv(self, sample) -> None:
@@ -282,6 +285,16 @@ class PlantNode:
         except Exception as exc:  # never let a query kill the node
             reply = Reply(500, error=f"internal error: {exc}")
         query.reply(query.key_expr, reply.to_bytes())
+
+    def _on_controller_liveliness(self, sample) -> None:
+        import zenoh
+
+        alive = sample.kind == zenoh.SampleKind.PUT
+        if self.controller_alive and not alive:
+            # Documented safe action: keep applying the last move (as a DCS holds its
+            # outputs) and say so; a restarted controller resumes from its checkpoint.
+            log.warning("controller of %s lost: holding the last MVs", self.cfg.unit)
+        self.controller_alive = alive
 
     def _handle(self, req: Request) -> Reply:
         if req.action == "status":
@@ -321,7 +334,8 @@ class PlantNode:
                     "samples": c.samples, "mv_accepted": c.mv_accepted, "mv_held": c.mv_held,
                     "mv_rejected": dict(c.rejected), "lockstep": self.lockstep,
                     "lockstep_timeouts": c.lockstep_timeouts, "speed": self.budget.speed,
-                    "shutdown": bool(self.runner.shutdown)}
+                    "shutdown": bool(self.runner.shutdown),
+                    "controller_alive": self.controller_alive}
 
     # -- loop ------------------------------------------------------------------------------
     def _publish(self) -> None:
@@ -380,7 +394,7 @@ class PlantNode:
             self._publish()
 
     def close(self) -> None:
-        for ent in (self._token, self._qry, self._sub, self._pub):
+        for ent in (self._live, self._token, self._qry, self._sub, self._pub):
             try:
                 ent.undeclare()
             except Exception:

@@ -1,0 +1,102 @@
+"""A controller process killed with SIGKILL: its liveliness token expires with the lease,
+the api answers 503 (never hangs), the plant holds its last move and says so."""
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from services import keys
+from services.messages import Reply, Request
+from services.zenoh_session import SessionSettings, free_port, open_session
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
+
+REPO = Path(__file__).resolve().parents[1]
+LEASE_MS = 1000
+
+
+def _spawn(*argv):
+    return subprocess.Popen([sys.executable, "-m", "services.cli", *argv], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+
+
+def _ready(p):
+    t_end = time.monotonic() + 120
+    while time.monotonic() < t_end:
+        line = p.stdout.readline()
+        assert line, "node exited before it was ready"
+        if line.startswith("ready"):
+            return
+    raise AssertionError("not ready")
+
+
+def test_killed_controller_gives_503_and_plant_holds(tmp_path):
+    ep_c, ep_p, ep_a = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
+    port = free_port()
+    common = ["--unit", "cstr", "--speed", "20", "--lease-ms", str(LEASE_MS)]
+    procs = []
+    try:
+        procs.append(_spawn("controller", *common, "--listen", ep_c, "--state-dir",
+                            str(tmp_path), "--no-telemetry"))
+        _ready(procs[-1])
+        procs.append(_spawn("plant", *common, "--listen", ep_p, "--connect", ep_c))
+        _ready(procs[-1])
+        procs.append(_spawn("api", "--listen", ep_a, "--connect", ep_c, "--connect", ep_p,
+                            "--lease-ms", str(LEASE_MS), "--port", str(port),
+                            "--query-timeout", "1.0"))
+        _ready(procs[-1])
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as c:
+            t_end = time.monotonic() + 10
+            while c.get("/api/v1/units/cstr/status").status_code != 200:
+                assert time.monotonic() < t_end
+                time.sleep(0.1)
+            procs[0].send_signal(signal.SIGKILL)
+            procs[0].wait()
+            t0 = time.monotonic()
+            codes = []
+            while time.monotonic() - t0 < 15:
+                t_req = time.monotonic()
+                r = c.get("/api/v1/units/cstr/status")
+                assert time.monotonic() - t_req < 5.0  # answered, never a hang
+                codes.append(r.status_code)
+                if r.status_code == 503:
+                    break
+                time.sleep(0.1)
+            assert codes[-1] == 503, codes
+            assert set(codes) <= {504, 503}
+            units = c.get("/api/v1/units").json()["units"]
+            assert {"unit": "cstr", "plant": True, "controller": False} in units
+        # the plant keeps running on its last move and reports the lost controller
+        session = open_session(SessionSettings(connect=(ep_p,)))
+        try:
+            time.sleep(0.5)
+
+            def plant_status():
+                rs = list(session.get(keys.plant_cmd("cstr", "status"),
+                                      payload=Request("status").to_bytes(), timeout=5))
+                return Reply.from_bytes(rs[0].ok.payload.to_bytes()).data
+
+            first = plant_status()
+            time.sleep(0.5)
+            second = plant_status()
+            assert first["controller_alive"] is False
+            assert second["sample"] > first["sample"]
+            assert second["mv_held"] > first["mv_held"]
+            assert second["u"] == first["u"]
+        finally:
+            session.close()
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in procs:
+            try:
+                p.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
