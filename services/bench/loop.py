@@ -32,7 +32,7 @@ TE_SAMPLE_PERIOD_S = 36.0
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--unit", default="cstr", help="unit to run (default cstr)")
+    parser.add_argument("--unit", default="te", help="unit to run (default te)")
     parser.add_argument("--speeds", default=None,
                         help="comma-separated speed ladder (default: from the unit's period)")
     parser.add_argument("--rung-seconds", type=float, default=3.0,
