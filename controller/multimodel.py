@@ -7,8 +7,9 @@ Per sample (y_k measured, absolute units):
    sample: u is held, adaptation and the index are frozen, an alarm is counted
    and the shared state is advanced with the active model's estimate instead of
    y_k, so no NaN enters any state;
-2. a-priori model errors ``e_j = y_k - y_j`` (the models' estimates made at the
-   previous sample, eq. 3.10);
+2. a-priori model errors ``e_j = y_k - y_j`` (the models' estimates of y_k from
+   data up to the previous sample, eq. 3.10; by default with y taken linear
+   between samples, see :class:`OutputHoldCorrection` and ``y_hold``);
 3. adapt every adaptive model by normalized least squares (eq. 4.1) on the
    shared regressor ``W`` (``y_j = W p_j``);
 4. update the performance index (eq. 4.6) and switch (smallest J, dwell time);
@@ -92,16 +93,17 @@ class MultiModelSettings:
         fixed models' parameters widened by ``param_margin`` times its width
         (per parameter; at least ``param_margin`` times the parameter's size).
         None = no projection.
-    y_hold : {"zoh", "foh"}
+    y_hold : {"foh", "zoh"}
         How the measured outputs are taken to vary between samples when the
-        models are *compared and identified*. ``"zoh"`` (default): held, as
-        :meth:`StateSharedModel.update` does; an identified Theta is then the
-        sampled-equivalent model, O(dt) away from the continuous Theta of
-        eq. 3.16 that the fixed models carry. ``"foh"``: linear between samples
-        (see :class:`OutputHoldCorrection`); a-priori errors and the regressor
-        then hold to O(dt^2) for the continuous models, so fixed and adaptive
-        models live in the same (continuous) class. The shared state itself and
-        everything the control law reads are unchanged.
+        models are *compared and identified*. ``"foh"`` (default): linear between
+        samples (see :class:`OutputHoldCorrection`); a-priori errors and the
+        regressor then hold to O(dt^2) for the continuous models, so fixed and
+        adaptive models live in the same (continuous) class of eq. 3.16.
+        ``"zoh"``: held, as :meth:`StateSharedModel.update` does (the behaviour
+        before this option); an identified Theta is then the sampled-equivalent
+        model, O(dt) away from the continuous Theta that the fixed models carry
+        (14.7 % in one parameter for the CSTR at dt = 0.05). The shared state
+        itself and everything the control law reads are unchanged.
     """
 
     nls: NLSSettings = NLSSettings()
@@ -109,7 +111,7 @@ class MultiModelSettings:
     u_min: float | tuple[float, ...] | None = None
     u_max: float | tuple[float, ...] | None = None
     param_margin: float | None = None
-    y_hold: str = "zoh"
+    y_hold: str = "foh"
 
     def __post_init__(self) -> None:
         if self.y_hold not in ("zoh", "foh"):

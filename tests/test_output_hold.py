@@ -175,3 +175,33 @@ def test_invalid_measurement_keeps_the_hold_finite():
 def test_unknown_hold_is_rejected_naming_the_field():
     with pytest.raises(ValueError, match="y_hold"):
         MultiModelSettings(y_hold="linear")
+
+
+class _PRBSLaw(_HoldLaw):
+    """Open loop: a pseudo-random binary input switching every 10 samples."""
+
+    def __init__(self, seed=0):
+        self.rng = np.random.default_rng(seed)
+
+    def compute(self, k, model, ssm, y, reference, u_last):
+        if k % 10 == 0:
+            return np.array([float(np.sign(self.rng.standard_normal()))]), {"status": "solved"}
+        return u_last, {"status": "solved"}
+
+
+def test_default_controller_identifies_the_continuous_plant_in_its_own_class():
+    dt = 0.05
+    ssm = StateSharedModel(A_POLY, 1, dt, [
+        ModelSpec("M1", _theta_closed_form(K_START)),
+        ModelSpec("M3", _theta_closed_form(K_START), kind="adaptive")])
+    s = MultiModelSettings(NLSSettings(kappa=1000.0, gain=1.0 / dt, eig_floor=1e-3))
+    assert s.y_hold == "foh"
+    ctl = MultiModelController(ssm, _PRBSLaw(), [0.0], s, kinds=["fixed", "free-running"])
+    Ad, Bd, C = _plant(K_TRUE, dt)
+    x = np.zeros(2)
+    for k in range(4000):
+        dec = ctl.step(k, k * dt, [C @ x], [[0.0]])
+        x = Ad @ x + Bd * dec.u[0]
+    truth = ssm.params_from_theta(_theta_closed_form(K_TRUE))
+    rel = np.abs(ctl.params(1)[:4] - truth[:4]) / np.abs(truth[:4])
+    assert np.max(rel) <= PARAM_RTOL
