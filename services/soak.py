@@ -422,6 +422,11 @@ class Soak:
             self.probes["malformed body"] += 1
             if r.status_code != 422:
                 self.errors[f"malformed body answered {r.status_code}"] += 1
+        r = self._rest("POST", path, json={"grade": "no-such-grade"})
+        if r is not None:
+            self.probes["unknown grade"] += 1
+            if r.status_code != 404:
+                self.errors[f"unknown grade answered {r.status_code}"] += 1
 
     def _status(self) -> dict | None:
         r = self._rest("GET", f"/api/v1/units/{self.cfg.unit}/status")
@@ -835,11 +840,14 @@ class Soak:
                 "api_unavailable": self.unavailable,
                 "security_probes": dict(self.probes),
                 "idv_events": self.idv_log,
-                "bad_measurements": st.get("bad_measurements"),
-                "dropped_measurements": st.get("dropped_measurements"),
-                "controller_samples_since_start": st.get("samples"),
-                "plant_mv": None if self.plant is None or self.plant.node is None
-                else self.plant.node.status()["mv_rejected"],
+                # counters of the controller process running at the end (since its start)
+                "controller_since_start": {
+                    k: st.get(k) for k in ("samples", "bad_measurements",
+                                           "dropped_measurements", "stale_measurements",
+                                           "implausible_measurements")},
+                "plant_mv_rejected_since_start": (
+                    None if self.plant is None or self.plant.node is None
+                    else self.plant.node.status()["mv_rejected"]),
                 "faults": [f"{w.name}@{w.start_s / 3600:.3f}h-{w.end_s / 3600:.3f}h"
                            f" p={w.probability:g} amount={w.amount:g}" for w in self.faults],
             },
