@@ -29,6 +29,10 @@ def register(sub) -> None:
                    help="mean process hours between transitions (default 2)")
     p.add_argument("--idv-gap-h", type=float, default=6.0,
                    help="mean process hours between disturbances (default 6)")
+    p.add_argument("--idvs", default=None, metavar="LIST",
+                   help="IDVs to switch at random, e.g. 1,2,5 (default: all but IDV7)")
+    p.add_argument("--unpreventable-idvs", default="", metavar="LIST",
+                   help="a trip while one of these IDVs is on is not counted as preventable")
     p.add_argument("--no-noise", action="store_true", help="TE measurement noise off")
     p.add_argument("--state-dir", default=None,
                    help="keep the store and node logs here (default: a temporary directory)")
@@ -42,6 +46,18 @@ def run(args) -> int:
     from services.units import load_unit_config
 
     check_writable(args.report, "report")
+
+    def idv_list(text, name):
+        try:
+            out = tuple(int(x) for x in text.split(",") if x.strip())
+        except ValueError as exc:
+            raise CLIError(f"{name}: expected IDV numbers like 1,2,5, got {text!r}") from exc
+        if any(not 1 <= k <= 20 for k in out):
+            raise CLIError(f"{name}: IDV numbers are 1..20, got {text!r}")
+        return out
+
+    idvs = () if args.idvs is None else idv_list(args.idvs, "idvs")
+    unpreventable = idv_list(args.unpreventable_idvs, "unpreventable_idvs")
     try:
         cfg = load_unit_config(args.unit)
         faults = (None if args.faults is None
@@ -50,6 +66,7 @@ def run(args) -> int:
                                 seed=args.seed, faults=faults,
                                 transition_gap_h=args.transition_gap_h,
                                 idv_gap_h=args.idv_gap_h, noise=not args.no_noise,
+                                idvs=idvs, unpreventable_idvs=unpreventable,
                                 state_dir=args.state_dir)
     except (FaultSpecError, ValueError) as exc:
         raise CLIError(str(exc)) from exc
