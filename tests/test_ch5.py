@@ -133,6 +133,14 @@ def test_r5_12_state_shared_beats_the_single_model_on_the_down_staircase(capsys)
             CSTR_BAND * target)
 
 
+def test_r5_12_local_designs_at_every_level_do_not_beat_the_opi_design(capsys):
+    """The evidence behind R5.12's verdict: even a fixed linearization (with its own design)
+    at every staircase level tracks the up staircase worse than the OPI design alone."""
+    doc, rows = _reproduce("R5.12", capsys)
+    assert rows["up (steps): ISE fixed models at all 5 levels (no adaptation)"]["ours"] > rows[
+        "up (steps): ISE single model (OPI)"]["ours"]
+
+
 @pytest.mark.xfail(reason="known gap: the H-inf design on the OPI model alone is robust over the "
                           "whole range and beats the switched set on the up staircase; see R5.12 "
                           "why", strict=True)
