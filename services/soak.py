@@ -873,19 +873,19 @@ class _RecordingSession:
     def __init__(self) -> None:
         self.puts: list[tuple[str, bytes]] = []
 
-    def declare_publisher(self, key):
+    def declare_publisher(self, key, **kw):
         return _RecordingPublisher(self.puts, str(key))
 
-    def declare_subscriber(self, key, callback):
+    def declare_subscriber(self, key, callback=None, **kw):
         return _Entity()
 
-    def declare_queryable(self, key, callback):
+    def declare_queryable(self, key, callback=None, **kw):
         return _Entity()
 
     def liveliness(self):
         return self
 
-    def declare_token(self, key):
+    def declare_token(self, key, **kw):
         return _Entity()
 
 
