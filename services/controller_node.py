@@ -55,6 +55,7 @@ from services.units import (
     build_controller,
     build_plant,
     cv_scales,
+    plausible_ranges,
     unit_info,
 )
 
@@ -151,6 +152,10 @@ class ControllerNode:
         self.r = np.asarray(self.tm.hold, float)
         self.last_decision = None
         self.bad_measurements = 0
+        self.stale_measurements = 0
+        self.implausible_measurements = 0
+        self._last_meas_seq = -1
+        self.y_lower, self.y_upper = plausible_ranges(cfg, plant, grades)
         self.plant_shutdown = False
         self.alarms: deque[str] = deque(maxlen=20)
         self.restored_from: int | None = None
@@ -166,6 +171,8 @@ class ControllerNode:
         self._sub = session.declare_subscriber(keys.meas(cfg.unit), self._on_meas)
         self._qry = session.declare_queryable(keys.cmd_all(cfg.unit), self._on_query)
         self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "controller"))
+        self._plant_live = session.liveliness().declare_subscriber(
+            keys.alive(cfg.unit, "plant"), self._on_plant_liveliness, history=True)
         if self.restored_from is not None:
             # Bumpless restart: re-assert the last move before computing any new one.
             self._publish_mv(self.k, self.u_last, True)
@@ -218,6 +225,13 @@ class ControllerNode:
         self.store.save_transition(record, event=event, process_time=t, detail=detail)
 
     # -- Zenoh callbacks -----------------------------------------------------------------
+    def _on_plant_liveliness(self, sample) -> None:
+        import zenoh
+
+        if sample.kind == zenoh.SampleKind.PUT:
+            with self._cond:  # a (re)started plant counts its samples from 0 again
+                self._last_meas_seq = -1
+
     def _on_meas(self, sample) -> None:
         arrived = time.perf_counter()
         try:
@@ -230,6 +244,11 @@ class ControllerNode:
             log.warning("measurement rejected: %s", exc)
             return
         with self._cond:
+            if msg.seq <= self._last_meas_seq:
+                # duplicated, reordered or delayed: acting on it again would double-count
+                self.stale_measurements += 1
+                return
+            self._last_meas_seq = msg.seq
             if self._latest is not None:
                 self._dropped += 1
             self._latest = (arrived, msg)
@@ -357,6 +376,8 @@ class ControllerNode:
                 "budget_ms": self.stats.budget_s * 1e3,
                 "samples": self.stats.samples,
                 "bad_measurements": self.bad_measurements,
+                "stale_measurements": self.stale_measurements,
+                "implausible_measurements": self.implausible_measurements,
                 "dropped_measurements": self._dropped,
                 "plant_shutdown": self.plant_shutdown,
                 "grade": self.tm.grade,
@@ -375,6 +396,19 @@ class ControllerNode:
     def process(self, arrived: float, msg: Measurement) -> None:
         """One sample: transition, reference, controller step, MV, bookkeeping."""
         hold = self.u_last.copy()
+        y = np.asarray(msg.y, float)
+        outside = (y < self.y_lower) | (y > self.y_upper)
+        if np.any(outside):
+            # Physically impossible value (a sensor fault): not acted on. Documented safe
+            # action: the last move is held and an alarm raised; nothing else advances.
+            names = [self.info.cv_names[i] for i in np.flatnonzero(outside)]
+            with self._lock:
+                self.implausible_measurements += 1
+                self.alarms.append(f"implausible measurement at sample {msg.seq} "
+                                   f"({', '.join(names)} out of range): move held")
+                self.stats.record(time.perf_counter() - arrived, fallback=True)
+            self._publish_mv(msg.seq, hold, True)
+            return
         deadline = arrived + self.budget.budget_s
         self._watchdog.arm(deadline, lambda: self._publish_mv(msg.seq, hold, True))
         with self._lock:
@@ -449,7 +483,8 @@ class ControllerNode:
     def close(self) -> None:
         """Checkpoint, flush telemetry, undeclare everything (the caller closes the session)."""
         self._watchdog.close()
-        for ent in (self._token, self._qry, self._sub, self._status_pub, self._mv_pub):
+        for ent in (self._plant_live, self._token, self._qry, self._sub, self._status_pub,
+                    self._mv_pub):
             try:
                 ent.undeclare()
             except Exception:

@@ -70,6 +70,10 @@ def decode_object(payload: bytes | bytearray | memoryview | str, kind: str) -> d
         obj = json.loads(payload, parse_constant=_reject_constant)
     except json.JSONDecodeError as exc:
         raise MessageError(f"payload: not JSON ({exc})") from exc
+    except RecursionError as exc:
+        raise MessageError("payload: nested too deeply") from exc
+    except ValueError as exc:  # e.g. an integer literal longer than Python converts
+        raise MessageError(f"payload: unreadable number ({exc})") from exc
     if not isinstance(obj, dict):
         raise MessageError(f"payload: expected a JSON object, got {type(obj).__name__}")
     version = obj.get("schema")
@@ -105,7 +109,10 @@ def _float(obj: dict, name: str) -> float:
     v = obj[name]
     if isinstance(v, bool) or not isinstance(v, int | float):
         raise MessageError(f"{name}: expected a number, got {type(v).__name__}")
-    v = float(v)
+    try:
+        v = float(v)
+    except OverflowError as exc:
+        raise MessageError(f"{name}: number out of range") from exc
     if not math.isfinite(v):
         raise MessageError(f"{name}: non-finite value")
     return v
@@ -126,7 +133,10 @@ def _vector(obj: dict, name: str, length: int | None) -> tuple[float, ...]:
     for i, x in enumerate(v):
         if isinstance(x, bool) or not isinstance(x, int | float):
             raise MessageError(f"{name}[{i}]: expected a number, got {type(x).__name__}")
-        x = float(x)
+        try:
+            x = float(x)
+        except OverflowError as exc:
+            raise MessageError(f"{name}[{i}]: number out of range") from exc
         if not math.isfinite(x):
             raise MessageError(f"{name}[{i}]: non-finite value")
         out.append(x)

@@ -130,6 +130,10 @@ class UnitConfig:
         PI integral time, process seconds.
     track : tuple of str
         CVs that transitions follow (reference, ISE, settling, progress); empty = all.
+    plausible_factor : float
+        Instrument range of each CV: the grades' span widened by this many scales
+        (scale = max(spread of the grades, largest |value|, 1)), within the plant's
+        physical bounds. A reading outside it is a sensor fault and is not acted on.
     strategy : str
         TE only: ``ssmpc`` (state-shared MPC, seed §7.7), ``fixed`` (fixed models +
         MPC, §7.5) or ``pi`` (decentralized PI baseline) of issue 8's TE controller.
@@ -156,6 +160,7 @@ class UnitConfig:
     substeps: int = 1
     track: tuple[str, ...] = ()
     strategy: str = "ssmpc"
+    plausible_factor: float = 100.0
     status_every: int = 10
     checkpoint_every: int = 50
     telemetry_every: int = 50
@@ -182,6 +187,8 @@ class UnitConfig:
             v = getattr(self, name)
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
                 raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+        if not (math.isfinite(self.plausible_factor) and self.plausible_factor > 0):
+            raise ValueError(f"plausible_factor: must be positive, got {self.plausible_factor}")
         if not math.isfinite(self.pi_gain) or self.pi_gain <= 0:
             raise ValueError(f"pi_gain: must be positive, got {self.pi_gain}")
         object.__setattr__(self, "cvs", tuple(self.cvs))
@@ -370,6 +377,20 @@ def grade_setpoints(cfg: UnitConfig, plant) -> dict[str, dict[str, Any]]:
         raise ValueError(f"initial_grade: {cfg.initial_grade!r} is not a valid grade of "
                          f"{cfg.plant}; valid: {', '.join(out)}")
     return out
+
+
+def plausible_ranges(cfg: UnitConfig, plant, grades: dict[str, dict[str, Any]]
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Instrument ranges ``(lower, upper)`` of the CVs, shapes (ny,) (see ``plausible_factor``)."""
+    sp = np.array([g["setpoints"] for g in grades.values()], dtype=float)
+    scale = np.maximum.reduce([sp.max(axis=0) - sp.min(axis=0), np.abs(sp).max(axis=0),
+                               np.ones(sp.shape[1])])
+    lo = sp.min(axis=0) - cfg.plausible_factor * scale
+    hi = sp.max(axis=0) + cfg.plausible_factor * scale
+    idx = ([int(n[5:]) - 1 for n in cfg.cvs] if cfg.plant == "te" else cv_indices(cfg, plant))
+    phys_lo = np.array([plant.output_vars[i].lower for i in idx], dtype=float)
+    phys_hi = np.array([plant.output_vars[i].upper for i in idx], dtype=float)
+    return np.maximum(lo, phys_lo), np.minimum(hi, phys_hi)
 
 
 def cv_scales(cfg: UnitConfig, grades: dict[str, dict[str, Any]]) -> np.ndarray:

@@ -108,3 +108,15 @@ def test_request_and_reply():
     with pytest.raises(MessageError, match="args"):
         Request.from_bytes(json.dumps({"schema": 1, "kind": "request", "action": "x",
                                        "args": [1]}).encode())
+
+
+@pytest.mark.parametrize("payload", [
+    b'{"schema":1,"kind":"meas","unit":"te","seq":1,"t":1' + b"0" * 400 + b',"y":[1],"u":[3]}',
+    b'{"schema":1,"kind":"meas","unit":"te","seq":1,"t":1,"y":[1' + b"0" * 400 + b'],"u":[3]}',
+    b'{"schema":1,"kind":"meas","unit":"te","seq":1' + b"0" * 5000 + b',"t":1,"y":[1],"u":[3]}',
+    b"[" * 100_000 + b"]" * 100_000,
+    b'{"schema":1,"kind":"meas","data":' + b"[" * 100_000 + b"]" * 100_000 + b"}",
+], ids=["huge-int-t", "huge-int-y", "int-too-long", "deep-list", "deep-field"])
+def test_hard_payloads_are_message_errors(payload):
+    with pytest.raises(MessageError):
+        Measurement.from_bytes(payload)

@@ -280,3 +280,37 @@ def test_each_unit_controller_runs_a_transition_over_zenoh(harness, unit, contro
     err = np.abs([st["cv"][n] - v for n, v in target.items()])
     assert np.all(err <= h.cfg.settle_tolerance * scale + 1e-12)
     assert st["active_model_name"] in h.ctrl.last_decision.model_names
+
+
+def test_stale_and_implausible_measurements_are_not_acted_on(harness):
+    h = harness()
+    h.wait_samples(5)
+    h.stop_plant.set()  # only our publisher from here on
+    h.plant_thread.join(5)
+    h.plant.close()
+    time.sleep(0.2)
+    seen = []
+    sub = h.s_client.declare_subscriber(keys.mv("cstr"), lambda s: seen.append(
+        MVMessage.from_bytes(s.payload.to_bytes())))
+    pub = h.s_client.declare_publisher(keys.meas("cstr"))
+    time.sleep(0.3)
+    k = h.ctrl.k
+    u = tuple(h.ctrl.u_last)
+
+    def meas(seq, y):
+        return Measurement(unit="cstr", seq=seq, t=seq * h.cfg.sample_period_s, y=(y,), u=u)
+
+    for m in (meas(k + 1, 1.3), meas(k + 1, 1.3), meas(k, 1.3), meas(k + 2, -1e9)):
+        pub.put(m.to_bytes())
+        time.sleep(0.1)
+    t_end = time.monotonic() + 5
+    while len(seen) < 2 and time.monotonic() < t_end:
+        time.sleep(0.02)
+    st = h.query("status").data
+    assert st["stale_measurements"] == 2  # the duplicate of k+1 and the old k
+    assert st["implausible_measurements"] == 1
+    assert [m.meas_seq for m in seen] == [k + 1, k + 2]
+    assert seen[1].fallback and seen[1].u == seen[0].u  # held, not acted on
+    assert any("implausible" in a for a in st["alarms"])
+    sub.undeclare()
+    pub.undeclare()
