@@ -145,6 +145,7 @@ class Case:
     index: IndexSettings = INDEX
     y_hold: str = "foh"
     param_margin: float | None = 0.0
+    weights: HInfWeights | None = None  # None: the plant's default (CSTR_/BIO_WEIGHTS)
 
 
 @dataclass
@@ -214,7 +215,7 @@ def run_case(case: Case, *, record_params: bool = False,
     start_model = next((j for j, (_, k, o) in enumerate(case.models)
                         if k == "fixed" and o == case.start), 0)
     if case.law == "hinf":
-        w = CSTR_WEIGHTS if case.plant == "cstr" else BIO_WEIGHTS
+        w = case.weights or (CSTR_WEIGHTS if case.plant == "cstr" else BIO_WEIGHTS)
         law = HInfLaw(w, case.dt, RESYNTHESIS, case.u_min, case.u_max)
     else:
         law = MRACLaw(case.dt, case.u_min, case.u_max)
@@ -708,6 +709,9 @@ def r5_13(ctx: StudyContext) -> ReproduceResult:
     ss = run_case(case)
     single = run_case(_single(case, "OPI"))
     single2 = run_case(_single(case, "OPII"))
+    # the seed's printed W1 = (s + 3.5)/(2 (s + 3.2)) as it stands: no integral action
+    printed = run_case(replace(_single(case, "OPI"), weights=HInfWeights.seed_bioreactor(
+        c=0.1, eps=3.2, integral=False)))
     re_opii, re_curve = _bio_loop_margins("OPI")
     rows = [Row("state-shared: ISE", "g^2/L^2 h", None, ss.ise),
             Row("single model: ISE", "g^2/L^2 h", None,
@@ -723,6 +727,10 @@ def r5_13(ctx: StudyContext) -> ReproduceResult:
             Row("single model (OPII): ISE", "g^2/L^2 h", None,
                 single2.ise if single2.result.completed else math.inf),
             Row("single model (OPII): bounded (1 = yes)", "-", None, float(_bounded(single2))),
+            Row("single model, printed W1 without integral action: bounded (1 = yes)", "-",
+                None, float(_bounded(printed))),
+            Row("single model, printed W1 without integral action: ISE", "g^2/L^2 h", None,
+                printed.ise if printed.result.completed else math.inf),
             Row("OPI-designed H-inf loop with the OPII linearization: max Re(pole)", "1/h", None,
                 re_opii),
             Row("OPI-designed H-inf loop over the steady-state curve x2 = 0.002-1.3 g/L: "
@@ -749,7 +757,9 @@ def r5_13(ctx: StudyContext) -> ReproduceResult:
                "linearization along the steady-state curve through the fold and the unstable "
                f"branch (largest max Re {re_curve:.3f} 1/h), so no transition region makes it "
                "locally unstable; with the input limits handled (0 <= D <= 1, conditional "
-               "integration) it stays stable in the nonlinear runs too. The seed's weight "
+               "integration) it stays stable in the nonlinear runs too, and so it does with the "
+               "printed W1 taken literally (no integral action; "
+               f"{'bounded' if _bounded(printed) else 'NOT bounded'}). The seed's weight "
                "gain and input handling are lost, so its instability cannot be traced"))
     return ReproduceResult("R5.13", rows, "reproduced" if ok else "differs", why, figs)
 
