@@ -205,3 +205,19 @@ def test_default_controller_identifies_the_continuous_plant_in_its_own_class():
     truth = ssm.params_from_theta(_theta_closed_form(K_TRUE))
     rel = np.abs(ctl.params(1)[:4] - truth[:4]) / np.abs(truth[:4])
     assert np.max(rel) <= PARAM_RTOL
+
+
+def test_a_checkpoint_without_the_hold_restores_into_a_hold_controller():
+    ssm = StateSharedModel(A_POLY, 1, 0.05, [
+        ModelSpec("M1", _theta_closed_form(K_TRUE)),
+        ModelSpec("M3", _theta_closed_form(K_START), kind="adaptive")])
+    old = MultiModelController(ssm, _HoldLaw(), [0.0], MultiModelSettings(
+        NLSSettings(kappa=10.0, gain=3.0), IndexSettings(1.0, 0.1, 0.5, 0.5), y_hold="zoh"))
+    for k in range(30):
+        old.step(k, 0.05 * k, [0.01 * k], [[1.0]])
+    state = json.loads(json.dumps(old.checkpoint()))
+    assert "hold" not in state
+    new = _controller()
+    new.restore(state)
+    np.testing.assert_array_equal(new.hold.c, 0.0)  # the slope starts afresh
+    assert new.step(30, 1.5, [0.3], [[1.0]]).status == "solved"
