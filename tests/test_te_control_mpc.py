@@ -65,3 +65,10 @@ def test_ssmpc_mode0_to_mode2():
     assert abs(run.xmeas[-40:, 39].mean() - grade(2).g_mol) < G_BAND
     assert np.mean(run.active == 0) >= ADAPTIVE_SHARE
     assert run.margins["reactor pressure"]["max"] < ALARM_LIMITS[7][1]
+
+
+def test_ssmpc_mode0_to_mode2_to_mode3():
+    run = run_te("ssmpc", TransitionPlan("mode0", (Leg(1.0, "mode2"), Leg(25.0, "mode3"))),
+                 72.0)
+    assert run.shutdown is None
+    assert abs(run.xmeas[-40:, 39].mean() - grade(3).g_mol) < G_BAND

@@ -69,6 +69,8 @@ from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop, Regulator
 from services.studies.te_grades import TransitionPlan, limit_margins
 from services.studies.te_pi_baseline import PI_BASELINE_LOOPS, VelocityPI
 
+#: Largest trim (%) of the A-feed target by the outer A loop (anti-windup).
+A_TRIM_MAX = 50.0
 #: The A-in-reactor-feed loop (shared with the PI baseline).
 A_FEED_LOOP = next(lp for lp in PI_BASELINE_LOOPS if lp.cv == 23)
 
@@ -219,7 +221,7 @@ class TEController:
                 self.e_a_prev = e
             self.a_trim += A_FEED_LOOP.gain * ((e - self.e_a_prev)
                                                + self.sample_h / A_FEED_LOOP.ti_h * e)
-            self.a_trim = min(max(self.a_trim, -50.0), 50.0)
+            self.a_trim = min(max(self.a_trim, -A_TRIM_MAX), A_TRIM_MAX)
             self.e_a_prev = e
         return self.a_trim
 
@@ -370,11 +372,17 @@ class TEMPCOptions:
     nls_gain : float
         Adaptive gain of the normalized least squares (1/h), strategy (b).
     target_weight : float or tuple of 5 float
-        Weight (per (% or degC)^2) pulling each handle toward the grade's steady
-        value (Ricker's optimum, along the plan's first-order path): the MPC's
-        input targets. 0 = none (the seed's formulation; in this port the 0 -> 2
-        transition then trips on reactor pressure within 2-19 h, depending on
-        the weights).
+        Weight (per (% or degC or kPa)^2) pulling each handle toward the grade's
+        steady value (Ricker's optimum, along the plan's first-order path): the
+        MPC's input targets, as an RTO layer would give them. 0 = none (the seed's
+        formulation; in this port the 0 -> 2 transition then trips on reactor
+        pressure within 2-19 h, depending on the weights). Default 10 on XMV3, P_r*
+        and XMV11 and 1000 on the production handle XMV4 and on T_r*, which pins
+        those two to the plan: when the MPC moved them freely the 2 -> 3 leg of
+        0 -> 2 -> 3 tripped on reactor pressure at 32-35 h in every weighting
+        tried (the D valve of the level loop saturates and the level collapses),
+        while with them pinned both MPC strategies complete it. The seed notes
+        that T_r* stayed in a narrow range in its 0 -> 2 -> 3 run.
     """
 
     P: int = 10
@@ -387,7 +395,7 @@ class TEMPCOptions:
     pressure_soft_max: float = 2950.0
     index_dwell_h: float = 0.25
     nls_gain: float = 10.0
-    target_weight: float | tuple = 10.0
+    target_weight: float | tuple = (10.0, 1000.0, 10.0, 1000.0, 10.0)
 
     def __post_init__(self) -> None:
         if len(self.output_scale) != 5 or min(self.output_scale) <= 0:
@@ -453,7 +461,8 @@ def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | No
 def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        sample_h: float = SAMPLE_H, plant_dt_s: float = 1.8,
                        ratio: RatioSettings | None = None,
-                       mpc: TEMPCOptions | None = None) -> tuple[TEController, TEControlSpec]:
+                       mpc: TEMPCOptions | None = None,
+                       outer_a_loop: bool = False) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
     Parameters
@@ -468,6 +477,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         The plant's Euler step, s.
     mpc : TEMPCOptions, optional
         MPC tuning (strategies "fixed" and "ssmpc").
+    outer_a_loop : bool
+        See :class:`TEController`.
 
     Returns
     -------
@@ -489,7 +500,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         xv, ym = plan.xmv_ref(0.0), plan.xmeas_ref(0.0)
         u0 = np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
         core, horizon = make_mpc_core(strategy, sample_h, u0, mpc)
-    ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon)
+    ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon,
+                       outer_a_loop)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 
