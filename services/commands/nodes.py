@@ -62,6 +62,9 @@ def register(sub) -> None:
     p.add_argument("--lockstep-timeout", type=float, default=2.0,
                    help="longest wait for an MV in lock-step mode, wall s")
     p.add_argument("--sender", default=None, help="expected controller sender id")
+    p.add_argument("--noise", action="store_true", help="TE: measurement noise on")
+    p.add_argument("--idv", action="append", type=int, default=[], metavar="K",
+                   help="TE: switch disturbance IDV(K) on from the start (repeatable)")
     p.set_defaults(func=run_plant)
 
     p = sub.add_parser("controller", help="run a unit's controller node")
@@ -152,17 +155,26 @@ def _config(args):
 
 
 def run_plant(args) -> int:
-    from services.plant_node import PlantNode
+    from services.plant_node import PlantNode, make_runner
     from services.zenoh_session import open_session
 
     _logging()
     cfg = _config(args)
+    if (args.noise or args.idv) and cfg.plant != "te":
+        raise CLIError("noise/idv: only the TE plant has them; use the plant's "
+                       "'disturbance' command for the others")
+    runner = make_runner(cfg, noise=args.noise) if cfg.plant == "te" else make_runner(cfg)
+    for k in args.idv:
+        if not 1 <= k <= 20:
+            raise CLIError(f"idv: IDV number must be 1..20, got {k}")
+        runner.set_idv(k, True)
     stop = _stop_event(args.duration)
     session = open_session(session_settings(args))
     node = None
     try:
         node = PlantNode(cfg, session, speed=args.speed, expected_sender=args.sender,
-                         lockstep=args.lockstep, lockstep_timeout_s=args.lockstep_timeout)
+                         lockstep=args.lockstep, lockstep_timeout_s=args.lockstep_timeout,
+                         runner=runner)
         _realtime_tuning(args.rt_priority)
         _ready("plant", cfg.unit, zid=session.zid())
         node.run(stop)
