@@ -87,3 +87,31 @@ def test_up_transition_and_clean_shutdown(tmp_path):
     assert [e["state"] for e in store.events()] == ["pending", "running", "settled"]
     store.close()
     assert os.path.getsize(tmp_path / "ssmpc-cstr.rrd") > 0
+
+
+def test_up_ctrl_c_stops_every_process(tmp_path):
+    """Ctrl-C in a terminal: SIGINT to the whole foreground process group."""
+    port = free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "up", "--unit", "cstr", "--speed", "5",
+         "--port", str(port), "--state-dir", str(tmp_path), "--duration", "120"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+        start_new_session=True)
+    try:
+        t_end = time.monotonic() + 120
+        while time.monotonic() < t_end:
+            line = proc.stdout.readline()
+            assert line, "up exited early"
+            if line.startswith("ssmpc up:"):
+                break
+        children = _children(proc.pid)
+        assert len(children) == 3
+        os.killpg(proc.pid, signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+        time.sleep(0.2)
+        assert not [p for p in children if _alive(p)]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert (tmp_path / "ssmpc-cstr.rrd").stat().st_size > 0
