@@ -88,7 +88,7 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
               dependencies=[Depends(write_guard)])
     def create_transition(body: TransitionRequest, response: Response,
                           unit: str = UNIT) -> dict:
-        args = {"op": "create", "grade": body.grade}
+        args = {"op": "create", "grade": body.grade, "queue": body.queue}
         if body.duration_h is not None:
             args["duration_s"] = body.duration_h * 3600.0
         view = call(unit, "transition", args)

@@ -20,6 +20,8 @@ class TransitionRequest(BaseModel):
         default=None, gt=0, le=1e4, allow_inf_nan=False,
         description="transition duration in process hours (first-order reference reaches "
                     "98 % after it); default: the unit's")
+    queue: bool = Field(default=False, description="if another transition is under way, "
+                        "wait for it instead of 409")
 
 
 class TransitionView(BaseModel):

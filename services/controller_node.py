@@ -304,9 +304,13 @@ class ControllerNode:
             if duration is not None and (isinstance(duration, bool)
                                          or not isinstance(duration, int | float)):
                 return Reply(422, error="duration_s: expected a number")
+            queue = args.get("queue", False)
+            if not isinstance(queue, bool):
+                return Reply(422, error="queue: expected a boolean")
             with self._lock:
-                tr = self.tm.request(grade, self.t, duration)
-                self._persist(tr, "pending", f"requested from {tr.from_grade}")
+                tr = self.tm.request(grade, self.t, duration, queue=queue)
+                self._persist(tr, "pending", "queued" if tr.detail == "queued"
+                              else f"requested from {tr.from_grade}")
                 view = tr.view(self.t, self.budget.speed)
             self.checkpoint(wait=True)
             return Reply(202, view)
@@ -315,13 +319,15 @@ class ControllerNode:
             return Reply(422, error="id: expected a transition id")
         if op == "abort":
             with self._lock:
-                active = self.tm.active is not None and self.tm.active.id == tid
+                found = self.tm.find(tid)
+                active = found is not None
                 if active:
-                    was = self.tm.active.state
+                    was = found.state
                     tr = self.tm.abort(tid, self.t)
                     changed = tr.state == "aborted" and was != "aborted"
                     if changed:
-                        self._notify(tr, "aborted")
+                        if tr is self.tm.active:
+                            self._notify(tr, "aborted")
                         self._persist(tr, "aborted")
                     view = tr.view(self.t, self.budget.speed)
             if active:
@@ -334,8 +340,9 @@ class ControllerNode:
         from services.transitions import Transition
 
         with self._lock:
-            if self.tm.active is not None and self.tm.active.id == tid:
-                return self.tm.active.view(self.t, self.budget.speed)
+            found = self.tm.find(tid)
+            if found is not None:
+                return found.view(self.t, self.budget.speed)
         self._worker.wait()
         rec = self.store.transition(tid)
         if rec is None:

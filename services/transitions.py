@@ -12,6 +12,9 @@ so that 98 % of the move is done after ``duration``. States::
        │           ├──────▶ aborted   (DELETE: hold the set points of that moment)
        └───────────┴──────▶ failed    (plant shutdown, or not settled by timeout)
 
+A request while one is pending or running is refused (409) unless queued: a
+queued transition stays ``pending`` and starts when the ones before it end.
+
 ``settled`` means: the reference has reached ``r1`` (t ≥ t0 + duration) and
 every CV stayed within ``settle_tolerance * scale`` of ``r1`` for
 ``settle_samples`` consecutive samples. ``progress`` is the share of the set
@@ -157,29 +160,54 @@ class TransitionManager:
         self.grade: str | None = initial_grade
         self.hold = self.grades[initial_grade].copy()
         self.active: Transition | None = None
+        #: transitions requested with ``queue=True`` while another was under way
+        self.queued: list[Transition] = []
 
     # -- requests ------------------------------------------------------------------
-    def request(self, grade: str, t: float, duration_s: float | None = None) -> Transition:
-        """Create a pending transition to ``grade`` (409 if one is pending or running)."""
+    def request(self, grade: str, t: float, duration_s: float | None = None,
+                queue: bool = False) -> Transition:
+        """Create a pending transition to ``grade``.
+
+        While one is pending or running: 409 (:class:`ConflictError`), unless
+        ``queue`` — then it waits (``pending``) and starts when the ones before it end.
+        """
         if grade not in self.grades:
             raise UnknownTransition(
                 f"grade: unknown grade {grade!r} for unit {self.unit!r}; "
                 f"known: {', '.join(self.grades)}")
-        if self.active is not None and not self.active.terminal:
+        busy = self.active is not None and not self.active.terminal
+        if busy and not queue:
             raise ConflictError(
                 f"transition {self.active.id} to {self.active.grade} is {self.active.state}; "
-                "abort it first")
+                "abort it first, or queue this one")
         duration = self.default_duration_s if duration_s is None else float(duration_s)
         if not (math.isfinite(duration) and duration > 0):
             raise TransitionError(f"duration_h: must be positive, got {duration_s}")
         tr = Transition(id=uuid.uuid4().hex[:12], unit=self.unit, grade=grade,
-                        from_grade=self.grade, target=self.grades[grade].tolist(),
-                        duration_s=duration, requested_t=float(t))
-        self.active = tr
+                        from_grade=None if busy else self.grade,
+                        target=self.grades[grade].tolist(), duration_s=duration,
+                        requested_t=float(t))
+        if busy:
+            tr.detail = "queued"
+            self.queued.append(tr)
+        else:
+            self.active = tr
         return tr
 
+    def find(self, tid: str) -> Transition | None:
+        """The active or a queued transition with this id."""
+        if self.active is not None and self.active.id == tid:
+            return self.active
+        return next((q for q in self.queued if q.id == tid), None)
+
     def abort(self, tid: str, t: float) -> Transition:
-        """Abort: hold the set points of this moment. Aborting a finished one is a no-op."""
+        """Abort: hold the set points of this moment. Aborting a finished one is a no-op;
+        aborting a queued one just takes it out of the queue."""
+        for q in self.queued:
+            if q.id == tid:
+                self.queued.remove(q)
+                q.state, q.ended_t, q.detail = "aborted", float(t), "aborted while queued"
+                return q
         tr = self.active
         if tr is None or tr.id != tid:
             raise UnknownTransition(f"id: no active transition {tid!r}")
@@ -219,6 +247,9 @@ class TransitionManager:
         """
         changes: list[tuple[Transition, str]] = []
         tr = self.active
+        if (tr is None or tr.terminal) and self.queued:
+            tr = self.active = self.queued.pop(0)
+            tr.from_grade = self.grade
         if tr is None or tr.terminal:
             return changes
         y = np.asarray(y, dtype=float)
@@ -226,6 +257,8 @@ class TransitionManager:
             tr.start_ref = self.hold.tolist()
             tr.started_t = float(t)
             tr.state = "running"
+            if tr.detail == "queued":
+                tr.detail = ""
             changes.append((tr, "running"))
         r = self.reference_at(t)[0]
         err = (y - r) / self.scales
@@ -263,10 +296,12 @@ class TransitionManager:
     # -- persistence ---------------------------------------------------------------
     def checkpoint(self) -> dict:
         return {"grade": self.grade, "hold": self.hold.tolist(),
-                "active": None if self.active is None else self.active.as_dict()}
+                "active": None if self.active is None else self.active.as_dict(),
+                "queued": [q.as_dict() for q in self.queued]}
 
     def restore(self, state: dict) -> None:
         self.grade = state.get("grade")
         self.hold = np.asarray(state["hold"], dtype=float)
         active = state.get("active")
         self.active = None if active is None else Transition.from_dict(active)
+        self.queued = [Transition.from_dict(q) for q in state.get("queued", [])]

@@ -93,6 +93,24 @@ def test_transition_lifecycle_over_rest(stack):
     assert [x["id"] for x in hist] == [tid]
 
 
+def test_queued_transition_is_202_and_runs_after(stack):
+    h, api = stack
+    c = api.client
+    first = c.post("/api/v1/units/cstr/transitions", json={"grade": "OPII"}, headers=AUTH)
+    second = c.post("/api/v1/units/cstr/transitions", json={"grade": "OPI", "queue": True},
+                    headers=AUTH)
+    assert first.status_code == 202 and second.status_code == 202
+    assert second.json()["state"] == "pending"
+    t_end = time.monotonic() + 60
+    while time.monotonic() < t_end:
+        v = c.get(second.headers["location"]).json()
+        if v["state"] in ("settled", "failed", "aborted"):
+            break
+        time.sleep(0.1)
+    assert v["state"] == "settled" and v["from_grade"] == "OPII"
+    assert c.get(first.headers["location"]).json()["state"] == "settled"
+
+
 def test_abort_holds(stack):
     h, api = stack
     c = api.client

@@ -111,3 +111,35 @@ def test_checkpoint_restore_resumes_the_running_transition():
     tm2.restore(cp)
     assert tm2.active.id == tr.id and tm2.active.state == "running"
     np.testing.assert_allclose(tm2.reference_at(0.7), tm.reference_at(0.7))
+
+
+def test_queued_transition_starts_when_the_first_ends():
+    tm = _tm()
+    first = tm.request("B", t=0.0)
+    second = tm.request("A", t=0.0, queue=True)
+    assert second.state == "pending" and second.detail == "queued"
+    assert tm.find(second.id) is second
+    states = []
+    k = 0
+    while not second.terminal and k < 1000:
+        t = k * TS
+        y = tm.reference_at(t)[0]  # perfect tracking
+        states += [(tr.id, s) for tr, s in tm.update(t, y)]
+        k += 1
+    assert states == [(first.id, "running"), (first.id, "settled"), (second.id, "running"),
+                      (second.id, "settled")]
+    assert second.from_grade == "B" and tm.grade == "A"
+    assert second.started_t >= first.ended_t
+
+
+def test_aborting_a_queued_transition_removes_it():
+    tm = _tm()
+    tm.request("B", t=0.0)
+    q = tm.request("A", t=0.0, queue=True)
+    tm.abort(q.id, 0.5)
+    assert q.state == "aborted" and tm.queued == []
+    assert tm.active.state == "pending"  # the first one is untouched
+    cp = tm.checkpoint()
+    tm2 = _tm()
+    tm2.restore(cp)
+    assert tm2.queued == [] and tm2.active.id == tm.active.id
