@@ -166,15 +166,6 @@ def test_non_finite_measurements_are_rejected_and_the_move_held(chaos, kind):
     assert any("bad measurement" in a for a in loop.ctrl.alarms)
 
 
-GAP_RANGE = pytest.mark.xfail(strict=True, reason=(
-    "known gap: the controller node has no plausibility (range) check on measurements; "
-    "an impossible finite value is acted on"))
-GAP_STALE = pytest.mark.xfail(strict=True, reason=(
-    "known gap: the controller node acts on a duplicated, delayed or reordered measurement "
-    "again / out of order (no sequence check in ControllerNode._on_meas)"))
-
-
-@GAP_RANGE
 def test_out_of_range_measurement_is_not_acted_on(chaos):
     loop = chaos(windows=_window("range", "meas"))
     loop.run_until(END_S)
@@ -189,7 +180,6 @@ def test_out_of_range_measurement_is_not_acted_on(chaos):
     assert np.all((u >= lo) & (u <= hi))
 
 
-@GAP_STALE
 @pytest.mark.parametrize("kind", ["duplicate", "reorder", "delay"])
 def test_each_measurement_is_acted_on_once_and_in_order(chaos, kind):
     loop = chaos(windows=_window(kind, "meas", p=0.5, amount=2.5))
