@@ -15,7 +15,10 @@ latency
     encode), µs, p50/p99 from the plant node's record.
 rest
     ``GET /api/v1/units/<unit>/status`` on the api node (uvicorn → Zenoh query
-    → controller → back), µs, over a kept-alive HTTP connection.
+    → controller → back), µs, over a kept-alive HTTP connection, with the loop
+    running in real time (speed 1).
+
+``--rt-priority N`` runs the plant and controller nodes under SCHED_FIFO.
 """
 
 from __future__ import annotations
@@ -167,47 +170,54 @@ def speed_case(args, state_dir: str) -> dict:
             "rt_priority": args.rt_priority}
 
 
-def latency_and_rest(args, state_dir: str, want_latency: bool, want_rest: bool) -> list[dict]:
-    import httpx
-
+def latency_case_run(args, state_dir: str) -> dict:
+    """Lock-step loop (as fast as it goes): the plant's record of meas -> MV times."""
     from services import keys
     from services.units import get_unit
 
     cfg = get_unit(args.unit)
-    out = []
-    nodes = _Nodes(args.unit, 1.0, lockstep=True, api=want_rest, state_dir=state_dir,
+    nodes = _Nodes(args.unit, 1.0, lockstep=True, api=False, state_dir=state_dir,
                    rt_priority=args.rt_priority)
     s = _client_session(nodes)
     try:
         _wait_running(s, args.unit)
         _query(s, keys.plant_cmd(args.unit, "reset_stats"), "reset_stats")
-        if want_latency:
-            time.sleep(args.latency_seconds)
-            ps = _query(s, keys.plant_cmd(args.unit, "status"), "status")
-            lat = ps["loop_latency"]
-            out.append({"case": "latency", "unit": "us", "median": lat["p50_us"],
-                        "p99": lat["p99_us"], "max": lat["max_us"], "n": lat["n"],
-                        "plant_unit": args.unit, "mode": "lockstep",
-                        "samples_per_wall_s": ps["samples"] / args.latency_seconds,
-                        "te_equivalent_speed": ps["samples"] / args.latency_seconds
-                        * TE_SAMPLE_PERIOD_S,
-                        "sample_period_s": cfg.sample_period_s})
-        if want_rest:
-            url = f"http://127.0.0.1:{nodes.port}/api/v1/units/{args.unit}/status"
-            times = []
-            with httpx.Client(timeout=10) as c:
-                for _ in range(20):
-                    c.get(url).raise_for_status()
-                for _ in range(args.rest_requests):
-                    t0 = time.perf_counter()
-                    c.get(url).raise_for_status()
-                    times.append((time.perf_counter() - t0) * 1e6)
-            out.append(latency_case("rest", times, "us", endpoint="GET status",
-                                    plant_unit=args.unit))
+        time.sleep(args.latency_seconds)
+        ps = _query(s, keys.plant_cmd(args.unit, "status"), "status")
     finally:
         s.close()
         nodes.close()
-    return out
+    lat = ps["loop_latency"]
+    rate = ps["samples"] / args.latency_seconds
+    return {"case": "latency", "unit": "us", "median": lat["p50_us"], "p99": lat["p99_us"],
+            "max": lat["max_us"], "n": lat["n"], "plant_unit": args.unit, "mode": "lockstep",
+            "samples_per_wall_s": rate, "lockstep_speed": rate * cfg.sample_period_s,
+            "te_equivalent_speed": rate * TE_SAMPLE_PERIOD_S,
+            "sample_period_s": cfg.sample_period_s, "rt_priority": args.rt_priority}
+
+
+def rest_case_run(args, state_dir: str) -> dict:
+    """REST GET status against a loop running in real time (speed 1), as an operator sees it."""
+    import httpx
+
+    nodes = _Nodes(args.unit, 1.0, lockstep=False, api=True, state_dir=state_dir)
+    s = _client_session(nodes)
+    try:
+        _wait_running(s, args.unit, samples=1)
+        url = f"http://127.0.0.1:{nodes.port}/api/v1/units/{args.unit}/status"
+        times = []
+        with httpx.Client(timeout=10) as c:
+            for _ in range(20):
+                c.get(url).raise_for_status()
+            for _ in range(args.rest_requests):
+                t0 = time.perf_counter()
+                c.get(url).raise_for_status()
+                times.append((time.perf_counter() - t0) * 1e6)
+    finally:
+        s.close()
+        nodes.close()
+    return latency_case("rest", times, "us", endpoint="GET status", plant_unit=args.unit,
+                        loop="real time, speed 1")
 
 
 def run(args) -> list[dict]:
@@ -217,8 +227,10 @@ def run(args) -> list[dict]:
         raise ValueError(f"cases: unknown case(s) {', '.join(sorted(unknown))}")
     out = []
     with tempfile.TemporaryDirectory(prefix="ssmpc-bench-loop-") as state_dir:
-        if "latency" in cases or "rest" in cases:
-            out += latency_and_rest(args, state_dir, "latency" in cases, "rest" in cases)
         if "speed" in cases:
-            out.insert(0, speed_case(args, state_dir))
+            out.append(speed_case(args, state_dir))
+        if "latency" in cases:
+            out.append(latency_case_run(args, state_dir))
+        if "rest" in cases:
+            out.append(rest_case_run(args, state_dir))
     return out
