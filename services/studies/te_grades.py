@@ -105,7 +105,7 @@ CONTROLLED_VALVES = (1, 2, 3, 4, 6, 7, 8, 10, 11)
 #: at the grade's optimum for the grade to count as reachable.
 CONTROL_MARGIN = 0.5
 #: Default time constants (h) of the first-order references.
-TAU_DEFAULT_H = {"xmeas": 3.0, "xmv": 5.0}
+TAU_DEFAULT_H = {"xmeas": 3.0, "xmv": 3.0}
 
 
 @lru_cache(maxsize=1)
