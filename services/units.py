@@ -264,12 +264,11 @@ UNITS: dict[str, UnitConfig] = {
     # reads all 41 XMEAS and writes the free valves and the four loop set points;
     # a transition is followed on G in product (XMEAS40), settled within +-1 mol%
     # (seed R7.16 check). 36 s sample = 20 Euler steps (issue 8's choice).
-    # Strategy "pi" (issue 8's decentralized baseline) until its state-shared MPC
-    # ("ssmpc", R7.16) holds the plant through mode 0 -> 2: measured here, the
-    # current "ssmpc" trips on reactor pressure after ~1 h, offline and in the service.
+    # Strategy "ssmpc" (issue 8's state-shared MPC, seed §7.7); "pi" is its
+    # decentralized baseline, "fixed" the fixed-model MPC of §7.5.
     "te": UnitConfig(
         unit="te", plant="te", sample_period_s=36.0, initial_grade="mode0", controller="te",
-        strategy="pi",
+        strategy="ssmpc",
         cvs=TE_XMEAS, track=("XMEAS40",), cv_scales=(10.0,),
         transition_duration_s=12 * 3600.0, settle_tolerance=0.1, settle_samples=50,
         status_every=10, checkpoint_every=100, telemetry_every=100,

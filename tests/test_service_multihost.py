@@ -95,7 +95,7 @@ def test_transition_across_namespaces_through_a_router(netns, tmp_path):
         _ready(procs[-1])
         # the TE unit, mode 0 -> 2 as on one host; lock-step so that ~20 process hours
         # take seconds (each sample's MV crosses the router and comes back)
-        common = ["--unit", "te", "--speed", "10000", "--mode", "client", "--lease-ms", "1000"]
+        common = ["--unit", "te", "--speed", "1000", "--mode", "client", "--lease-ms", "1000"]
         procs.append(_spawn(names["ctrl"], "controller", *common, "--connect",
                             router_ep.format(addrs["ctrl"][1]), "--state-dir", str(tmp_path)))
         _ready(procs[-1])
