@@ -43,6 +43,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--latency-seconds", type=float, default=5.0,
                         help="wall seconds of the lock-step latency run")
     parser.add_argument("--rest-requests", type=int, default=500, help="REST requests")
+    parser.add_argument("--unit-config", default=None, metavar="FILE",
+                        help="JSON overrides of the unit config (e.g. {\"strategy\": \"pi\"})")
     parser.add_argument("--rt-priority", type=int, default=None,
                         help="run plant and controller under SCHED_FIFO with this priority")
     parser.add_argument("--cases", default="speed,latency,rest",
@@ -53,7 +55,7 @@ class _Nodes:
     """Controller, plant and (optionally) api nodes as child processes."""
 
     def __init__(self, unit: str, speed: float, lockstep: bool, api: bool, state_dir: str,
-                 rt_priority: int | None = None):
+                 rt_priority: int | None = None, unit_config: str | None = None):
         from services.commands.up import _spawn, _wait_ready
         from services.zenoh_session import free_port
 
@@ -65,6 +67,8 @@ class _Nodes:
         common = ["--unit", unit, "--speed", repr(float(speed)), "--lease-ms", "1000"]
         if rt_priority is not None:
             common += ["--rt-priority", str(rt_priority)]
+        if unit_config is not None:
+            common += ["--unit-config", unit_config]
         deadline = time.monotonic() + 120
         try:
             c = _spawn(["controller", *common, "--listen", ep_c, "--state-dir", state_dir,
@@ -120,11 +124,11 @@ def _wait_running(session, unit: str, samples: int = 50, timeout_s: float = 300.
 
 
 def _rung(unit: str, speed: float, seconds: float, state_dir: str,
-          rt_priority: int | None = None) -> dict:
+          rt_priority: int | None = None, unit_config: str | None = None) -> dict:
     from services import keys
 
     nodes = _Nodes(unit, speed, lockstep=False, api=False, state_dir=state_dir,
-                   rt_priority=rt_priority)
+                   rt_priority=rt_priority, unit_config=unit_config)
     s = _client_session(nodes)
     try:
         _wait_running(s, unit)
@@ -142,9 +146,9 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
 
 
 def speed_case(args, state_dir: str) -> dict:
-    from services.units import get_unit
+    from services.units import load_unit_config
 
-    cfg = get_unit(args.unit)
+    cfg = load_unit_config(args.unit, args.unit_config)
     if args.speeds:
         ladder = [float(x) for x in args.speeds.split(",")]
     else:  # wall periods from 20 ms down to 0.5 ms
@@ -153,7 +157,8 @@ def speed_case(args, state_dir: str) -> dict:
     best = None
     rungs = []
     for speed in ladder:
-        r = _rung(args.unit, speed, args.rung_seconds, state_dir, args.rt_priority)
+        r = _rung(args.unit, speed, args.rung_seconds, state_dir, args.rt_priority,
+                  args.unit_config)
         rungs.append(r)
         ok = r["deadline_misses"] == 0 and r["held"] == 0 and r["samples"] > 0
         if ok:
@@ -167,17 +172,18 @@ def speed_case(args, state_dir: str) -> dict:
             "p99": best["speed"], "max": best["speed"], "n": best["samples"],
             "plant_unit": args.unit, "wall_period_ms": wall_period * 1e3,
             "te_equivalent_speed": TE_SAMPLE_PERIOD_S / wall_period, "rungs": rungs,
-            "rt_priority": args.rt_priority}
+            "rt_priority": args.rt_priority, "controller": cfg.controller,
+            "strategy": cfg.strategy if cfg.plant == "te" else None}
 
 
 def latency_case_run(args, state_dir: str) -> dict:
     """Lock-step loop (as fast as it goes): the plant's record of meas -> MV times."""
     from services import keys
-    from services.units import get_unit
+    from services.units import load_unit_config
 
-    cfg = get_unit(args.unit)
+    cfg = load_unit_config(args.unit, args.unit_config)
     nodes = _Nodes(args.unit, 1.0, lockstep=True, api=False, state_dir=state_dir,
-                   rt_priority=args.rt_priority)
+                   rt_priority=args.rt_priority, unit_config=args.unit_config)
     s = _client_session(nodes)
     try:
         _wait_running(s, args.unit)
@@ -200,7 +206,8 @@ def rest_case_run(args, state_dir: str) -> dict:
     """REST GET status against a loop running in real time (speed 1), as an operator sees it."""
     import httpx
 
-    nodes = _Nodes(args.unit, 1.0, lockstep=False, api=True, state_dir=state_dir)
+    nodes = _Nodes(args.unit, 1.0, lockstep=False, api=True, state_dir=state_dir,
+                   unit_config=args.unit_config)
     s = _client_session(nodes)
     try:
         _wait_running(s, args.unit, samples=1)
