@@ -67,10 +67,12 @@ import numpy as np
 from controller.interfaces import ControlDecision
 from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop, RegulatoryLayer
 from services.studies.te_grades import TransitionPlan, limit_margins
-from services.studies.te_pi_baseline import PI_BASELINE_LOOPS, VelocityPI
+from services.studies.te_pi_baseline import PI_BASELINE_LOOPS, PRODUCTION_LOOP, VelocityPI
 
 #: Largest trim (%) of the A-feed target by the outer A loop (anti-windup).
 A_TRIM_MAX = 50.0
+#: Largest trim (%) of the A+C-feed target by the outer production loop.
+P_TRIM_MAX = 20.0
 #: The A-in-reactor-feed loop (shared with the PI baseline).
 A_FEED_LOOP = next(lp for lp in PI_BASELINE_LOOPS if lp.cv == 23)
 
@@ -182,11 +184,16 @@ class TEController:
         MPC strategies: let the A-in-feed loop trim the A-feed input target. Off by
         default: it helped neither leg of 0 -> 2 -> 3 and, under IDV(6) (A feed
         lost), it winds the target up to 100 % and the fixed-model run trips.
+    production_loop : bool
+        MPC strategies: let the product flow (XMEAS 17, reference Table 7.3 row 17
+        along the plan) trim the A+C-feed input target (:data:`PRODUCTION_LOOP`,
+        the PI baseline has the same loop). Under IDV(6) it keeps the production,
+        as the seed's MPC did by raising the A+C feed.
     """
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
                  sample_h: float = SAMPLE_H, horizon: int = 10,
-                 outer_a_loop: bool = False) -> None:
+                 outer_a_loop: bool = False, production_loop: bool = True) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -203,6 +210,9 @@ class TEController:
         self.n_samples = 0
         self.override = 0.0
         self.a_trim = 0.0
+        self.p_trim = 0.0
+        self.e_p_prev: float | None = None
+        self.production_loop = PRODUCTION_LOOP if production_loop else None
         self.e_a_prev: float | None = None
 
     def retarget(self, plan: TransitionPlan) -> None:
@@ -210,6 +220,20 @@ class TEController:
         self.plan = plan
 
     # -- pieces ---------------------------------------------------------------------------
+    def _production_step(self, t: float, xmeas: np.ndarray) -> float:
+        """Outer production loop of the MPC strategies: product flow (XMEAS 17)
+        trims the MPC's input target of the A+C feed (XMV 4)."""
+        lp = self.production_loop
+        y = float(xmeas[lp.cv - 1])
+        if math.isfinite(y):
+            e = float(self.plan.xmeas_ref(t)[lp.cv - 1]) - y
+            if self.e_p_prev is None:
+                self.e_p_prev = e
+            self.p_trim += lp.gain * ((e - self.e_p_prev) + self.sample_h / lp.ti_h * e)
+            self.p_trim = min(max(self.p_trim, -P_TRIM_MAX), P_TRIM_MAX)
+            self.e_p_prev = e
+        return self.p_trim
+
     def _a_trim_step(self, t: float, xmeas: np.ndarray) -> float:
         """Outer composition loop of the MPC strategies: A in the reactor feed
         (XMEAS 23, 0.1 h analyzer) trims the MPC's input target of the A feed (the
@@ -301,6 +325,8 @@ class TEController:
             target = self._core_ff(t + self.horizon * self.sample_h)
             if self.outer_a_loop:
                 target[0] = min(max(target[0] + self._a_trim_step(t, xmeas), 0.0), 100.0)
+            if self.production_loop is not None:
+                target[1] = min(max(target[1] + self._production_step(t, xmeas), 0.0), 100.0)
             self._set_input_target(target)
             dec = self.core.step(k, t, yc, refs)
             core_u, status, fallback = dec.u, dec.status, dec.fallback
@@ -462,7 +488,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        sample_h: float = SAMPLE_H, plant_dt_s: float = 1.8,
                        ratio: RatioSettings | None = None,
                        mpc: TEMPCOptions | None = None,
-                       outer_a_loop: bool = False) -> tuple[TEController, TEControlSpec]:
+                       outer_a_loop: bool = False, production_loop: bool = True
+                       ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
     Parameters
@@ -477,7 +504,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         The plant's Euler step, s.
     mpc : TEMPCOptions, optional
         MPC tuning (strategies "fixed" and "ssmpc").
-    outer_a_loop : bool
+    outer_a_loop, production_loop : bool
         See :class:`TEController`.
 
     Returns
@@ -501,7 +528,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         u0 = np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
         core, horizon = make_mpc_core(strategy, sample_h, u0, mpc)
     ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon,
-                       outer_a_loop)
+                       outer_a_loop, production_loop)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 

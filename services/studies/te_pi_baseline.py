@@ -9,10 +9,10 @@ McAvoy & Ye 1994, reduced):
 ========================  =======================  ===========================
 controlled variable       manipulated variable     note
 ========================  =======================  ===========================
-reactor pressure XMEAS 7  purge valve XMV 6        the usual TE pressure loop
+reactor pressure XMEAS 7  purge valve XMV 6        inner loop (te_control)
 separator temp XMEAS 11   condenser CW XMV 11
 A in reactor feed XMEAS 23  A feed XMV 3           keeps A/C in balance
-(production)              A+C feed XMV 4           grade feedforward only
+product flow XMEAS 17     A+C feed XMV 4           plus grade feedforward
 reactor temperature       reactor temperature SP   grade reference (Table 7.3)
 ========================  =======================  ===========================
 
@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["PILoopSpec", "PI_BASELINE_LOOPS", "VelocityPI"]
+__all__ = ["PILoopSpec", "PI_BASELINE_LOOPS", "PRODUCTION_LOOP", "VelocityPI"]
 
 
 @dataclass(frozen=True)
@@ -68,8 +68,13 @@ class PILoopSpec:
             raise ValueError(f"ti_h: must be > 0 h, got {self.ti_h!r}")
 
 
+#: Production (stripper underflow XMEAS 17, m3/h) -> A+C feed XMV 4, on top of the
+#: grade feedforward: keeps the product flow when a feed is lost (IDV 6).
+PRODUCTION_LOOP = PILoopSpec("production -> A+C feed", cv=17, output=1, gain=1.0, ti_h=2.0)
+
 #: The baseline's loops (tuned on this port; see the module docstring).
 PI_BASELINE_LOOPS = (
+    PRODUCTION_LOOP,
     PILoopSpec("separator temperature -> condenser CW", cv=11, output=4, gain=-2.0, ti_h=0.5),
     PILoopSpec("A in reactor feed -> A feed", cv=23, output=0, gain=2.0, ti_h=1.0),
 )
