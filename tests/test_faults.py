@@ -108,6 +108,16 @@ def chaos(tmp_path):
         loop.close()
 
 
+def _assert_move_held_in_window(loop):
+    """Zero-order hold: every measurement inside the window reports the same applied move,
+    the one of the last MV applied before it."""
+    inside = [m for m in loop.meas if WINDOW[0] + 0.15 < m.t < WINDOW[1] - 0.05]
+    assert len(inside) >= 5
+    assert len({m.u for m in inside}) == 1 and len({m.mv_seq for m in inside}) == 1
+    last = next(mv for mv in loop.mvs if mv.seq == inside[0].mv_seq)
+    np.testing.assert_allclose(inside[0].u, last.u, rtol=0, atol=0)
+
+
 def _window(kind, target, p=1.0, amount=0.0):
     return [FaultWindow(kind, target, WINDOW[0], WINDOW[1], p, amount)]
 
@@ -124,6 +134,7 @@ def test_dropped_moves_leave_the_last_move_applied(chaos):
     assert loop.relay.injected["drop_mv"] >= 8
     loop.run_until(END_S)
     assert loop.plant._applied_mv_seq > applied  # moves are applied again afterwards
+    _assert_move_held_in_window(loop)
 
 
 def test_dropped_measurements_skip_samples_and_the_loop_resumes(chaos):
@@ -135,6 +146,7 @@ def test_dropped_measurements_skip_samples_and_the_loop_resumes(chaos):
     assert loop.relay.injected["drop_meas"] >= 8
     late = [m for m in loop.mvs if m.meas_seq * 0.1 > WINDOW[1] + 0.2 and not m.fallback]
     assert late, "the controller did not resume after the outage"
+    _assert_move_held_in_window(loop)
 
 
 def test_duplicated_moves_are_applied_once(chaos):
