@@ -327,14 +327,17 @@ def r7_13(ctx: StudyContext) -> ReproduceResult:
             pi["cost_end"] / pi["cost_start"])]
     ok = a["completed"] and a["production_change_pct"] >= -23.8
     passes = ok and a["production_change_pct"] >= -4.25
-    verdict = "reproduced" if passes else "differs"
+    ratio = a["cost_end"] / a["cost_start"]
+    verdict = "beaten" if passes and a["production_change_pct"] > -4.25 and ratio < 7.0 \
+        else ("reproduced" if passes else "differs")
     why = (f"IDV(6) (A feed lost) from 1 h at Ricker's mode-3 state, 40 h. Fixed-model MPC: "
            f"{'no shutdown' if a['completed'] else 'SHUTDOWN'}; closest approaches: "
            f"{_fmt_margin(a['margins'])}. Production falls "
            f"{-a['production_change_pct']:.2f} % (seed 4.25 %, McAvoy & Ye 23.8 %); "
            f"cost ratio {a['cost_end'] / a['cost_start']:.2f} (seed ~7); final model "
            f"{a['final_model']} (seed: mode 2). PI baseline production change "
-           f"{pi['production_change_pct']:.2f} %.")
+           f"{pi['production_change_pct']:.2f} % (the production loop on the A+C feed is "
+           f"shared, so the PI baseline holds production as well).")
     if not passes:
         why += " Differs: production drop larger than the seed's 4.25 % (within 23.8 %)." \
             if ok else " Differs: see shutdown/production rows."
