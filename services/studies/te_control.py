@@ -46,11 +46,19 @@ Sample period
 
 Use (service node and studies)::
 
-    ctl, spec = make_te_controller("ssmpc", plan=TransitionPlan("mode0", [Leg(1, "mode2")]))
-    # every spec.sample_steps plant steps, with xmeas = the plant's 41 measurements:
-    dec = ctl.step(k, t_h, xmeas, np.zeros((0, 41)))
-    # dec.u: 12 XMV targets, NaN where a Table 7.10 loop owns the valve (spec.loop_xmvs);
-    # dec.extra["setpoints"]: the four loop set points in spec.loops order.
+    from services.studies.te_control import make_te_controller
+    from services.studies.te_grades import Leg, TransitionPlan
+
+    plan = TransitionPlan("mode0", (Leg(1.0, "mode2"),))   # GradeError if unreachable
+    ctl, spec = make_te_controller("ssmpc", plan)           # or "fixed", "pi"
+    reg = RegulatoryLayer(sim, loops=spec.loops)             # the five inner PI loops
+    # every spec.sample_steps plant steps (36 s), with xmeas = the 41 XMEAS:
+    dec = ctl.step(k, t_h, xmeas, None)                      # reference: from the plan
+    # dec.u: 12 XMV targets; write those in spec.written_xmvs, NaN = owned by a loop
+    # (spec.loop_xmvs); dec.extra["setpoints"]: one per loop in spec.loops order
+    # (T_r*, reactor level, separator level, stripper level, P_r*);
+    reg.set_setpoints(dec.extra["setpoints"]); reg.run_steps(spec.sample_steps)
+    ctl.retarget(new_plan)                                   # a new grade request
 
 :func:`run_te` runs it against a :class:`plant_sim.tennessee_eastman.TESimulator`.
 """
