@@ -3,9 +3,10 @@
 Layers (seed Fig. 7.2)
     1. Inner PI loops of Table 7.10 (R7.11) at the plant's 1.8 s Euler step,
        :class:`plant_sim.tennessee_eastman.regulatory.RegulatoryLayer`: reactor
-       temperature -> reactor coolant XMV(10), reactor level -> D feed XMV(1),
-       separator level -> separator underflow XMV(7), stripper level -> stripper
-       underflow XMV(8).
+       temperature -> reactor coolant XMV(10) (gain changed, see
+       :data:`INNER_LOOPS`), reactor level -> D feed XMV(1), separator level ->
+       separator underflow XMV(7), stripper level -> stripper underflow XMV(8);
+       plus reactor pressure -> purge XMV(6) (see "Pressure").
     2. The supervisory controller, every :data:`SAMPLE_H` (36 s, 20 plant steps):
        - grade references (:class:`services.studies.te_grades.TransitionPlan`): level
          set points (reactor 75 -> 65 %), reactor temperature, G mol%;
@@ -14,11 +15,21 @@ Layers (seed Fig. 7.2)
        - the E/D feed ratio (§7.7): XMV(2) = ratio x measured D feed (XMEAS 2), the
          D share ``s = D/(D+E)`` from a grade feedforward plus a slow PI on the
          product analyzer's G mol% (XMEAS 40, 0.25 h sample + 0.25 h dead time);
-       - the core on five handles, XMV(3), XMV(4), XMV(6), T_r*, XMV(11):
+       - the core on five handles, XMV(3), XMV(4), P_r*, T_r*, XMV(11):
          strategy ``"fixed"`` (a): MPC with three fixed models (modes 0, 2, 3)
          switched by the performance index (§7.5-7.6); strategy ``"ssmpc"`` (b):
          the same three plus a re-initialized adaptive model (§7.7); ``"pi"``: the
-         decentralized baseline of :mod:`services.studies.te_pi_baseline`.
+         decentralized baseline of :mod:`services.studies.te_pi_baseline`. The MPC's
+         input targets follow the grade plan (:class:`TEMPCOptions`), trimmed by an
+         outer production loop (XMEAS 17 -> A+C feed);
+       - a high-pressure override cuts the A+C feed above 2900 kPa (all strategies).
+
+Known limit
+    The fixed models' performance index is not informative off their own
+    operating points: the state-shared coefficients of the n = 8 models (time in
+    h, poles up to 150 1/h) reach 1e6-1e8, so a fixed model's estimate away from
+    its own point is off by orders of magnitude and the index keeps the model the
+    run started with (mode 0 in the transitions, mode 3 under IDV(6)).
 
 Pressure
     The seed's MPC writes the purge valve XMV(6) directly. On the original plant
