@@ -196,14 +196,21 @@ class PlantModel(ABC):
         """Nominal disturbance vector, shape ``(nd,)``."""
         return np.zeros(self.nd)
 
-    def index(self, kind: str, name: str) -> int:
-        """Position of a named variable; ``kind`` is state, input, output or disturbance."""
-        seq = {
+    def variables(self, kind: str) -> tuple[Variable, ...]:
+        """The variables of one ``kind``: state, input, output or disturbance."""
+        table = {
             "state": self.state_vars,
             "input": self.input_vars,
             "output": self.output_vars,
             "disturbance": self.disturbance_vars,
-        }[kind]
+        }
+        if kind not in table:
+            raise PlantInputError(f"kind: expected one of {', '.join(table)}, got {kind!r}")
+        return table[kind]
+
+    def index(self, kind: str, name: str) -> int:
+        """Position of a named variable; ``kind`` is state, input, output or disturbance."""
+        seq = self.variables(kind)
         for i, v in enumerate(seq):
             if v.name == name:
                 return i
@@ -213,10 +220,5 @@ class PlantModel(ABC):
         )
 
     def names(self, kind: str) -> list[str]:
-        seq = {
-            "state": self.state_vars,
-            "input": self.input_vars,
-            "output": self.output_vars,
-            "disturbance": self.disturbance_vars,
-        }[kind]
-        return [v.name for v in seq]
+        """Names of the variables of one ``kind``, in vector order."""
+        return [v.name for v in self.variables(kind)]

@@ -14,8 +14,7 @@ from services.machine import machine_description
 __all__ = ["latency_case", "rate_case", "bench_document"]
 
 
-def latency_case(case: str, samples, unit: str = "us", **extra) -> dict:
-    """Summarize per-call times. ``samples`` in ``unit`` (e.g. µs)."""
+def _summary(case: str, samples, unit: str, tail_percentile: float, extra: dict) -> dict:
     a = np.asarray(samples, dtype=float)
     if a.size == 0:
         raise ValueError(f"bench case {case!r}: no samples")
@@ -23,12 +22,17 @@ def latency_case(case: str, samples, unit: str = "us", **extra) -> dict:
         "case": case,
         "unit": unit,
         "median": float(np.median(a)),
-        "p99": float(np.percentile(a, 99)),
+        "p99": float(np.percentile(a, tail_percentile)),
         "max": float(a.max()),
         "n": int(a.size),
     }
     out.update(extra)
     return out
+
+
+def latency_case(case: str, samples, unit: str = "us", **extra) -> dict:
+    """Summarize per-call times. ``samples`` in ``unit`` (e.g. µs)."""
+    return _summary(case, samples, unit, 99, extra)
 
 
 def rate_case(case: str, rates, unit: str, **extra) -> dict:
@@ -36,19 +40,7 @@ def rate_case(case: str, rates, unit: str, **extra) -> dict:
 
     ``p99`` is the 1st percentile of the rates (the slow tail), ``max`` the best run.
     """
-    a = np.asarray(rates, dtype=float)
-    if a.size == 0:
-        raise ValueError(f"bench case {case!r}: no samples")
-    out = {
-        "case": case,
-        "unit": unit,
-        "median": float(np.median(a)),
-        "p99": float(np.percentile(a, 1)),
-        "max": float(a.max()),
-        "n": int(a.size),
-    }
-    out.update(extra)
-    return out
+    return _summary(case, rates, unit, 1, extra)
 
 
 def bench_document(name: str, cases: list[dict], **extra) -> dict:
