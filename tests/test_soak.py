@@ -96,14 +96,16 @@ def test_bad_soak_arguments_are_refused_before_running(tmp_path):
 
 @pytest.mark.slow
 def test_a_trip_ends_the_run_and_is_reported_with_its_reason(tmp_path):
-    # IDV(7) trips the current TE controller at mode 0 (measured: reactor pressure, ~4.6 h)
+    # MVs held (controller "hold": regulatory layer only) and IDV(1) on: measured to trip
+    # on reactor pressure after ~3 h, whatever the TE MPC of the day does
     r = run_soak(SoakSettings(unit="te", hours=12.0, speed=3600.0, seed=2, faults=(),
-                              idvs=(7,), idv_gap_h=0.05, idv_on_h=1000.0,
+                              idvs=(1,), idv_gap_h=0.05, idv_on_h=1000.0,
                               transition_gap_h=1000.0, unpreventable_idvs=(),
+                              unit_config={"controller": "hold"},
                               state_dir=str(tmp_path / "state")))
     _check_shape(r)
     (trip,) = r["shutdowns"]
-    assert trip["reason"] == "reactor pressure high" and trip["idvs_on"] == [7]
+    assert trip["reason"] == "reactor pressure high" and trip["idvs_on"] == [1]
     assert trip["preventable"] is True  # no IDV was declared unpreventable
     assert r["process_hours"] < 12.0 and r["process_hours"] == pytest.approx(
         trip["process_hours"], abs=0.1)

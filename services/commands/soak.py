@@ -34,6 +34,8 @@ def register(sub) -> None:
     p.add_argument("--unpreventable-idvs", default="", metavar="LIST",
                    help="a trip while one of these IDVs is on is not counted as preventable")
     p.add_argument("--no-noise", action="store_true", help="TE measurement noise off")
+    p.add_argument("--unit-config", metavar="FILE",
+                   help="JSON overrides of the unit config, e.g. {\"strategy\": \"pi\"}")
     p.add_argument("--state-dir", default=None,
                    help="keep the store and node logs here (default: a temporary directory)")
     p.add_argument("--report", required=True, metavar="FILE", help="report JSON file")
@@ -58,8 +60,16 @@ def run(args) -> int:
 
     idvs = () if args.idvs is None else idv_list(args.idvs, "idvs")
     unpreventable = idv_list(args.unpreventable_idvs, "unpreventable_idvs")
+    overrides = {}
+    if args.unit_config:
+        try:
+            overrides = json.loads(open(args.unit_config).read())
+        except (OSError, ValueError) as exc:
+            raise CLIError(f"unit_config: cannot read {args.unit_config!r}: {exc}") from exc
+        if not isinstance(overrides, dict):
+            raise CLIError("unit_config: expected a JSON object")
     try:
-        cfg = load_unit_config(args.unit)
+        cfg = load_unit_config(args.unit, args.unit_config)
         faults = (None if args.faults is None
                   else tuple(parse_faults(args.faults, cfg.sample_period_s)))
         settings = SoakSettings(unit=args.unit, hours=args.hours, speed=args.speed,
@@ -67,6 +77,7 @@ def run(args) -> int:
                                 transition_gap_h=args.transition_gap_h,
                                 idv_gap_h=args.idv_gap_h, noise=not args.no_noise,
                                 idvs=idvs, unpreventable_idvs=unpreventable,
+                                unit_config=overrides,
                                 state_dir=args.state_dir)
     except (FaultSpecError, ValueError) as exc:
         raise CLIError(str(exc)) from exc
