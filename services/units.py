@@ -264,8 +264,8 @@ UNITS: dict[str, UnitConfig] = {
     # reads all 41 XMEAS and writes the free valves and the four loop set points;
     # a transition is followed on G in product (XMEAS40), settled within +-1 mol%
     # (seed R7.16 check). 36 s sample = 20 Euler steps (issue 8's choice).
-    # Strategy "ssmpc" (issue 8's state-shared MPC, seed §7.7); "pi" is its
-    # decentralized baseline, "fixed" the fixed-model MPC of §7.5.
+    # Strategy "ssmpc": issue 8's state-shared MPC (seed §7.7), the DESIGN default; "pi"
+    # is its decentralized baseline, "fixed" the fixed-model MPC of §7.5.
     "te": UnitConfig(
         unit="te", plant="te", sample_period_s=36.0, initial_grade="mode0", controller="te",
         strategy="ssmpc",
