@@ -29,6 +29,8 @@ def register(sub) -> None:
                    help="mean process hours between transitions (default 2)")
     p.add_argument("--idv-gap-h", type=float, default=6.0,
                    help="mean process hours between disturbances (default 6)")
+    p.add_argument("--grades", default=None, metavar="LIST",
+                   help="grades to move between, e.g. mode0,mode2 (default: the unit's)")
     p.add_argument("--idvs", default=None, metavar="LIST",
                    help="IDVs to switch at random, e.g. 1,2,5 (default: all but IDV7)")
     p.add_argument("--unpreventable-idvs", default="", metavar="LIST",
@@ -78,6 +80,8 @@ def run(args) -> int:
                                 idv_gap_h=args.idv_gap_h, noise=not args.no_noise,
                                 idvs=idvs, unpreventable_idvs=unpreventable,
                                 unit_config=overrides,
+                                grades=tuple(g.strip() for g in (args.grades or "").split(",")
+                                             if g.strip()),
                                 state_dir=args.state_dir)
     except (FaultSpecError, ValueError) as exc:
         raise CLIError(str(exc)) from exc
