@@ -200,9 +200,10 @@ class TEController:
     horizon : int
         Samples of reference handed to the core (the MPC's P).
     outer_a_loop : bool
-        MPC strategies: let the A-in-feed loop trim the A-feed input target. Off by
-        default: it helped neither leg of 0 -> 2 -> 3 and, under IDV(6) (A feed
-        lost), it winds the target up to 100 % and the fixed-model run trips.
+        MPC strategies: let the A-in-feed loop trim the A-feed input target (the PI
+        baseline's loop of the same tuning). Without it the MPC strategies trip on
+        reactor pressure under IDV(1) (at 6.8 h from mode 0, 13.3 h from mode 3)
+        where the PI baseline does not.
     production_loop : bool
         MPC strategies: let the product flow (XMEAS 17, reference Table 7.3 row 17
         along the plan) trim the A+C-feed input target (:data:`PRODUCTION_LOOP`,
@@ -212,7 +213,7 @@ class TEController:
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
                  sample_h: float = SAMPLE_H, horizon: int = 10,
-                 outer_a_loop: bool = False, production_loop: bool = True) -> None:
+                 outer_a_loop: bool = True, production_loop: bool = True) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -398,7 +399,8 @@ class TEMPCOptions:
         Scale of each CV (kPa, degC, kPa, kPa, degC); the weights are equal on the
         scaled errors, ``Xi = w / scale^2``.
     output_weight : float
-        The common output weight w; strategy (b) uses half of it (R7.15).
+        The common output weight w of strategy (a); strategy (b) uses half of it
+        (R7.15). 0.5: with 1 the fixed-model MPC tripped in the 2 -> 3 leg.
     output_relative : tuple of 5 float
         Relative weight of each CV. The seed's are equal; here the separator and
         stripper pressures get 0.01: they move with the reactor pressure (their
@@ -419,28 +421,29 @@ class TEMPCOptions:
     target_weight : float or tuple of 5 float
         Weight (per (% or degC or kPa)^2) pulling each handle toward the grade's
         steady value (Ricker's optimum, along the plan's first-order path): the
-        MPC's input targets, as an RTO layer would give them. 0 = none (the seed's
-        formulation; in this port the 0 -> 2 transition then trips on reactor
-        pressure within 2-19 h, depending on the weights). Default 10 on XMV3, P_r*
-        and XMV11 and 1000 on the production handle XMV4 and on T_r*, which pins
-        those two to the plan: when the MPC moved them freely the 2 -> 3 leg of
-        0 -> 2 -> 3 tripped on reactor pressure at 32-35 h in every weighting
-        tried (the D valve of the level loop saturates and the level collapses),
-        while with them pinned both MPC strategies complete it. The seed notes
-        that T_r* stayed in a narrow range in its 0 -> 2 -> 3 run.
+        MPC's input targets, as an RTO layer would give them, trimmed by the outer
+        A-in-feed and production loops. 0 = none (the seed's formulation; in this
+        port the 0 -> 2 transition then trips on reactor pressure within 2-19 h,
+        depending on the weights). Default 1000 on the A feed XMV3, the production
+        handle XMV4 and T_r* (pinned to the plan and the outer loops) and 10 on
+        P_r* and XMV11: when the MPC moved XMV4 and T_r* freely the 2 -> 3 leg of
+        0 -> 2 -> 3 tripped on reactor pressure at 32-35 h in every weighting tried
+        (the D valve of the level loop saturates and the level collapses), and
+        with XMV3 free of the A loop IDV(1) tripped. The seed notes that T_r*
+        stayed in a narrow range in its 0 -> 2 -> 3 run.
     """
 
     P: int = 10
     M: int = 4
     output_scale: tuple = (20.0, 1.0, 20.0, 20.0, 1.0)
-    output_weight: float = 1.0
+    output_weight: float = 0.5
     output_relative: tuple = (1.0, 1.0, 0.01, 0.01, 1.0)
     move_weight: float = 1.0
     du_max: tuple = (50.0, 50.0, 20.0, 10.0, 50.0)
     pressure_soft_max: float = 2950.0
     index_dwell_h: float = 0.25
     nls_gain: float = 10.0
-    target_weight: float | tuple = (10.0, 1000.0, 10.0, 1000.0, 10.0)
+    target_weight: float | tuple = (1000.0, 1000.0, 10.0, 1000.0, 10.0)
 
     def __post_init__(self) -> None:
         if len(self.output_scale) != 5 or min(self.output_scale) <= 0:
@@ -507,7 +510,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        sample_h: float = SAMPLE_H, plant_dt_s: float = 1.8,
                        ratio: RatioSettings | None = None,
                        mpc: TEMPCOptions | None = None,
-                       outer_a_loop: bool = False, production_loop: bool = True
+                       outer_a_loop: bool = True, production_loop: bool = True
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
