@@ -115,3 +115,16 @@ def test_up_ctrl_c_stops_every_process(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
     assert (tmp_path / "ssmpc-cstr.rrd").stat().st_size > 0
+
+
+def test_a_new_up_run_keeps_the_previous_store_aside(tmp_path):
+    from services.commands.up import _move_aside
+
+    for suffix in (".sqlite", ".sqlite-wal", ".rrd"):
+        (tmp_path / f"ssmpc-te{suffix}").write_text(suffix)
+    (tmp_path / "ssmpc-cstr.sqlite").write_text("other unit")
+    moved = _move_aside(str(tmp_path), "te")
+    assert len(moved) == 3
+    assert not (tmp_path / "ssmpc-te.sqlite").exists()
+    assert (tmp_path / "ssmpc-cstr.sqlite").exists()
+    assert sorted(Path(m).read_text() for m in moved) == [".rrd", ".sqlite", ".sqlite-wal"]

@@ -3,7 +3,9 @@
 Three child processes (``ssmpc plant|controller|api``) on a fresh set of
 loopback ports: the controller listens, the plant and the api connect to it
 (and to each other); Zenoh peer mode, multicast scouting off, Rerun to
-``<state-dir>/ssmpc-<unit>.rrd``, API on 127.0.0.1:``--port``. ``up`` waits
+``<state-dir>/ssmpc-<unit>.rrd``, API on 127.0.0.1:``--port``. The simulated
+plant starts afresh, so by default a previous run's store and recording are
+renamed with a time stamp (``--resume`` keeps the store, e.g. to continue). ``up`` waits
 until each child prints ``ready``, then runs until Ctrl-C/SIGTERM or
 ``--duration`` wall seconds, and stops the children with SIGTERM (SIGKILL after
 a grace period). Children get the parent-death signal, so no orphan survives
@@ -42,6 +44,10 @@ def register(sub) -> None:
     p.add_argument("--lease-ms", type=int, default=1000, help="Zenoh lease, ms (default 1000)")
     p.add_argument("--ready-timeout", type=float, default=120.0,
                    help="longest wait for the nodes to start, s")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the controller's store of a previous run (default: the simulated "
+                        "plant starts afresh, so the previous store and recording are moved "
+                        "aside with a time stamp)")
     p.set_defaults(func=run_up)
 
 
@@ -90,6 +96,21 @@ def stop_children(procs: list[subprocess.Popen], grace_s: float = 10.0) -> None:
             p.wait()
 
 
+def _move_aside(state_dir: str, unit: str) -> list[str]:
+    """Rename a previous run's store and recording to ``*.<UTC time>.*`` (nothing is lost)."""
+    from pathlib import Path
+
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    moved = []
+    for suffix in (".sqlite", ".sqlite-wal", ".sqlite-shm", ".rrd"):
+        src = Path(state_dir) / f"ssmpc-{unit}{suffix}"
+        if src.exists():
+            dst = src.with_name(f"ssmpc-{unit}.{stamp}{suffix}")
+            os.replace(src, dst)
+            moved.append(str(dst))
+    return moved
+
+
 def run_up(args) -> int:
     from services.units import load_unit_config
     from services.zenoh_session import free_port
@@ -98,6 +119,9 @@ def run_up(args) -> int:
     if not 0 < args.port < 65536:
         raise CLIError(f"port: must be 1..65535, got {args.port}")
     os.makedirs(args.state_dir, exist_ok=True)
+    if not args.resume:
+        for path in _move_aside(args.state_dir, args.unit):
+            print(f"previous run kept as {path}", flush=True)
     p_ctrl, p_plant, p_api = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
     common = ["--unit", args.unit, "--speed", str(args.speed), "--lease-ms", str(args.lease_ms)]
     if args.unit_config:
