@@ -107,3 +107,12 @@ def test_checkpoint_restore_is_bumpless(strategy, tol):
     d1, d2 = ctl.step(60, sim.time, y, None), ctl2.step(60, sim.time, y, None)
     assert np.nanmax(np.abs(d1.u - d2.u)) <= tol
     np.testing.assert_allclose(d1.extra["setpoints"], d2.extra["setpoints"], atol=tol)
+
+
+def test_idv1_drives_pressure_up_alarms_before_the_interlock():
+    # IDV(1) (A/C ratio step) from mode 0: the pressure rises toward the interlock; the
+    # override alarms and acts, the plant keeps running
+    run = run_te("ssmpc", TransitionPlan("mode0"), 24.0, idv={1: 1.0})
+    assert run.shutdown is None
+    assert run.margins["reactor pressure"]["max"] < 3000.0
+    assert any("high-pressure override" in a for a in run.alarms)

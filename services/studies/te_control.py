@@ -359,7 +359,9 @@ class TEController:
         cut = self._override_step(xmeas)
         if cut > 0:
             u[3] = max(u[3] - cut, 0.0)
-            alarms.append(f"pressure override: A+C feed cut by {cut:.1f} %")
+            if cut >= 0.05:
+                alarms.append(f"reactor pressure {xmeas[6]:.0f} kPa: high-pressure override "
+                              f"cuts the A+C feed by {cut:.1f} % (interlock 3000 kPa)")
         setpoints = np.array([core_u[3], ym[7], ym[11], ym[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
         extra.update(info)
