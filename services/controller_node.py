@@ -201,7 +201,8 @@ class ControllerNode:
             state = {"controller": self.controller.checkpoint(),
                      "transitions": self.tm.checkpoint(), "u_last": self.u_last.tolist(),
                      "mv_seq": self.mv_seq, "deadline_misses": self.stats.misses,
-                     "fallback_moves": self.stats.fallbacks}
+                     "fallback_moves": self.stats.fallbacks,
+                     "recording_id": getattr(self.telemetry, "recording_id", None)}
             k, t = max(self.k, 0), self.t
         self._worker.submit(self.store.save_checkpoint, k, t, state)
         if wait:

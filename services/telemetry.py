@@ -90,7 +90,8 @@ class TelemetryLogger:
     batch : int
         Samples per batch.
     recording_id : str, optional
-        Rerun recording id (a restarted node may continue the same recording).
+        Rerun recording id; a restarted node passes its previous one, so that its
+        files open in the viewer as one recording. Default: a new id.
     ref_names : sequence of str, optional
         CVs that have a reference (default: all ``cv_names``).
     """
@@ -105,6 +106,7 @@ class TelemetryLogger:
         self.batch = int(batch)
         self.model_names: tuple[str, ...] = ()
         self.rec = None
+        self.recording_id: str | None = None
         self.samples_logged = 0
         self._rows: list[tuple] = []
         if sink is None:
@@ -112,7 +114,10 @@ class TelemetryLogger:
         import rerun as rr
 
         self._rr = rr
-        self.rec = rr.RecordingStream(f"ssmpc-{unit}", recording_id=recording_id)
+        import uuid
+
+        self.recording_id = recording_id or f"ssmpc-{unit}-{uuid.uuid4().hex[:12]}"
+        self.rec = rr.RecordingStream(f"ssmpc-{unit}", recording_id=self.recording_id)
         sink = str(sink)
         if sink.startswith(("rerun+http://", "rerun://", "rerun+https://")):
             self.rec.connect_grpc(sink)

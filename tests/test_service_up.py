@@ -128,3 +128,17 @@ def test_a_new_up_run_keeps_the_previous_store_aside(tmp_path):
     assert not (tmp_path / "ssmpc-te.sqlite").exists()
     assert (tmp_path / "ssmpc-cstr.sqlite").exists()
     assert sorted(Path(m).read_text() for m in moved) == [".rrd", ".sqlite", ".sqlite-wal"]
+
+
+def test_restarted_controller_continues_its_recording_in_a_new_file(tmp_path):
+    rr_chunk = pytest.importorskip("rerun.chunk")
+    for _ in range(2):
+        proc = subprocess.run(
+            [sys.executable, "-m", "services.cli", "controller", "--unit", "cstr",
+             "--state-dir", str(tmp_path), "--duration", "1"],
+            cwd=REPO, capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+    files = sorted(tmp_path.glob("ssmpc-cstr*.rrd"))
+    assert [f.name for f in files] == ["ssmpc-cstr.1.rrd", "ssmpc-cstr.rrd"]
+    ids = {rr_chunk.RrdReader(str(f)).recordings()[0].recording_id for f in files}
+    assert len(ids) == 1

@@ -185,6 +185,18 @@ def run_plant(args) -> int:
     return 0
 
 
+def _unused_path(path) -> str:
+    """``path`` if free, else ``<stem>.<n><suffix>``: a restart never overwrites a recording."""
+    if not path.exists():
+        return str(path)
+    n = 1
+    while True:
+        candidate = path.with_name(f"{path.stem}.{n}{path.suffix}")
+        if not candidate.exists():
+            return str(candidate)
+        n += 1
+
+
 def run_controller(args) -> int:
     from pathlib import Path
 
@@ -202,8 +214,14 @@ def run_controller(args) -> int:
     sink = None
     if not args.no_telemetry:
         sink = args.rerun_addr or args.rrd or str(Path(args.state_dir) / f"ssmpc-{cfg.unit}.rrd")
+        if not args.rerun_addr:
+            sink = _unused_path(Path(sink))
+    # A restarted node continues its recording: same recording id, next file.
+    cp = store.load_checkpoint()
+    recording_id = None if cp is None else cp["state"].get("recording_id")
     telemetry = TelemetryLogger(cfg.unit, info.cv_names, info.mv_names, sink,
-                                batch=cfg.telemetry_every, ref_names=cfg.track or None)
+                                batch=cfg.telemetry_every, ref_names=cfg.track or None,
+                                recording_id=recording_id)
     session = open_session(session_settings(args))
     node = None
     try:
