@@ -9,6 +9,7 @@
 ``GET /api/v1/units/{unit}/transitions``   all transitions of the unit (history)
 ``GET .../transitions/{id}``               state, progress, ISE so far, ETA
 ``DELETE .../transitions/{id}``            abort and hold the current set points
+``GET/POST /api/v1/units/{unit}/disturbances``  plant disturbances (TE IDVs), by command
 =========================================  ===========================================
 
 Errors: unknown unit/grade/transition → 404; malformed body → 422; a
@@ -25,7 +26,14 @@ from fastapi import Depends, FastAPI, HTTPException, Path, Response
 
 from api.auth import make_write_guard, token_from_env
 from api.mesh import Mesh, MeshError
-from api.schemas import Health, TransitionRequest, TransitionView, UnitLiveliness, UnitsResponse
+from api.schemas import (
+    DisturbanceRequest,
+    Health,
+    TransitionRequest,
+    TransitionView,
+    UnitLiveliness,
+    UnitsResponse,
+)
 from services.messages import Reply
 
 __all__ = ["create_app"]
@@ -107,5 +115,21 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
                 dependencies=[Depends(write_guard)])
     def abort_transition(unit: str = UNIT, tid: str = TID) -> dict:
         return call(unit, "transition", {"op": "abort", "id": tid})
+
+    def call_plant(unit: str, action: str, args: dict | None = None):
+        try:
+            return _unwrap(mesh.request_plant(unit, action, args))
+        except MeshError as exc:
+            raise HTTPException(status_code=exc.status, detail=exc.detail) from exc
+
+    @app.get("/api/v1/units/{unit}/disturbances")
+    def disturbances(unit: str = UNIT) -> dict:
+        status = call_plant(unit, "status")
+        return {"unit": unit, "shutdown": status.get("shutdown"),
+                "disturbances": call_plant(unit, "disturbance_list")}
+
+    @app.post("/api/v1/units/{unit}/disturbances", dependencies=[Depends(write_guard)])
+    def set_disturbance(body: DisturbanceRequest, unit: str = UNIT) -> dict:
+        return call_plant(unit, "disturbance", {"name": body.name, "value": body.value})
 
     return app

@@ -100,6 +100,29 @@ class Mesh:
             raise MeshError(503, f"unit {unit!r}: controller went away")
         raise MeshError(504, f"unit {unit!r}: controller did not answer within {timeout:g} s")
 
+    def request_plant(self, unit: str, action: str, args: dict | None = None,
+                      timeout_s: float | None = None) -> Reply:
+        """A :class:`Request` to the unit's plant node (``ssmpc/<unit>/plant/cmd/<action>``)."""
+        try:
+            keys.check_unit_name(unit)
+        except ValueError as exc:
+            raise MeshError(404, str(exc)) from exc
+        if not self.alive(unit, "plant"):
+            if self.alive(unit, "controller"):
+                raise MeshError(503, f"unit {unit!r}: plant not reachable (liveliness lost)")
+            raise MeshError(404, f"unit: unknown unit {unit!r}")
+        timeout = self.timeout_s if timeout_s is None else timeout_s
+        for reply in self.session.get(keys.plant_cmd(unit, action),
+                                      payload=Request(action, args or {}).to_bytes(),
+                                      timeout=timeout):
+            if reply.ok is None:
+                continue
+            try:
+                return Reply.from_bytes(reply.ok.payload.to_bytes())
+            except MessageError as exc:
+                raise MeshError(502, f"plant sent a malformed reply: {exc}") from exc
+        raise MeshError(504, f"unit {unit!r}: plant did not answer within {timeout:g} s")
+
     def close(self) -> None:
         try:
             self._sub.undeclare()

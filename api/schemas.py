@@ -6,8 +6,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-__all__ = ["TransitionRequest", "TransitionView", "Health", "UnitLiveliness", "UnitsResponse",
-           "ErrorBody"]
+__all__ = ["DisturbanceRequest", "TransitionRequest", "TransitionView", "Health",
+           "UnitLiveliness", "UnitsResponse", "ErrorBody"]
 
 
 class TransitionRequest(BaseModel):
@@ -22,6 +22,17 @@ class TransitionRequest(BaseModel):
                     "98 % after it); default: the unit's")
     queue: bool = Field(default=False, description="if another transition is under way, "
                         "wait for it instead of 409")
+
+
+class DisturbanceRequest(BaseModel):
+    """``POST /api/v1/units/{unit}/disturbances``: a plant disturbance switched by command."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(min_length=1, max_length=64,
+                      description="IDV1..IDV20 for TE (value 1 = on, 0 = off), or a "
+                                  "disturbance variable of a unit plant")
+    value: float = Field(allow_inf_nan=False, description="new value")
 
 
 class TransitionView(BaseModel):

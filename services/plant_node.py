@@ -177,9 +177,12 @@ class TERunner:
         self.sim.settings = replace(self.sim.settings, noise=bool(on))
 
     def set_disturbance(self, name: str, value: float) -> None:
-        if not name.upper().startswith("IDV"):
-            raise ValueError(f"name: TE disturbances are IDV1..IDV20, got {name!r}")
-        self.set_idv(int(name[3:]), bool(value))
+        k = int(name[3:]) if name.upper().startswith("IDV") and name[3:].isdigit() else 0
+        if not 1 <= k <= 20:
+            raise ValueError(f"name: unknown TE disturbance {name!r}; known: IDV1..IDV20")
+        if value not in (0, 1):
+            raise ValueError(f"value: IDV{k} is switched on (1) or off (0), got {value!r}")
+        self.set_idv(k, bool(value))
 
     def disturbances(self) -> dict[str, float]:
         return {f"IDV{i + 1}": float(v) for i, v in enumerate(self.sim.idv)}
@@ -306,8 +309,13 @@ class PlantNode:
             if isinstance(value, bool) or not isinstance(value, int | float):
                 return Reply(422, error="value: expected a number")
             with self._lock:
-                self.runner.set_disturbance(name, value)
+                try:
+                    self.runner.set_disturbance(name, value)
+                except ValueError as exc:  # PlantInputError: unknown name
+                    return Reply(404 if "unknown" in str(exc) else 422, error=str(exc))
             return Reply(200, {"disturbances": self.runner.disturbances()})
+        if req.action == "disturbance_list":
+            return Reply(200, self.runner.disturbances())
         if req.action == "noise":
             on = req.args.get("on")
             if not isinstance(on, bool) or not hasattr(self.runner, "set_noise"):

@@ -175,3 +175,19 @@ def test_silent_controller_is_504_not_a_hang(stack):
     assert time.monotonic() - t0 < 5
     q.undeclare()
     token.undeclare()
+
+
+def test_disturbances_by_command(stack):
+    h, api = stack
+    c = api.client
+    assert c.get("/api/v1/units/cstr/disturbances").json()["disturbances"] == {"x1f": 1.0}
+    body = {"name": "x1f", "value": 1.1}  # the seed's Fig. 5.15: feed concentration +10 %
+    assert c.post("/api/v1/units/cstr/disturbances", json=body).status_code == 401
+    r = c.post("/api/v1/units/cstr/disturbances", json=body, headers=AUTH)
+    assert r.status_code == 200 and r.json()["disturbances"] == {"x1f": 1.1}
+    assert h.plant.runner.d[0] == 1.1
+    assert c.post("/api/v1/units/cstr/disturbances", json={"name": "nope", "value": 1},
+                  headers=AUTH).status_code == 404
+    assert c.post("/api/v1/units/cstr/disturbances", json={"name": "x1f", "value": "x"},
+                  headers=AUTH).status_code == 422
+    assert c.get("/api/v1/units/nosuch/disturbances").status_code == 404

@@ -77,7 +77,8 @@ def test_te_plant_node_idv_command_and_shutdown(tmp_path):
         # IDV(6), A feed loss, switched on by command: the A feed measurement drops to 0
         rep = _plant_query(h, "disturbance", {"name": "IDV6", "value": 1})
         assert rep.code == 200 and rep.data["disturbances"]["IDV6"] == 1.0
-        assert _plant_query(h, "disturbance", {"name": "XMV3", "value": 1}).code == 422
+        assert _plant_query(h, "disturbance", {"name": "XMV3", "value": 1}).code == 404
+        assert _plant_query(h, "disturbance", {"name": "IDV6", "value": 0.5}).code == 422
         h.wait_samples(20, timeout=60)
         assert h.query("status").data["cv"]["XMEAS1"] < 0.01
         # a transition, then a set point that trips the plant: the transition fails
