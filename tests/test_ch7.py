@@ -65,7 +65,8 @@ def test_r7_13_idv6_no_shutdown_and_production_drop_bounded():
 @pytest.mark.slow
 def test_r7_14_all_transitions_complete_with_mpc_and_pi():
     res = ch7.r7_14(CTX)
-    for name in ("0-2", "0-2-3", "0-2-3 noise", "0-2-3 input noise"):
+    for name in ("0-2", "0-2 noise", "0-2 input noise", "0-2-3", "0-2-3 noise",
+                 "0-2-3 input noise"):
         for who in ("", "PI baseline: "):
             row = _row(res, f"[{name}] {who}run completed without shutdown (1 = yes)")
             assert row.ours == 1.0, (name, who)
