@@ -7,9 +7,7 @@ file (``--unit-config``) on top of the registry defaults (:data:`UNITS`).
 Controllers (``UnitConfig.controller``):
 
 - ``"pi"`` — :class:`PIBaseline`, a discrete multivariable PI with static
-  decoupling (velocity form). An honest baseline so that the services run
-  end to end; the state-shared MPC is meant to replace it as the default once
-  its per-unit builder lands (:data:`CONTROLLER_BUILDERS`).
+  decoupling (velocity form): an honest baseline for any square unit.
 - ``"hold"`` — :class:`HoldController`: MVs held ("MPC off"; for TE the
   regulatory layer alone keeps the levels and the reactor temperature).
 - ``"hinf"``, ``"mrac"`` — the SISO units (cstr, bioreactor): the state-shared
@@ -18,8 +16,12 @@ Controllers (``UnitConfig.controller``):
   (§5.1) law, tuned as the chapter-5 study (:mod:`services.studies.ch5`).
 - ``"ssmpc"`` — two-phase reactor: the state-shared MPC of the chapter-6 study
   (:mod:`services.studies.ch6`: reduced OPI/OPII models, Δu MPC).
-- ``"te"`` — the TE controller of issue 8 (``services.studies.te_control``),
-  the default of the ``te`` unit; a clear error while it is not available.
+- ``"te"`` — the TE supervisory controller of issue 8
+  (``services.studies.te_control``; ``UnitConfig.strategy``: ``ssmpc`` by default,
+  ``fixed`` or ``pi``) behind :class:`TEServiceController`.
+
+Defaults (:data:`UNITS`): cstr and bioreactor ``hinf``, two_phase_reactor
+``ssmpc``, te ``te``/``ssmpc``. Builders: :data:`CONTROLLER_BUILDERS`.
 
 Process time in the services is in seconds: ``time_scale_s`` converts the
 plant's own time unit (3600 for ``h``; 1 for ``s``; the CSTR's dimensionless
