@@ -340,8 +340,8 @@ def r7_13(ctx: StudyContext) -> ReproduceResult:
         else ("reproduced" if passes else "differs")
     why = (f"IDV(6) (A feed lost) from 1 h at Ricker's mode-3 state, 40 h. Fixed-model MPC: "
            f"{'no shutdown' if a['completed'] else 'SHUTDOWN'}; closest approaches: "
-           f"{_fmt_margin(a['margins'])}. Production falls "
-           f"{-a['production_change_pct']:.2f} % (seed 4.25 %, McAvoy & Ye 23.8 %); "
+           f"{_fmt_margin(a['margins'])}. Production changes by "
+           f"{a['production_change_pct']:+.2f} % (seed -4.25 %, McAvoy & Ye -23.8 %); "
            f"cost ratio {a['cost_end'] / a['cost_start']:.2f} (seed ~7); final model "
            f"{a['final_model']} (seed: mode 2). PI baseline production change "
            f"{pi['production_change_pct']:.2f} % (the production loop on the A+C feed is "
