@@ -601,8 +601,11 @@ class Soak:
             self.resumes.append(resume)
             return
         gap = np.abs(u_ckpt - u_held)
+        worst = int(np.argmax(gap - threshold))
         resume["checkpoint_vs_held"] = float(gap.max())
         resume["checkpoint_vs_held_allowed"] = float(threshold.max())
+        resume["worst_mv"] = {"index": worst, "gap": float(gap[worst]),
+                              "allowed": float(threshold[worst])}
         ok = bool(np.all(gap <= threshold))
         if first is None or u_replay is None:
             resume.update(bumpless=False, why="no move after the restart")
