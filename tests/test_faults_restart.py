@@ -1,0 +1,109 @@
+"""A controller killed while its last checkpoints were still queued (the node writes them
+on a background worker since 157de8a, so a SIGKILL under load loses the tail of the
+queue; the 72 h soak saw it: ``docs/soak_72h.json``, controller_resumes).
+
+Bumpless means the first move after the restart is the move the plant holds. The plant
+reports that move in every measurement (``Measurement.u``), so a restarted node can
+always start from it, however old its checkpoint is.
+"""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from services.controller_node import ControllerNode
+from services.messages import MVMessage
+from services.plant_node import PlantNode
+from services.store import UnitStore
+from services.units import get_unit
+from services.zenoh_session import SessionSettings, free_tcp_endpoint, open_session
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
+
+SPEED = 10.0
+LOST_SAMPLES = 10  # checkpoints lost at the kill
+
+
+class _LosingStore(UnitStore):
+    """A store that, once ``lose`` is set, silently drops checkpoint writes (the queued
+    writes a SIGKILL takes with it)."""
+
+    lose = False
+
+    def save_checkpoint(self, *a, **kw):
+        if not self.lose:
+            super().save_checkpoint(*a, **kw)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "known gap: a restarted controller re-asserts the move of its last checkpoint on disk, "
+    "not the move the plant holds (Measurement.u); with checkpoints written in the "
+    "background, a kill under load makes that a bump"))
+def test_restart_resumes_from_the_move_the_plant_holds(tmp_path):
+    cfg = get_unit("cstr")
+    ep = free_tcp_endpoint()
+    s_plant = open_session(SessionSettings(listen=(ep,), lease_ms=1000))
+    s_spy = open_session(SessionSettings(connect=(ep,), lease_ms=1000))
+    s_ctrl = open_session(SessionSettings(connect=(ep,), lease_ms=1000))
+    mvs: list[tuple[float, MVMessage]] = []
+    from services import keys
+
+    spy = s_spy.declare_subscriber(
+        keys.mv("cstr"),
+        lambda s: mvs.append((time.perf_counter(), MVMessage.from_bytes(s.payload.to_bytes()))))
+    store = _LosingStore(tmp_path / "cstr.sqlite", "cstr")
+    ctrl = ControllerNode(cfg, s_ctrl, store, None, speed=SPEED)
+    stop_c, stop_p = threading.Event(), threading.Event()
+    tc = threading.Thread(target=ctrl.run, args=(stop_c,), daemon=True)
+    tc.start()
+    time.sleep(0.3)
+    plant = PlantNode(cfg, s_plant, speed=SPEED)
+    tp = threading.Thread(target=plant.run, args=(stop_p,), daemon=True)
+    tp.start()
+    ctrl2 = store2 = s_ctrl2 = None
+    try:
+        ctrl._transition({"op": "create", "grade": "OPII"})  # the moves keep changing
+        t_end = time.monotonic() + 20
+        while ctrl.k < 30 and time.monotonic() < t_end:
+            time.sleep(0.01)
+        store.lose = True
+        k0 = ctrl.k
+        while ctrl.k < k0 + LOST_SAMPLES and time.monotonic() < t_end:
+            time.sleep(0.01)
+        # the kill: the loop stops, the session goes without a goodbye, nothing is flushed
+        stop_c.set()
+        tc.join(5)
+        s_ctrl.close()
+        killed = time.perf_counter()
+        time.sleep(0.2)
+        held = np.asarray(plant.runner.u, float)
+        store2 = UnitStore(tmp_path / "cstr.sqlite", "cstr")
+        s_ctrl2 = open_session(SessionSettings(connect=(ep,), lease_ms=1000))
+        ctrl2 = ControllerNode(cfg, s_ctrl2, store2, None, speed=SPEED)
+        tc2 = threading.Thread(target=ctrl2.run, args=(stop_c2 := threading.Event(),),
+                               daemon=True)
+        tc2.start()
+        t_end = time.monotonic() + 10
+        while not [m for w, m in mvs if w > killed] and time.monotonic() < t_end:
+            time.sleep(0.01)
+        first = next(m for w, m in mvs if w > killed)
+        recent = np.array([m.u for w, m in mvs if w < killed][-20:])
+        step = np.max(np.abs(np.diff(recent, axis=0)), axis=0)
+        assert np.all(np.abs(np.asarray(first.u) - held) <= step + 1e-9), (first.u, held)
+        stop_c2.set()
+        tc2.join(5)
+    finally:
+        stop_p.set()
+        tp.join(5)
+        plant.close()
+        spy.undeclare()
+        if ctrl2 is not None:
+            ctrl2.close()
+            store2.close()
+            s_ctrl2.close()
+        ctrl._watchdog.close()
+        store.close()
+        s_spy.close()
+        s_plant.close()
