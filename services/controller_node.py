@@ -19,9 +19,11 @@ move of the previous plan for the MPC) is counted too.
 
 Status goes to ``ssmpc/<unit>/status`` every ``status_every`` samples;
 telemetry to Rerun in batches; a checkpoint (controller state, last move,
-transition state) to SQLite every ``checkpoint_every`` samples and at every
-transition state change. On start the node restores the checkpoint, so its
-first move equals the last one before the restart (bumpless).
+transition state) to SQLite every ``checkpoint_every`` samples — on the first
+such sample with time for the snapshot before the next measurement, at the
+latest after 10 s — and at every transition state change. On start the node
+restores the checkpoint, so its first move equals the last one before the
+restart (bumpless).
 
 Queries on ``ssmpc/<unit>/cmd/<action>`` with a :class:`~services.messages.Request`:
 ``status``, ``grades``, ``transition`` (``args.op``: ``create`` with ``grade``
@@ -164,6 +166,9 @@ class ControllerNode:
         self._latest: tuple[float, Measurement] | None = None
         self._dropped = 0
         self._worker = _Worker()
+        self._checkpoint_due = False
+        self._checkpoint_cost_s = 0.0
+        self._last_checkpoint_wall = time.perf_counter()
         self._restore()
         self._watchdog = Watchdog()
         self._mv_pub = session.declare_publisher(keys.mv(cfg.unit))
@@ -207,6 +212,28 @@ class ControllerNode:
         self._worker.submit(self.store.save_checkpoint, k, t, state)
         if wait:
             self._worker.wait()
+
+    #: Longest wall time between checkpoints however little slack the loop has, s.
+    CHECKPOINT_MAX_WALL_S = 10.0
+
+    def _maybe_checkpoint(self, arrived: float, forced: bool) -> None:
+        """Checkpoint when the snapshot fits before the next measurement is due.
+
+        Snapshotting a large controller (TE: ~5 ms) on the loop thread must not push the
+        next sample past its deadline at high speed, so a due checkpoint waits for a
+        sample with enough slack; it is forced by a transition state change or after
+        :attr:`CHECKPOINT_MAX_WALL_S`.
+        """
+        now = time.perf_counter()
+        slack = arrived + self.budget.wall_period_s - now
+        overdue = now - self._last_checkpoint_wall > self.CHECKPOINT_MAX_WALL_S
+        if not (forced or overdue or self._checkpoint_cost_s < slack):
+            return
+        self.checkpoint(wait=False)
+        cost = time.perf_counter() - now
+        self._checkpoint_cost_s = max(cost, 0.5 * self._checkpoint_cost_s)
+        self._last_checkpoint_wall = time.perf_counter()
+        self._checkpoint_due = False
 
     def flush(self) -> None:
         """Wait until every record and checkpoint submitted so far is written."""
@@ -464,7 +491,9 @@ class ControllerNode:
             if full:
                 self._worker.submit(self.telemetry.flush)
         if changes or msg.seq % self.cfg.checkpoint_every == 0:
-            self.checkpoint(wait=False)
+            self._checkpoint_due = True
+        if self._checkpoint_due:
+            self._maybe_checkpoint(arrived, forced=bool(changes))
         if msg.seq % self.cfg.status_every == 0:
             self._worker.submit(self._publish_status)
 
