@@ -547,21 +547,26 @@ class Soak:
             self.ctrl.start(self.s.ready_timeout_s)
             self._check_resume(resume, copy, u_held, thr)
             if tid is not None and before in ("pending", "running"):
+                # the restarted node must still be driving that transition (not only have
+                # it in its store): its status names it as the active one, or it ended
                 t_end = time.monotonic() + 10
-                after = None
+                after = active = None
                 while time.monotonic() < t_end and after is None:
+                    st = self._status()
                     r = self._rest("GET", f"/api/v1/units/{self.cfg.unit}/transitions/{tid}")
-                    if r is not None and r.status_code == 200:
+                    if st is not None and r is not None and r.status_code == 200:
                         after = r.json()["state"]
+                        active = (st.get("transition") or {}).get("id")
                     else:
                         time.sleep(0.1)
-                ok = after in ("running", "settled", "aborted", "failed") or (
-                    before == "pending" and after == "pending")
+                ok = (after in ("settled", "aborted", "failed")
+                      or (after in ("pending", "running") and active == tid))
                 self.resume_checks.append({"t_h": t / 3600.0, "transition": tid,
-                                           "before": before, "after": after, "ok": ok})
+                                           "before": before, "after": after,
+                                           "active_after": active, "ok": ok})
                 if not ok:
                     self.errors_lost.append(f"transition {tid} was {before} at the kill, "
-                                            f"{after} after the restart")
+                                            f"{after} (active: {active}) after the restart")
         elif target == "api":
             self.api.kill()
             self.api.start(self.s.ready_timeout_s)
