@@ -299,12 +299,16 @@ class _PlantHost:
 
         clock = SampleClock(self.cfg.sample_period_s / self.speed)
         u = self.runner.u
-        while not stop.is_set():
-            clock.wait_next(stop)
-            if stop.is_set():
-                break
-            self.runner.advance(u, self.cfg.sample_period_s)
-            self.k += 1
+        try:
+            while not stop.is_set():
+                clock.wait_next(stop)
+                if stop.is_set():
+                    break
+                self.runner.advance(u, self.cfg.sample_period_s)
+                self.k += 1
+        except Exception:
+            log.exception("plant (no node) failed")
+            self.errors["plant exception while its node was down"] += 1
 
     @property
     def t(self) -> float:
