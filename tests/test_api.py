@@ -191,3 +191,18 @@ def test_disturbances_by_command(stack):
     assert c.post("/api/v1/units/cstr/disturbances", json={"name": "x1f", "value": "x"},
                   headers=AUTH).status_code == 422
     assert c.get("/api/v1/units/nosuch/disturbances").status_code == 404
+    # the operator client, as a user runs it
+    import subprocess
+    import sys
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "services.cli", "disturbance", "cstr", "x1f", "1.0", "--api",
+         f"http://127.0.0.1:{api.port}", "--token", TOKEN, "--json"],
+        capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert h.plant.runner.d[0] == 1.0
+    proc = subprocess.run(
+        [sys.executable, "-m", "services.cli", "status", "cstr", "--api",
+         f"http://127.0.0.1:{api.port}"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and "active model" in proc.stdout and "deadline misses" in \
+        proc.stdout

@@ -1,4 +1,5 @@
-"""``ssmpc transition UNIT GRADE`` and ``ssmpc status UNIT``: a thin REST client for operators.
+"""``ssmpc transition UNIT GRADE``, ``ssmpc status UNIT``, ``ssmpc disturbance UNIT NAME VALUE``:
+a thin REST client for operators.
 
 Talks to an api node (``--api``, default http://127.0.0.1:8000; the token from
 ``--token`` or ``SSMPC_API_TOKEN``). Readable text by default, ``--json`` for
@@ -31,6 +32,14 @@ def register(sub) -> None:
     p.add_argument("--wait-timeout", type=float, default=600.0, help="longest wait, wall s")
     _common(p)
     p.set_defaults(func=run_transition)
+
+    p = sub.add_parser("disturbance",
+                       help="switch a plant disturbance through the REST API (TE: IDVk 1|0)")
+    p.add_argument("unit")
+    p.add_argument("name", help="IDV1..IDV20 for TE, or a disturbance variable of a unit plant")
+    p.add_argument("value", type=float, help="new value (TE IDVs: 1 on, 0 off)")
+    _common(p)
+    p.set_defaults(func=run_disturbance)
 
     p = sub.add_parser("status", help="show a unit's status through the REST API")
     p.add_argument("unit")
@@ -93,6 +102,24 @@ def run_transition(args) -> int:
     if args.json:
         emit_json(view)
     return 0 if view["state"] not in ("failed",) else 1
+
+
+def run_disturbance(args) -> int:
+    import httpx
+
+    with _client(args) as c:
+        try:
+            out = _check(c.post(f"/api/v1/units/{args.unit}/disturbances",
+                                json={"name": args.name, "value": args.value}))
+        except httpx.HTTPError as exc:
+            raise CLIError(f"api: cannot reach {args.api}: {exc}") from exc
+    if args.json:
+        emit_json(out)
+    else:
+        on = {k: v for k, v in out["disturbances"].items() if v}
+        print(f"{args.unit}: {args.name} = {args.value:g}; active: "
+              + (", ".join(f"{k}={v:g}" for k, v in on.items()) or "none"))
+    return 0
 
 
 def run_status(args) -> int:
