@@ -863,6 +863,7 @@ class Soak:
                 "loop_wall_s": wall_loop,
                 "achieved_speed": t_loop / wall_loop if wall_loop > 0 else None,
                 "machine": machine_description(),
+                "source": _source_version(),
                 "restarts_by_node": dict(self.restarts),
                 "controller_resumes": self.resumes,
                 "transition_resume_checks": self.resume_checks,
@@ -950,6 +951,21 @@ def replay_first_move(cfg, store_path: Path, meas_payload: bytes | None):
         if node is not None:
             node.close()
         store.close()
+
+
+def _source_version() -> dict:
+    """The git commit of the code that ran and whether the tree had local changes."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True,
+                                text=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=root, capture_output=True, text=True,
+                               timeout=10).stdout.rstrip("\n")
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None, "modified_files": None}
+    return {"commit": commit or None,
+            "modified_files": sorted(line[3:] for line in dirty.splitlines())}
 
 
 def run_soak(settings: SoakSettings) -> dict:
