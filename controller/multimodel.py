@@ -13,12 +13,19 @@ Per sample (y_k measured, absolute units):
 3. adapt every adaptive model by normalized least squares (eq. 4.1) on the
    shared regressor ``W`` (``y_j = W p_j``);
 4. update the performance index (eq. 4.6) and switch (smallest J, dwell time);
-5. restart events of the adaptive kinds (seed §4, ref. [19]): when the
-   smallest J belongs to a fixed model, each *re-initialized* model takes that
-   model's parameters (and its index history); when the active model changes,
-   each *conventional* model restarts from its initial parameters;
+5. restart events of the adaptive kinds (seed §4, ref. [19]): a *re-initialized*
+   model "assumes the parameter values of the fixed model that gives the smallest
+   estimation error" when that fixed model is strictly better than it: with
+   ``b = argmin_{fixed} J``, it takes model b's parameters (and its index
+   history) when ``J_b < (1 - hysteresis) J_j - J_TOL`` (the switcher's
+   hysteresis and round-off tolerance, :class:`controller.switching.ModelSwitcher`).
+   A tie (e.g. right after a re-initialization, when both J are the same) keeps
+   the adaptive model adapting, whatever the order of the models. When the active
+   model changes, each *conventional* model restarts from its initial parameters;
    *free-running* models just continue;
-6. the control law computes u_k for the active model;
+6. the control law computes u_k for the active model; its soft-constraint slack
+   and status (when it reports them) go into ``decision.extra``
+   (``"constraint_slack"``, ``"law_status"``);
 7. the shared state advances with (u_k, y_k).
 
 Switching is bumpless with respect to the model output because every model
@@ -384,17 +391,18 @@ class MultiModelController:
         dec = self.switcher.step(J)
         # restart events of the adaptive kinds
         if self.adaptive:
-            best = dec.best
+            best_fixed = self._best_fixed(J)
             for j in self.adaptive:
                 kind = self.kinds[j]
-                if kind is AdaptiveKind.REINITIALIZED and best in self.fixed:
-                    self._reinitialize(j, best)
+                if kind is AdaptiveKind.REINITIALIZED and self._fixed_beats(best_fixed, j, J):
+                    self._reinitialize(j, best_fixed)
                 elif kind is AdaptiveKind.CONVENTIONAL and dec.switched:
                     self.estimators[j].set_params(self.p_initial[j])
                     self.ssm.set_params(j, self.p_initial[j])
                     self.n_restarts += 1
         # control
         status, fallback = "solved", False
+        info: dict = {}
         try:
             u, info = self.law.compute(k, self.switcher.active, self.ssm, y, ref, self.u_last)
             u = np.asarray(u, dtype=float).reshape(-1)
@@ -410,10 +418,34 @@ class MultiModelController:
         u = np.clip(u, self.u_min, self.u_max)
         self.ssm.update(u, y)
         self.u_last = u
-        extra: dict[str, Any] = {"switched": dec.switched, "best": dec.best}
+        extra: dict[str, Any] = {"switched": dec.switched, "best": dec.best,
+                                 "law_status": status}
+        # the soft output constraint's exact-penalty slack (not the timing slack);
+        # None when the law has no soft constraint or did not solve this sample
+        slack = info.get("slack") if isinstance(info, dict) else None
+        extra["constraint_slack"] = None if slack is None else float(slack)
         if self.record_params:
             extra["params"] = {j: self.estimators[j].p.copy() for j in self.adaptive}
         return self._decision(u, status, fallback, alarms, t0, extra)
+
+    def _best_fixed(self, J: np.ndarray) -> int | None:
+        """Fixed model with the smallest finite J (None if there is none)."""
+        if not self.fixed:
+            return None
+        Jf = np.asarray(J, dtype=float)[self.fixed]
+        Jf = np.where(np.isfinite(Jf), Jf, np.inf)
+        i = int(np.argmin(Jf))
+        return self.fixed[i] if np.isfinite(Jf[i]) else None
+
+    def _fixed_beats(self, b: int | None, j: int, J: np.ndarray) -> bool:
+        """True when fixed model b is strictly better than adaptive model j (step 5)."""
+        if b is None:
+            return False
+        Jj = float(J[j])
+        if not math.isfinite(Jj):  # a diverged adaptive index: take the fixed model
+            return True
+        margin = (1.0 - self.switcher.hysteresis) * Jj - self.switcher.J_TOL
+        return float(J[b]) < margin
 
     def _reinitialize(self, j: int, source: int) -> None:
         p = self.params(source)

@@ -247,3 +247,57 @@ class _HoldLaw:
 
     def restore(self, state):
         pass
+
+
+class _SlackLaw(_HoldLaw):
+    """Holds u and reports a soft-constraint slack (an MPC law's ``info["slack"]``)."""
+
+    slack = 0.25
+
+    def compute(self, k, model, ssm, y, reference, u_last):
+        return u_last, {"status": "solved", "slack": self.slack}
+
+
+def test_law_slack_and_status_are_in_the_decision():
+    ctl = _controller(_SlackLaw(), [_model("M1", TRUE)], ["fixed"])
+    dec = ctl.step(0, 0.0, [Y0], [[Y0]])
+    assert dec.extra["constraint_slack"] == _SlackLaw.slack
+    assert dec.extra["law_status"] == "solved"
+    # a law without a soft constraint: None, not a made-up zero
+    ctl = _controller(_HoldLaw(), [_model("M1", TRUE)], ["fixed"])
+    assert ctl.step(0, 0.0, [Y0], [[Y0]]).extra["constraint_slack"] is None
+
+
+def _reinit_controller(order):
+    """Fixed M1 (TRUE), fixed M2 (WRONG) and a re-initialized model starting at WRONG,
+    in the given slot order; at a steady state (y = Y0, u = U0) every model's error is
+    0, so nothing adapts and J is exactly what the test sets."""
+    specs = {"M1": (_model("M1", TRUE), "fixed"), "M2": (_model("M2", WRONG), "fixed"),
+             "R": (_model("R", WRONG, "adaptive"), "re-initialized")}
+    ctl = _controller(_HoldLaw(), [specs[n][0] for n in order], [specs[n][1] for n in order])
+    return ctl, {n: i for i, n in enumerate(order)}
+
+
+@pytest.mark.parametrize("order", [("M1", "M2", "R"), ("R", "M1", "M2")])
+def test_reinitialization_only_when_a_fixed_model_is_strictly_better(order):
+    ctl, idx = _reinit_controller(order)
+    wrong = ctl.params(idx["R"]).copy()
+    J = np.zeros(3)
+    ctl.index.update = lambda errors: J.copy()  # the rule under test reads J only
+    # a tie between the best fixed model and the adaptive one: the adaptive model
+    # keeps its own parameters (whatever the slot order)
+    J[[idx["M1"], idx["M2"], idx["R"]]] = [1.0, 2.0, 1.0]
+    for k in range(3):
+        ctl.step(k, k * DT, [Y0], [[Y0]])
+    assert ctl.n_reinit == 0
+    np.testing.assert_array_equal(ctl.params(idx["R"]), wrong)
+    # the best fixed model strictly better: the adaptive model takes its parameters
+    J[idx["M1"]] = 0.5
+    ctl.step(3, 3 * DT, [Y0], [[Y0]])
+    assert ctl.n_reinit == 1
+    np.testing.assert_array_equal(ctl.params(idx["R"]), ctl.params(idx["M1"]))
+    # a fixed model better than the adaptive one but not the best fixed one: the best
+    J[[idx["M1"], idx["M2"], idx["R"]]] = [0.7, 0.4, 1.0]
+    ctl.step(4, 4 * DT, [Y0], [[Y0]])
+    assert ctl.n_reinit == 2
+    np.testing.assert_array_equal(ctl.params(idx["R"]), ctl.params(idx["M2"]))

@@ -269,3 +269,28 @@ def test_invalid_measurement_keeps_the_model_state_in_step_with_time():
     for u in u_applied[:-1]:  # the state at the last sample has seen all but the last u
         x_model = Phi @ x_model + Gamma @ u
     np.testing.assert_allclose(ctrl.source.x["m"], x_model, atol=1e-12)
+
+
+def test_set_input_target_moves_toward_the_target_by_the_closed_form():
+    # Xi = 0, M = 1, no active limit: the cost is Λ Δu² + W (u(k-1) + Δu − u_t)², so
+    # Δu = W (u_t − u(k-1)) / (Λ + W) per input (closed form, independent of the QP).
+    lam, w = np.array([1.0, 1.0]), np.array([1.0, 3.0])
+    ctrl, plant = make({"Xi": [0.0, 0.0], "M": 1, "Lambda": lam, "du_max": [1.0, 1.0],
+                        "u_target_weight": w})
+    target = np.array([0.3, -0.2])
+    ctrl.set_input_target(target)
+    dec = ctrl.step(0, 0.0, plant.y(), np.zeros(2))
+    np.testing.assert_allclose(dec.u, w * target / (lam + w), atol=LIMIT_TOL)
+    # the target is part of the checkpoint
+    twin, _ = make({"Xi": [0.0, 0.0], "M": 1, "Lambda": lam, "du_max": [1.0, 1.0],
+                    "u_target_weight": w})
+    twin.restore(ctrl.checkpoint())
+    np.testing.assert_array_equal(twin.u_target, target)
+
+
+@pytest.mark.parametrize("bad", [[0.1], [0.1, np.nan], [0.1, np.inf], "x"])
+def test_set_input_target_rejects_bad_values_and_keeps_the_target(bad):
+    ctrl, _ = make({"u_target": [0.5, 0.5], "u_target_weight": [1.0, 1.0]})
+    with pytest.raises(ValueError, match="u_target"):
+        ctrl.set_input_target(bad)
+    np.testing.assert_array_equal(ctrl.u_target, [0.5, 0.5])

@@ -91,3 +91,51 @@ def test_mpc_law_inside_the_multiple_model_controller_with_restart():
     y = plant.estimates()[0]
     np.testing.assert_allclose(ctrl.step(40, 4.0, y, ref).u, twin.step(40, 4.0, y, ref).u,
                                atol=1e-9)
+
+
+RESTORE_ATOL = 1e-12  # restored law vs the original, same data (JSON round trip is exact)
+
+
+def _drive_adaptive(law, ssm, rng, k0, n, u):
+    """n samples with the adaptive model (index 2) active and its Θ changing."""
+    out = []
+    for k in range(k0, k0 + n):
+        p = ssm.params_from_theta(ssm.theta(2), ssm.bias(2))
+        ssm.set_params(2, p + 1e-3 * rng.standard_normal(p.size))
+        y = ssm.estimates()[0]
+        u, info = law.compute(k, 2, ssm, y, np.full((8, 2), 0.1), u)
+        assert info["status"] == "solved"
+        out.append(u)
+        ssm.update(u, y)
+    return np.array(out), u
+
+
+def test_checkpoint_keeps_the_adaptive_refresh_phase():
+    import json
+
+    s = MPCSettings(nu=2, ny=2, P=8, M=3, Lambda=[0.1, 0.1], du_max=[0.5, 0.5],
+                    budget_ms=1e3)
+
+    def run(restore_phase: bool):
+        rng = np.random.default_rng(4)
+        ssm = small_ssm(rng)
+        ssm.initialize(np.zeros(2), np.zeros(2))
+        law = MPCLaw(s, adaptive_refresh=5)
+        law.prepare(ssm)
+        law.reset(np.zeros(2), np.zeros(2))
+        _, u = _drive_adaptive(law, ssm, rng, 0, 7, np.zeros(2))  # mid-phase (7 % 5)
+        state = json.loads(json.dumps(law.checkpoint()))
+        if not restore_phase:  # a checkpoint without the phase (before the fix)
+            state["source"] = {"n_prev": state["source"]["n_prev"]}
+        twin = MPCLaw(s, adaptive_refresh=5)
+        twin.prepare(ssm)
+        twin.restore(state)
+        ss = ssm.checkpoint()
+        a, _ = _drive_adaptive(law, ssm, np.random.default_rng(5), 7, 8, u)
+        ssm.restore(ss)
+        b, _ = _drive_adaptive(twin, ssm, np.random.default_rng(5), 7, 8, u)
+        return np.max(np.abs(a - b))
+
+    assert run(True) <= RESTORE_ATOL
+    # the check can fail: without the phase the restored law refreshes at other samples
+    assert run(False) > RESTORE_ATOL

@@ -207,6 +207,29 @@ class MPCController:
         self.last_result: QPResult | None = None
         self.d: np.ndarray | None = None
         self.d_prev: np.ndarray | None = None
+        self.u_target = settings.u_target.copy()
+
+    def set_input_target(self, u_target) -> None:
+        """Input targets (resting values) from this sample on, shape (nu,), input units.
+
+        Replaces ``settings.u_target`` in the input-target cost term
+        ``Σ_j ‖u(k+j) − u_target‖²_W`` (W = ``settings.u_target_weight``; with W = 0
+        the target has no effect). Call before :meth:`step`, e.g. every sample from a
+        grade plan or an optimizer.
+
+        Raises
+        ------
+        ValueError
+            ``u_target`` is not ``nu`` finite numbers (the target is then unchanged).
+        """
+        try:
+            arr = np.asarray(u_target, dtype=float).reshape(-1)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"u_target: not a numeric vector ({exc})") from exc
+        if arr.size != self.settings.nu or not np.all(np.isfinite(arr)):
+            raise ValueError(f"u_target: expected {self.settings.nu} finite values, got "
+                             f"{arr.tolist()}")
+        self.u_target = arr.copy()
 
     def set_measured_disturbance(self, d) -> None:
         """Measured disturbance at this sample, before :meth:`step` (feedforward).
@@ -321,7 +344,7 @@ class MPCController:
             if view.Gamma_d is not None and self.d is not None:
                 dd = self.d - self.d_prev
             self.d_prev = self.d
-            vec = form.qp_vectors(x_a, self.u, R, dd)
+            vec = form.qp_vectors(x_a, self.u, R, dd, self.u_target)
             res = solver.solve(vec)
             self.last_result = res
             # The budget covers the sample's work except a one-off (re)build of a
@@ -381,6 +404,7 @@ class MPCController:
             "source": src() if callable(src) else None,
             "d": None if self.d is None else self.d.tolist(),
             "d_prev": None if self.d_prev is None else self.d_prev.tolist(),
+            "u_target": self.u_target.tolist(),
         }
 
     def restore(self, state: dict[str, Any]) -> None:
@@ -392,6 +416,8 @@ class MPCController:
         for name in ("d", "d_prev"):
             v = state.get(name)
             setattr(self, name, None if v is None else np.asarray(v, dtype=float))
+        if state.get("u_target") is not None:
+            self.set_input_target(state["u_target"])
         src = getattr(self.source, "restore", None)
         if callable(src) and state.get("source") is not None:
             src(state["source"])

@@ -197,7 +197,7 @@ class DeltaUFormulation:
         return np.concatenate([np.asarray(dx, dtype=float).ravel(),
                                np.asarray(y, dtype=float).ravel()])
 
-    def qp_vectors(self, x_a, u_prev, reference, dd=None) -> QPVectors:
+    def qp_vectors(self, x_a, u_prev, reference, dd=None, u_target=None) -> QPVectors:
         """QP vectors at one sample.
 
         Parameters
@@ -211,6 +211,9 @@ class DeltaUFormulation:
         dd : ndarray, shape (nd,), optional
             Change of the measured disturbance at this sample, ``d(k) − d(k−1)``
             (feedforward; future changes are taken as zero). Needs ``Gamma_d``.
+        u_target : ndarray, shape (nu,), optional
+            Input targets at this sample (default ``settings.u_target``); only used
+            when ``settings.u_target_weight`` has a positive entry.
         """
         s = self.settings
         R = np.asarray(reference, dtype=float)
@@ -224,8 +227,8 @@ class DeltaUFormulation:
         else:
             f[:self.n_moves] = self.F_x @ x_a - self.F_r @ R.reshape(-1)
         if self.F_ut is not None:
-            f[:self.n_moves] += self.F_ut @ np.tile(np.asarray(u_prev, dtype=float)
-                                                    - s.u_target, s.M)
+            ut = s.u_target if u_target is None else np.asarray(u_target, dtype=float)
+            f[:self.n_moves] += self.F_ut @ np.tile(np.asarray(u_prev, dtype=float) - ut, s.M)
         if self.has_slack:
             f[-1] = s.slack_linear
         bl = self._bl0.copy()

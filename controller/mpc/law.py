@@ -50,13 +50,14 @@ class SharedStateSource:
         self.n_prev: np.ndarray | None = None
         self._snap: dict[int, tuple] = {}
         self._made: dict[int, int] = {}
+        self._restored: dict[int, np.ndarray] = {}  # Θ of restored snapshots, (2nm, p)
         self._k = 0
         self.refreshes = 0
 
-    def _discrete_form(self, j: int):
+    def _discrete_form(self, j: int, theta=None):
         ssm = self.ssm
         nm = ssm.Fd.shape[0]
-        th = np.asarray(ssm.theta(j))
+        th = np.asarray(ssm.theta(j) if theta is None else theta, dtype=float)
         Phi = np.zeros((2 * nm, 2 * nm))
         Phi[:nm, :nm] = ssm.Fd
         Phi[nm:, :nm] = ssm.Gd @ th[:nm].T
@@ -68,10 +69,13 @@ class SharedStateSource:
     def _form(self, j: int):
         if self.ssm.kinds[j] != "adaptive":
             return self.ssm.prediction_form(j)
-        if j not in self._snap or self._k - self._made[j] >= self.adaptive_refresh:
-            self._snap[j] = self._discrete_form(j)
-            self._made[j] = self._k
-            self.refreshes += 1
+        if j in self._made and self._k - self._made[j] < self.adaptive_refresh:
+            if j not in self._snap:  # restored from a checkpoint: rebuild from its Θ
+                self._snap[j] = self._discrete_form(j, self._restored[j])
+            return self._snap[j]
+        self._snap[j] = self._discrete_form(j)
+        self._made[j] = self._k
+        self.refreshes += 1
         return self._snap[j]
 
     def observe(self, u_prev, y) -> ModelView:
@@ -84,11 +88,32 @@ class SharedStateSource:
                          names=tuple(self.ssm.names))
 
     def checkpoint(self) -> dict[str, Any]:
-        return {"n_prev": None if self.n_prev is None else self.n_prev.tolist()}
+        """Δn memory and the adaptive refresh phase: the sample counter and, per
+        adaptive model, the sample and Θ of its last refresh (so a restored source
+        predicts with the very form the original would use)."""
+        snaps = {}
+        for j, made in self._made.items():
+            th = self._snap[j][2].T if j in self._snap else self._restored[j]  # Θ (2nm, p)
+            snaps[str(j)] = {"made": made, "theta": np.asarray(th).tolist()}
+        return {"n_prev": None if self.n_prev is None else self.n_prev.tolist(),
+                "k": self._k, "snapshots": snaps}
 
     def restore(self, state: dict[str, Any]) -> None:
         n = state.get("n_prev")
         self.n_prev = None if n is None else np.asarray(n, dtype=float)
+        self._snap.clear()
+        self._made.clear()
+        self._restored.clear()
+        if "k" not in state:  # an older checkpoint: refresh every adaptive form now
+            return
+        self._k = int(state["k"])
+        for key, snap in (state.get("snapshots") or {}).items():
+            j = int(key)
+            th = np.asarray(snap["theta"], dtype=float)
+            if th.ndim != 2 or not np.all(np.isfinite(th)):
+                raise ValueError(f"state.snapshots.{key}.theta: expected a finite matrix")
+            self._restored[j] = th  # Θ, shape (2nm, p); the form is built on first use
+            self._made[j] = int(snap["made"])
 
 
 class MPCLaw:
@@ -113,6 +138,19 @@ class MPCLaw:
         for j in range(ssm.k):
             pf = self.source._form(j)
             self.mpc.prepare(j, pf[0], pf[1], pf[2])
+
+    def set_input_target(self, u_target) -> None:
+        """Input targets (resting values) from this sample on, shape (nu,).
+
+        See :meth:`controller.mpc.controller.MPCController.set_input_target`; raises
+        ``ValueError`` for a wrong length or a non-finite value.
+        """
+        self.mpc.set_input_target(u_target)
+
+    @property
+    def input_target(self) -> np.ndarray:
+        """The input targets in force, shape (nu,) (a copy)."""
+        return self.mpc.u_target.copy()
 
     def reset(self, u, y) -> None:
         self.mpc.u = np.asarray(u, dtype=float).copy()

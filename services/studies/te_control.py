@@ -46,7 +46,9 @@ Alarms
     Every sample the controller compares the measurements with alarm limits set
     below the interlocks (:data:`ALARM_LIMITS`) and reports each crossing in
     ``ControlDecision.alarms``; the MPC's soft limit on the reactor pressure
-    (:attr:`TEMPCOptions.pressure_soft_max`) acts in the same band.
+    (:attr:`TEMPCOptions.pressure_soft_max`) acts in the same band, and its
+    exact-penalty slack (kPa / ``output_scale[0]``; > 0 when the MPC predicts the
+    limit cannot be held) is ``ControlDecision.extra["constraint_slack"]``.
 
 Sample period
     36 s (0.01 h). The handles act on the reactor pressure within minutes (gas
@@ -295,16 +297,10 @@ class TEController:
         return self.s
 
     def _set_input_target(self, target: np.ndarray) -> None:
-        # The MPC's input targets follow the plan. MPCSettings is frozen and has no
-        # setter for a time-varying target; its QP reads settings.u_target at every
-        # sample, so the one shared settings object is updated in place.
-        law = getattr(self.core, "law", None)
-        settings = getattr(law, "settings", None)
-        if settings is None or not np.any(settings.u_target_weight > 0):
-            return
-        tgt = np.asarray(target, dtype=float).copy()
-        tgt.setflags(write=False)
-        object.__setattr__(settings, "u_target", tgt)
+        # The MPC's input targets follow the plan (trimmed by the outer loops).
+        setter = getattr(getattr(self.core, "law", None), "set_input_target", None)
+        if callable(setter):
+            setter(target)
 
     def _core_ff(self, t: float) -> np.ndarray:
         xv, ym = self.plan.xmv_ref(t), self.plan.xmeas_ref(t)
@@ -353,6 +349,9 @@ class TEController:
             active, J, names = dec.active_model, dec.J, dec.model_names
             alarms.extend(dec.alarms)
             info["solve_ms"] = dec.solve_ms
+            # the MPC's soft reactor-pressure constraint: its slack (None = no solve)
+            info["constraint_slack"] = dec.extra.get("constraint_slack")
+            info["law_status"] = dec.extra.get("law_status", status)
         for j, xmv in enumerate(CORE_XMVS):
             if xmv is not None:
                 u[xmv - 1] = core_u[j]
@@ -372,6 +371,7 @@ class TEController:
     def checkpoint(self) -> dict[str, Any]:
         return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,
                 "override": self.override, "a_trim": self.a_trim, "e_a_prev": self.e_a_prev,
+                "p_trim": self.p_trim, "e_p_prev": self.e_p_prev,
                 "core": self.core.checkpoint(), "n_samples": self.n_samples}
 
     def restore(self, state: dict[str, Any]) -> None:
@@ -381,6 +381,8 @@ class TEController:
         self.override = float(state.get("override", 0.0))
         self.a_trim = float(state.get("a_trim", 0.0))
         self.e_a_prev = state.get("e_a_prev")
+        self.p_trim = float(state.get("p_trim", 0.0))
+        self.e_p_prev = state.get("e_p_prev")
 
 
 def _core_limits():
@@ -581,6 +583,9 @@ class TERun:
         Controller step wall time, ms.
     shutdown : object
         The plant's first trip or None.
+    constraint_slack : ndarray (K,) or None
+        Slack of the MPC's soft output constraint per sample (NaN: no solve or
+        no MPC).
     """
 
     strategy: str
@@ -598,6 +603,7 @@ class TERun:
     fallbacks: int = 0
     wall_s: float = 0.0
     meta: dict = field(default_factory=dict)
+    constraint_slack: np.ndarray | None = None
 
     @property
     def margins(self) -> dict:
@@ -644,6 +650,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     cost = np.empty(n)
     act = np.empty(n, dtype=int)
     ms = np.empty(n)
+    slack = np.full(n, np.nan)
     alarms: list[str] = []
     fallbacks = 0
     names: tuple[str, ...] = ()
@@ -667,6 +674,8 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
         R[k] = plan.xmeas_ref(t)
         cost[k] = sim.cost()
         act[k], ms[k] = dec.active_model, dec.solve_ms
+        if dec.extra.get("constraint_slack") is not None:
+            slack[k] = dec.extra["constraint_slack"]
         names = names or dec.model_names
         fallbacks += int(dec.fallback)
         for a in dec.alarms:
@@ -679,4 +688,4 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     return TERun(strategy, T[:m], X[:m], U[:m], S[:m], R[:m], cost[:m], act[:m], ms[:m],
                  sim.shutdown, names, tuple(alarms), fallbacks, time.perf_counter() - w0,
                  {"sample_h": spec.sample_h, "noise": noise, "input_snr": input_snr,
-                  "idv": dict(idv or {})})
+                  "idv": dict(idv or {})}, slack[:m])
