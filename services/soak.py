@@ -254,15 +254,15 @@ class _PlantHost:
         self._thread: threading.Thread | None = None
         self._field_stop = threading.Event()
         self._field: threading.Thread | None = None
-        self.k = 0
 
     def start(self) -> None:
         from services.plant_node import PlantNode
         from services.zenoh_session import SessionSettings, open_session
 
         self.session = open_session(SessionSettings(connect=(self.ep,), lease_ms=LEASE_MS))
+        # a new node counts its samples from 0 again (as a restarted gateway process does);
+        # the process time goes on with the plant
         self.node = PlantNode(self.cfg, self.session, speed=self.speed, runner=self.runner)
-        self.node.k = self.k
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, args=(self.node, self._stop),
                                         name="soak-plant", daemon=True)
@@ -279,7 +279,6 @@ class _PlantHost:
         """Stop the node's loop and drop its session without goodbye; hold the valves."""
         self._stop.set()
         self._thread.join(10)
-        self.k = self.node.k
         try:
             self.session.close()
         except Exception:
@@ -305,7 +304,6 @@ class _PlantHost:
                 if stop.is_set():
                     break
                 self.runner.advance(u, self.cfg.sample_period_s)
-                self.k += 1
         except Exception:
             log.exception("plant (no node) failed")
             self.errors["plant exception while its node was down"] += 1
@@ -365,6 +363,8 @@ class Soak:
         self.restarts: Counter[str] = Counter()
         self.resumes: list[dict] = []
         self.resume_checks: list[dict] = []
+        self.node_checks: list[dict] = []
+        self.plant_kill_t = 0.0
         self.probes: Counter[str] = Counter()
         self.unavailable = 0
         self.idv_on: dict[int, float] = {}
@@ -399,11 +399,12 @@ class Soak:
         with self._mv_lock:
             pending = self._await_resume
             if pending is not None and wall > pending["killed_wall"]:
-                if msg.fallback and "reasserted" not in pending:
-                    pending["reasserted"] = u
-                elif not msg.fallback:
+                # every sample the restarted node processes gets exactly one MV (computed or,
+                # past the deadline, the held move); collect them up to the first computed one
+                pending.setdefault("mvs", []).append(
+                    (msg.meas_seq, msg.fallback, self._recent_meas.get(msg.meas_seq)))
+                if not msg.fallback:
                     pending["first_move"] = u
-                    pending["first_meas"] = self._recent_meas.get(msg.meas_seq)
                     self._await_resume = None
             self._recent_mv.append(u)
 
@@ -574,9 +575,37 @@ class Soak:
         elif target == "api":
             self.api.kill()
             self.api.start(self.s.ready_timeout_s)
+            # the restarted api finds the controller again (it keeps no state of its own)
+            ok = self._wait(lambda: self._status() is not None)
+            self.node_checks.append({"t_h": t / 3600.0, "node": "api", "ok": ok})
+            if not ok:
+                self.errors["the restarted api does not reach the controller"] += 1
         elif target == "plant":
+            before = self._status()
             outage = self.s.plant_outage_samples * self.cfg.sample_period_s / self.s.speed
             self.plant.kill(outage)
+            # the controller acts on the new node's samples at once, although they count
+            # from 0 again (below the last sample it saw: nothing stale about them)
+            k0 = None if before is None else before["sample"]
+
+            def acting():
+                st = self._status()
+                return (st is not None and k0 is not None and 0 <= st["sample"] < k0
+                        and st["process_time_s"] > self.plant_kill_t)
+
+            self.plant_kill_t = t
+            ok = self._wait(acting)
+            self.node_checks.append({"t_h": t / 3600.0, "node": "plant", "ok": ok})
+            if not ok:
+                self.errors["the controller does not act on the restarted plant node"] += 1
+
+    def _wait(self, predicate, timeout_s: float = 15.0) -> bool:
+        t_end = time.monotonic() + timeout_s
+        while time.monotonic() < t_end:
+            if predicate():
+                return True
+            time.sleep(0.1)
+        return False
 
     def _copy_store(self) -> Path:
         """A copy of the killed controller's store (database and WAL) for the replay."""
@@ -600,11 +629,10 @@ class Soak:
             if self._await_resume is resume:
                 self._await_resume = None
         resume.pop("killed_wall", None)
-        first, meas = resume.pop("first_move", None), resume.pop("first_meas", None)
-        reasserted = resume.pop("reasserted", None)
-        resume["reasserted_seen"] = reasserted is not None
+        first, mvs = resume.pop("first_move", None), resume.pop("mvs", [])
         try:
-            u_ckpt, u_replay = replay_first_move(self.cfg, store_copy, meas)
+            u_ckpt, u_replay, replayed = replay_first_move(self.cfg, store_copy, mvs)
+            resume["samples_replayed"] = replayed
         except Exception as exc:
             resume.update(bumpless=False, why=f"replay failed: {exc}")
             self.resumes.append(resume)
@@ -867,6 +895,7 @@ class Soak:
                 "restarts_by_node": dict(self.restarts),
                 "controller_resumes": self.resumes,
                 "transition_resume_checks": self.resume_checks,
+                "node_restart_checks": self.node_checks,
                 "records_lost": lost,
                 "unhandled_errors": dict(self.errors),
                 "api_unavailable": self.unavailable,
@@ -921,13 +950,18 @@ class _RecordingSession:
         return _Entity()
 
 
-def replay_first_move(cfg, store_path: Path, meas_payload: bytes | None):
-    """Restore a controller node from ``store_path`` and step it with one measurement.
+def replay_first_move(cfg, store_path: Path, mvs):
+    """Restore a controller node from ``store_path`` and replay what a restarted node did.
 
-    Returns ``(u_last of the checkpoint, the move it publishes for the measurement)``;
-    the move is None without a measurement. The node runs on a
-    :class:`_RecordingSession` at speed 1 (its budget cannot run out) and writes
-    only to ``store_path`` (a copy).
+    ``mvs`` are the MV messages the restarted node published, in order, as
+    ``(meas_seq, fallback, measurement payload)`` up to its first computed move. The
+    re-asserted move (fallback, answering the restored sample) is skipped; every other
+    one answers a measurement the node processed, which the replay processes in the same
+    order. Returns ``(u_last of the checkpoint, the move the replay publishes for the
+    last measurement or None, number of samples replayed)``. The node runs on a
+    :class:`_RecordingSession` at speed 1 (its budget cannot run out; a past-deadline
+    step changes only which move goes out, not the controller's state) and writes only
+    to ``store_path`` (a copy).
     """
     from services.controller_node import ControllerNode
     from services.messages import Measurement
@@ -939,14 +973,21 @@ def replay_first_move(cfg, store_path: Path, meas_payload: bytes | None):
     try:
         node = ControllerNode(cfg, session, store, None, speed=1.0)
         u_ckpt = node.u_last.copy()
+        k0 = node.restored_from
+        todo = list(mvs)
+        if todo and todo[0][1] and todo[0][0] == k0:
+            todo = todo[1:]  # the re-asserted move of the restart
         u = None
-        if meas_payload is not None:
-            msg = Measurement.from_bytes(meas_payload)
+        replayed = 0
+        for _seq, _fallback, payload in todo:
+            if payload is None:
+                return u_ckpt, None, replayed
             n = len(session.puts)
-            node.process(time.perf_counter(), msg)
+            node.process(time.perf_counter(), Measurement.from_bytes(payload))
+            replayed += 1
             moves = [MVMessage.from_bytes(p) for k, p in session.puts[n:] if k.endswith("/mv")]
             u = np.asarray(moves[-1].u, float) if moves else None
-        return u_ckpt, u
+        return u_ckpt, u, replayed
     finally:
         if node is not None:
             node.close()

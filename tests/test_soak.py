@@ -73,6 +73,10 @@ def test_node_kills_during_a_transition(tmp_path):
     _check_promise(r)
     d = r["details"]
     assert d["restarts_by_node"] == {"controller": 1, "plant": 1, "api": 1}
+    # a restarted plant node counts from sample 0 again and the controller acts on it;
+    # a restarted api reaches the controller again
+    assert sorted(c["node"] for c in d["node_restart_checks"]) == ["api", "plant"]
+    assert all(c["ok"] for c in d["node_restart_checks"]), d["node_restart_checks"]
     # the transition that ran at the controller kill is driven on by the restarted node
     (check,) = d["transition_resume_checks"]
     assert check["before"] == "running" and check["after"] == "running" and check["ok"]
