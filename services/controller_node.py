@@ -178,9 +178,10 @@ class ControllerNode:
         self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "controller"))
         self._plant_live = session.liveliness().declare_subscriber(
             keys.alive(cfg.unit, "plant"), self._on_plant_liveliness, history=True)
-        if self.restored_from is not None:
-            # Bumpless restart: re-assert the last move before computing any new one.
-            self._publish_mv(self.k, self.u_last, True)
+        # Bumpless (re)start: the first measurement from a plant that already runs on a
+        # controller's moves (mv_seq >= 0) tells which move it holds; the first move is
+        # computed from there (see _align).
+        self._align_pending = True
 
     # -- persistence -------------------------------------------------------------------
     def _restore(self) -> None:
@@ -428,8 +429,32 @@ class ControllerNode:
                         sender=self.sender, fallback=fallback)
         self._mv_pub.put(msg.to_bytes())
 
+    def _align(self, msg: Measurement) -> None:
+        """First sample after a (re)start on a running plant: start from the plant's move.
+
+        The move the plant holds (``Measurement.u``) becomes the node's last move (the
+        watchdog's hold) and is handed to the controller (``align(u)`` if it has one,
+        else its ``u_last`` array), so the move computed for this very sample starts
+        from it: no bump, however old the checkpoint on disk is.
+        """
+        self._align_pending = False
+        if msg.mv_seq < 0:
+            return  # a fresh plant: nothing to take over
+        u = np.asarray(msg.u, float)
+        align = getattr(self.controller, "align", None)
+        if callable(align):
+            align(u)
+        elif isinstance(getattr(self.controller, "u_last", None), np.ndarray) \
+                and self.controller.u_last.shape == u.shape:
+            self.controller.u_last = u.copy()  # MultiModelController keeps its move here
+        with self._lock:
+            self.u_last = u
+            self.alarms.append(f"resumed at sample {msg.seq} from the plant's move")
+
     def process(self, arrived: float, msg: Measurement) -> None:
         """One sample: transition, reference, controller step, MV, bookkeeping."""
+        if self._align_pending:
+            self._align(msg)
         hold = self.u_last.copy()
         y = np.asarray(msg.y, float)
         outside = (y < self.y_lower) | (y > self.y_upper)

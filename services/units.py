@@ -457,6 +457,11 @@ class PIBaseline:
                                J=np.array([float(e @ e)]),
                                solve_ms=(time.perf_counter() - t0) * 1e3, status="solved")
 
+    def align(self, u) -> None:
+        """Continue from the move the plant holds (a restart); no proportional kick."""
+        self.u = np.asarray(u, dtype=float).copy()
+        self.e_prev = None
+
     def checkpoint(self) -> dict[str, Any]:
         return {"u": self.u.tolist(),
                 "e_prev": None if self.e_prev is None else self.e_prev.tolist()}
@@ -501,6 +506,9 @@ class HoldController:
                                J=np.zeros(1), solve_ms=0.0, fallback=bad,
                                status="invalid_measurement" if bad else "hold",
                                alarms=(f"invalid measurement at sample {k}",) if bad else ())
+
+    def align(self, u) -> None:
+        self.u = np.asarray(u, dtype=float).copy()
 
     def checkpoint(self) -> dict[str, Any]:
         return {"u": self.u.tolist()}
@@ -592,6 +600,9 @@ class TEServiceController:
         return ControlDecision(u=u, active_model=dec.active_model, model_names=dec.model_names,
                                J=np.asarray(dec.J), solve_ms=dec.solve_ms, fallback=fallback,
                                status=dec.status, alarms=tuple(alarms), extra=dec.extra)
+
+    def align(self, u) -> None:
+        self.u = np.asarray(u, dtype=float).copy()
 
     def checkpoint(self) -> dict[str, Any]:
         return {"ctl": self.ctl.checkpoint(), "plan": self.plan_def, "u": self.u.tolist()}
