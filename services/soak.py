@@ -46,7 +46,10 @@ Counting rules
 - *bumpless resume*: after a controller restart, its first move differs from
   the move the plant held by no more than the largest single-sample move of
   the controller in the 20 samples before the kill (per MV, plus 1e-9).
-- *preventable shutdown*: any trip, unless an IDV of ``unpreventable_idvs`` was on.
+- *preventable shutdown*: a trip that the fault-free twin (:func:`fault_free_twin`: the
+  same plant, seed, controller, transitions and IDVs offline, without faults or
+  timing) does not have within 2 process hours, unless an IDV of ``unpreventable_idvs``
+  was on. A trip the twin has too is the controller's and the process's own.
 """
 
 from __future__ import annotations
@@ -100,6 +103,9 @@ LEASE_MS = 1000
 #: A restarted controller's first move must equal the replay from its checkpoint to this
 #: relative tolerance (same code, same data: only floating-point noise would differ).
 REPLAY_RTOL = 1e-9
+#: A trip counts as the controller's own (not preventable by the services) if the
+#: fault-free twin trips no later than this many process hours after it.
+TWIN_MARGIN_H = 2.0
 
 
 @dataclass(frozen=True)
@@ -718,7 +724,8 @@ class Soak:
                         str(LEASE_MS), "--port", str(port)], state / "api.log", env=env)
             self.ctrl.start(s.ready_timeout_s)
             self.api.start(s.ready_timeout_s)
-            runner = (make_runner(self.cfg, noise=s.noise, seed=float(1 + s.seed % 10_000))
+            self.plant_seed = float(1 + s.seed % 10_000)
+            runner = (make_runner(self.cfg, noise=s.noise, seed=self.plant_seed)
                       if self.cfg.plant == "te" else make_runner(self.cfg))
             time.sleep(0.3)
             self.plant = _PlantHost(self.cfg, runner, ep_plant, s.speed, self.errors)
@@ -795,6 +802,8 @@ class Soak:
                 self.errors[f"{name} stopped with code {code}"] += 1
         self._scan_logs()
         stored = self._stored_history(store_path)
+        if self.shutdowns and self.cfg.plant == "te":
+            self._judge_shutdowns(stored)
         report = self._report(final_status, history, stored, relay_injected,
                               time.perf_counter() - wall0, wall_loop, t_loop)
         if own_tmp is not None:
@@ -810,6 +819,22 @@ class Soak:
                                "idvs_on": idvs,
                                "preventable": not any(k in self.s.unpreventable_idvs
                                                       for k in idvs)})
+
+    def _judge_shutdowns(self, stored: dict) -> None:
+        """Run the fault-free twin for each trip; a trip the twin has too (within
+        :data:`TWIN_MARGIN_H`) is the controller's and the process's, not preventable by
+        the services."""
+        for sd in self.shutdowns:
+            try:
+                twin = fault_free_twin(self.cfg, self.plant_seed, self.s.noise, stored,
+                                       self.idv_log, (sd["process_hours"] + TWIN_MARGIN_H)
+                                       * 3600.0)
+            except Exception as exc:  # the verdict stays "preventable"
+                sd["fault_free_twin"] = f"failed: {exc}"
+                continue
+            sd["fault_free_twin_trip_hours"] = None if twin is None else twin / 3600.0
+            if twin is not None:
+                sd["preventable"] = False
 
     def _history(self) -> list[dict] | None:
         for _ in range(50):
@@ -992,6 +1017,45 @@ def replay_first_move(cfg, store_path: Path, mvs):
         if node is not None:
             node.close()
         store.close()
+
+
+def fault_free_twin(cfg, plant_seed: float, noise: bool, stored: dict, idv_log,
+                    until_s: float) -> float | None:
+    """The soak's run again offline, without faults, nodes or timing: the same plant
+    (seed, noise), the unit's controller, the transition events the controller recorded
+    (``running``/``aborted``/``failed`` at their process times) and the same IDV
+    switches. Returns the process time of its trip, s, or None if it runs to
+    ``until_s`` (TE units only)."""
+    from services.plant_node import make_runner
+    from services.units import build_controller, build_plant
+
+    runner = make_runner(cfg, noise=noise, seed=plant_seed)
+    ctl = build_controller(cfg, build_plant(cfg))
+    grade = {r["id"]: r["grade"] for r in stored["transitions"]}
+    events = sorted(((e["process_time"], "t", e["state"], grade.get(e["transition_id"]))
+                     for e in stored["events"]
+                     if e["state"] in ("running", "aborted", "failed")
+                     and e["process_time"] is not None),
+                    key=lambda e: e[0])
+    events += [(ev["t_h"] * 3600.0, "i", ev["idv"], ev["on"]) for ev in idv_log]
+    events.sort(key=lambda e: e[0])
+    ts = cfg.sample_period_s
+    k = 0
+    hook = getattr(ctl, "on_transition", None)
+    while runner.t < until_s:
+        t = runner.t
+        while events and events[0][0] <= t + 1e-9:
+            _, kind, a, b = events.pop(0)
+            if kind == "i":
+                runner.set_idv(int(a), bool(b))
+            elif hook is not None and b is not None:
+                hook(a, b, t)
+        d = ctl.step(k, t, runner.y(), None)
+        runner.advance(d.u, ts)
+        k += 1
+        if runner.shutdown:
+            return float(runner.t)
+    return None
 
 
 def _source_version() -> dict:

@@ -103,7 +103,7 @@ def test_bad_soak_arguments_are_refused_before_running(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_trip_ends_the_run_and_is_reported_with_its_reason(tmp_path):
+def test_a_trip_ends_the_run_and_is_judged_by_its_fault_free_twin(tmp_path):
     # MVs held (controller "hold": regulatory layer only) and IDV(1) on: measured to trip
     # on reactor pressure after ~3 h, whatever the TE MPC of the day does
     r = run_soak(SoakSettings(unit="te", hours=12.0, speed=3600.0, seed=2, faults=(),
@@ -114,7 +114,23 @@ def test_a_trip_ends_the_run_and_is_reported_with_its_reason(tmp_path):
     _check_shape(r)
     (trip,) = r["shutdowns"]
     assert trip["reason"] == "reactor pressure high" and trip["idvs_on"] == [1]
-    assert trip["preventable"] is True  # no IDV was declared unpreventable
+    # the fault-free twin (same plant, seed, controller and IDV offline) trips as well:
+    # the trip is the process's and the controller's, not the services'
+    assert trip["fault_free_twin_trip_hours"] == pytest.approx(trip["process_hours"], abs=0.5)
+    assert trip["preventable"] is False
     assert r["process_hours"] < 12.0 and r["process_hours"] == pytest.approx(
         trip["process_hours"], abs=0.1)
     assert r["records_lost"] == 0 and r["unhandled_errors"] == 0
+
+
+def test_fault_free_twin_replays_the_idvs_of_a_run():
+    from services.soak import fault_free_twin
+    from services.units import UnitConfig, get_unit
+
+    cfg = UnitConfig.from_dict({"controller": "hold"}, get_unit("te"))
+    empty = {"transitions": [], "events": []}
+    # without the disturbance the held plant runs on; with IDV(1) from 0.1 h it trips
+    assert fault_free_twin(cfg, 1.0, False, empty, [], 2 * 3600.0) is None
+    trip = fault_free_twin(cfg, 1.0, False, empty, [{"t_h": 0.1, "idv": 1, "on": True}],
+                           12 * 3600.0)
+    assert trip is not None and 2 * 3600.0 < trip < 5 * 3600.0
