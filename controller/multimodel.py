@@ -61,7 +61,9 @@ class ControlLaw(Protocol):
 
     ``compute`` returns ``(u, info)``: the move (absolute units, shape (nu,))
     and a dict with at least ``"status"`` and optionally ``"alarms"`` (list of
-    str) and ``"fallback"`` (bool). It may raise; the controller then holds u.
+    str), ``"fallback"`` (bool) and ``"slack"`` (float, the exact-penalty slack of
+    a soft output constraint; reported as ``decision.extra["constraint_slack"]``).
+    It may raise; the controller then holds u.
     """
 
     def reset(self, u: np.ndarray, y: np.ndarray) -> None: ...
@@ -422,7 +424,7 @@ class MultiModelController:
                                  "law_status": status}
         # the soft output constraint's exact-penalty slack (not the timing slack);
         # None when the law has no soft constraint or did not solve this sample
-        slack = info.get("slack") if isinstance(info, dict) else None
+        slack = info.get("slack") if isinstance(info, dict) and status != "law_failed" else None
         extra["constraint_slack"] = None if slack is None else float(slack)
         if self.record_params:
             extra["params"] = {j: self.estimators[j].p.copy() for j in self.adaptive}

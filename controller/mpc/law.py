@@ -124,7 +124,16 @@ class MPCLaw:
     settings : MPCSettings
         ``nu = ny = m`` of the state-shared model.
     adaptive_refresh : int
-        Samples between refreshes of an active adaptive model's prediction form.
+        Samples between refreshes of an active adaptive model's prediction form
+        (the refresh phase is part of :meth:`checkpoint`, so a restored law makes
+        the same moves).
+
+    Notes
+    -----
+    ``compute`` reports the soft output constraint's slack as ``info["slack"]``
+    (only when a solve was applied) and the MPC status as ``info["status"]``; a
+    time-varying input target is set with :meth:`set_input_target` before each
+    sample.
     """
 
     def __init__(self, settings: MPCSettings, adaptive_refresh: int = 10) -> None:
