@@ -244,7 +244,7 @@ class ControllerNode:
         """Tell a controller that follows its own plans (TE) about a transition event."""
         hook = getattr(self.controller, "on_transition", None)
         if hook is not None:
-            hook(event, tr.grade, self.t)
+            hook(event, tr.grade, self.t, duration_s=tr.duration_s)
 
     def _persist(self, tr, event: str, detail: str = "") -> None:
         self._worker.submit(self._save_transition, tr.as_dict(), event, self.t,

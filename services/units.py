@@ -550,7 +550,7 @@ class TEServiceController:
 
         self.strategy = strategy
         self.sample_h = sample_h
-        self.plan_def = {"start": start_grade, "legs": [], "freeze_h": None}
+        self.plan_def = {"start": start_grade, "legs": [], "freeze_h": None, "tau_h": None}
         self.ctl, self.spec = make_te_controller(strategy, TransitionPlan(start_grade),
                                                  sample_h=sample_h)
         self.mvs = tuple(mvs)
@@ -570,13 +570,21 @@ class TEServiceController:
         from services.studies.te_grades import Leg, TransitionPlan
 
         d = self.plan_def
-        plan = TransitionPlan(d["start"], tuple(Leg(t, g) for t, g in d["legs"]))
+        extra = {} if d.get("tau_h") is None else {"tau_xmeas_h": d["tau_h"]}
+        plan = TransitionPlan(d["start"], tuple(Leg(t, g) for t, g in d["legs"]), **extra)
         self.ctl.retarget(plan if d["freeze_h"] is None else _FrozenPlan(plan, d["freeze_h"]))
 
-    def on_transition(self, event: str, grade: str, t_s: float) -> None:
-        """``running``: head for ``grade`` from ``t_s``; ``aborted``/``failed``: hold."""
+    def on_transition(self, event: str, grade: str, t_s: float,
+                      duration_s: float | None = None) -> None:
+        """``running``: head for ``grade`` from ``t_s``; ``aborted``/``failed``: hold.
+
+        The references' time constant is a quarter of the transition's duration (98 %
+        of the move after it), as for the other units.
+        """
         d = self.plan_def
         if event == "running":
+            if duration_s is not None:
+                d["tau_h"] = duration_s / 4.0 / 3600.0
             # After an abort the references jump from the held values to the plan's
             # path; the new leg then moves them on with first-order dynamics.
             d["freeze_h"] = None
