@@ -167,6 +167,7 @@ class ControllerNode:
         self._dropped = 0
         self._worker = _Worker()
         self._checkpoint_due = False
+        self._last_flush = time.perf_counter()
         self._checkpoint_cost_s = 0.0
         self._last_checkpoint_wall = time.perf_counter()
         self._restore()
@@ -214,6 +215,8 @@ class ControllerNode:
         if wait:
             self._worker.wait()
 
+    #: Longest wall time telemetry stays buffered, s.
+    TELEMETRY_MAX_WALL_S = 1.0
     #: Longest wall time between checkpoints however little slack the loop has, s.
     CHECKPOINT_MAX_WALL_S = 10.0
 
@@ -513,7 +516,10 @@ class ControllerNode:
                                       decision.active_model, decision.model_names, decision.J,
                                       decision.solve_ms, self.stats.slack_ms(elapsed),
                                       auto_flush=False)
-            if full:
+            now = time.perf_counter()
+            if full or now - self._last_flush > self.TELEMETRY_MAX_WALL_S:
+                # in batches, but never more than a second behind (a live viewer)
+                self._last_flush = now
                 self._worker.submit(self.telemetry.flush)
         if changes or msg.seq % self.cfg.checkpoint_every == 0:
             self._checkpoint_due = True
