@@ -149,3 +149,35 @@ def test_idv1_from_mode3_the_soft_pressure_constraint_acts_before_the_interlock(
     active = np.flatnonzero(slack > SLACK_ACTIVE)
     assert active.size > 0
     assert any("high-pressure override" in a or "XMEAS7" in a for a in run.alarms)
+
+
+def test_ssmpc_does_not_depend_on_the_adaptive_slot_position(monkeypatch):
+    # the re-initialization rule compares the best fixed model with the adaptive one
+    # (ties keep adapting), so the adaptive model placed last gives the same run as
+    # placed first (before, the fixed model won every tie and reset it each sample)
+    import controller.multimodel as mmod
+    from controller.state_shared import ModelSpec
+
+    plan = TransitionPlan("mode0", (Leg(0.5, "mode2"),))
+    first = run_te("ssmpc", plan, 4.0)
+    build = te_models.state_shared_model
+
+    def adaptive_last(dt_h, adaptive, *a, **kw):
+        ssm = build(dt_h, False, *a, **kw)
+        if adaptive:
+            ssm.add_model(ModelSpec("reinit", ssm.theta(0), ssm.bias(0), "adaptive"))
+        return ssm
+
+    class Last(mmod.MultiModelController):
+        def __init__(self, ssm, law, u0, settings=None, kinds=None, initial_model=0, **kw):
+            super().__init__(ssm, law, u0, settings, kinds=["fixed"] * 3 + ["re-initialized"],
+                             initial_model=3, **kw)
+
+    monkeypatch.setattr(te_models, "state_shared_model", adaptive_last)
+    monkeypatch.setattr(mmod, "MultiModelController", Last)
+    last = run_te("ssmpc", plan, 4.0)
+    def active_names(run):
+        return [run.model_names[i] for i in run.active]
+
+    assert last.model_names[-1] == "reinit" and active_names(last) == active_names(first)
+    np.testing.assert_allclose(last.xmv, first.xmv, rtol=0, atol=RESTORE_ATOL)
