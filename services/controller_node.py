@@ -19,9 +19,9 @@ move of the previous plan for the MPC) is counted too.
 
 Status goes to ``ssmpc/<unit>/status`` every ``status_every`` samples;
 telemetry to Rerun in batches; a checkpoint (controller state, last move,
-transition state) to SQLite every ``checkpoint_every`` samples — on the first
-such sample with time for the snapshot before the next measurement, at the
-latest after 10 s — and at every transition state change. On start the node
+transition state) to SQLite every ``checkpoint_every`` samples or 5 wall
+seconds — on the first such sample with time for the snapshot before the next
+measurement, at the latest after 10 s — and at every transition state change. On start the node
 restores the checkpoint, so its first move equals the last one before the
 restart (bumpless).
 
@@ -217,6 +217,8 @@ class ControllerNode:
 
     #: Longest wall time telemetry stays buffered, s.
     TELEMETRY_MAX_WALL_S = 1.0
+    #: A checkpoint is also due after this wall time (slow speeds: samples are far apart), s.
+    CHECKPOINT_WALL_S = 5.0
     #: Longest wall time between checkpoints however little slack the loop has, s.
     CHECKPOINT_MAX_WALL_S = 10.0
 
@@ -521,7 +523,8 @@ class ControllerNode:
                 # in batches, but never more than a second behind (a live viewer)
                 self._last_flush = now
                 self._worker.submit(self.telemetry.flush)
-        if changes or msg.seq % self.cfg.checkpoint_every == 0:
+        if (changes or msg.seq % self.cfg.checkpoint_every == 0
+                or time.perf_counter() - self._last_checkpoint_wall > self.CHECKPOINT_WALL_S):
             self._checkpoint_due = True
         if self._checkpoint_due:
             self._maybe_checkpoint(arrived, forced=bool(changes))
