@@ -28,6 +28,7 @@ from api.auth import make_write_guard, token_from_env
 from api.mesh import Mesh, MeshError
 from api.schemas import (
     DisturbanceRequest,
+    ErrorBody,
     Health,
     TransitionRequest,
     TransitionView,
@@ -39,6 +40,17 @@ from services.messages import Reply
 __all__ = ["create_app"]
 
 UNIT = Path(..., min_length=1, max_length=64, description="unit name, e.g. te or cstr")
+
+_ERR = {"model": ErrorBody}
+#: Error answers of the routes that reach a node (documented in /openapi.json).
+READ_ERRORS = {404: {**_ERR, "description": "unknown unit (or transition)"},
+               502: {**_ERR, "description": "the node answered something unreadable"},
+               503: {**_ERR, "description": "no live node for the unit (liveliness lost)"},
+               504: {**_ERR, "description": "the node did not answer in time"}}
+WRITE_ERRORS = {**READ_ERRORS,
+                401: {**_ERR, "description": "missing or wrong bearer token"},
+                409: {**_ERR, "description": "a transition is under way (use queue)"},
+                422: {**_ERR, "description": "malformed body"}}
 TID = Path(..., min_length=1, max_length=64, description="transition id")
 
 
@@ -84,16 +96,16 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
         return UnitsResponse(units=[UnitLiveliness(unit=u, **roles)
                                     for u, roles in mesh.units().items()])
 
-    @app.get("/api/v1/units/{unit}/status")
+    @app.get("/api/v1/units/{unit}/status", responses=READ_ERRORS)
     def status(unit: str = UNIT) -> dict:
         return call(unit, "status")
 
-    @app.get("/api/v1/units/{unit}/grades")
+    @app.get("/api/v1/units/{unit}/grades", responses=READ_ERRORS)
     def grades(unit: str = UNIT) -> dict:
         return call(unit, "grades")
 
     @app.post("/api/v1/units/{unit}/transitions", status_code=202, response_model=TransitionView,
-              dependencies=[Depends(write_guard)])
+              dependencies=[Depends(write_guard)], responses=WRITE_ERRORS)
     def create_transition(body: TransitionRequest, response: Response,
                           unit: str = UNIT) -> dict:
         args = {"op": "create", "grade": body.grade, "queue": body.queue}
@@ -103,16 +115,17 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
         response.headers["Location"] = f"/api/v1/units/{unit}/transitions/{view['id']}"
         return view
 
-    @app.get("/api/v1/units/{unit}/transitions")
+    @app.get("/api/v1/units/{unit}/transitions", responses=READ_ERRORS)
     def list_transitions(unit: str = UNIT) -> list[dict]:
         return call(unit, "transition", {"op": "list"})
 
-    @app.get("/api/v1/units/{unit}/transitions/{tid}", response_model=TransitionView)
+    @app.get("/api/v1/units/{unit}/transitions/{tid}", response_model=TransitionView,
+             responses=READ_ERRORS)
     def get_transition(unit: str = UNIT, tid: str = TID) -> dict:
         return call(unit, "transition", {"op": "get", "id": tid})
 
     @app.delete("/api/v1/units/{unit}/transitions/{tid}", response_model=TransitionView,
-                dependencies=[Depends(write_guard)])
+                dependencies=[Depends(write_guard)], responses=WRITE_ERRORS)
     def abort_transition(unit: str = UNIT, tid: str = TID) -> dict:
         return call(unit, "transition", {"op": "abort", "id": tid})
 
@@ -122,13 +135,14 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
         except MeshError as exc:
             raise HTTPException(status_code=exc.status, detail=exc.detail) from exc
 
-    @app.get("/api/v1/units/{unit}/disturbances")
+    @app.get("/api/v1/units/{unit}/disturbances", responses=READ_ERRORS)
     def disturbances(unit: str = UNIT) -> dict:
         status = call_plant(unit, "status")
         return {"unit": unit, "shutdown": status.get("shutdown"),
                 "disturbances": call_plant(unit, "disturbance_list")}
 
-    @app.post("/api/v1/units/{unit}/disturbances", dependencies=[Depends(write_guard)])
+    @app.post("/api/v1/units/{unit}/disturbances", dependencies=[Depends(write_guard)],
+              responses=WRITE_ERRORS)
     def set_disturbance(body: DisturbanceRequest, unit: str = UNIT) -> dict:
         return call_plant(unit, "disturbance", {"name": body.name, "value": body.value})
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hmac
 import os
+from typing import Annotated
 
 from fastapi import Header, HTTPException
 
@@ -26,7 +27,7 @@ def make_write_guard(token: str | None):
     """A FastAPI dependency that rejects writes without the right bearer token."""
     expected = None if token is None else token.encode()
 
-    def guard(authorization: str | None = Header(default=None)) -> None:
+    def guard(authorization: Annotated[str | None, Header()] = None) -> None:
         if expected is None:
             return
         scheme, _, given = (authorization or "").partition(" ")
