@@ -265,3 +265,24 @@ def test_corrupted_measurement_decodes_or_fails_as_intended(kind):
     else:
         with pytest.raises(MessageError, match="non-finite"):
             Measurement.from_bytes(bad)
+
+
+def test_relay_mirrors_the_plant_liveliness_to_the_controller_side(chaos):
+    from services import keys
+
+    loop = chaos(windows=[])
+    loop.run_until(0.5)
+    s_relay_c = loop.sessions[1]
+
+    def plant_alive():
+        return [r for r in s_relay_c.liveliness().get(keys.alive("cstr", "plant"), timeout=2)
+                if r.ok is not None]
+
+    assert plant_alive()  # the api (controller side) sees the plant
+    loop.stop.set()
+    loop.threads[1].join(5)
+    loop.plant.close()  # the plant's token goes, so does the mirror
+    t_end = time.monotonic() + 5
+    while plant_alive() and time.monotonic() < t_end:
+        time.sleep(0.05)
+    assert not plant_alive()
