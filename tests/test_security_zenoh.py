@@ -34,6 +34,38 @@ FORGED_SEQ = 10**9
 
 
 def _make_pki(d: Path, names):
+    """A CA and one certificate per name (CN ``<name>.ssmpc``, SAN localhost/127.0.0.1)."""
+    try:
+        import cryptography  # noqa: F401 - not a declared dependency of ssmpc
+    except ImportError:
+        return _make_pki_openssl(d, names)
+    return _make_pki_cryptography(d, names)
+
+
+def _make_pki_openssl(d: Path, names):
+    import shutil
+    import subprocess
+
+    if shutil.which("openssl") is None:
+        pytest.skip("neither the cryptography package nor the openssl CLI is available")
+
+    def run(*argv):
+        subprocess.run(["openssl", *argv], cwd=d, check=True, capture_output=True)
+
+    ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
+    run("req", "-x509", *ec, "-keyout", "ca-key.pem", "-out", "ca.pem", "-days", "1",
+        "-subj", "/CN=ssmpc test CA")
+    for name in names:
+        (d / f"{name}.ext").write_text(
+            "subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=critical,CA:FALSE\n"
+            "extendedKeyUsage=serverAuth,clientAuth\n")
+        run("req", *ec, "-keyout", f"{name}-key.pem", "-out", f"{name}.csr",
+            "-subj", f"/CN={name}.ssmpc")
+        run("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca-key.pem",
+            "-CAcreateserial", "-out", f"{name}.pem", "-days", "1", "-extfile", f"{name}.ext")
+
+
+def _make_pki_cryptography(d: Path, names):
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes, serialization
     from cryptography.hazmat.primitives.asymmetric import ec
