@@ -1,6 +1,7 @@
-"""A controller killed while its last checkpoints were still queued (the node writes them
-on a background worker since 157de8a, so a SIGKILL under load loses the tail of the
-queue; the 72 h soak saw it: ``docs/soak_72h.json``, controller_resumes).
+"""A controller killed while its last checkpoints were still unwritten (the node writes
+them on a background worker since 157de8a and only in samples with slack or every few
+wall seconds since aca0348, so a SIGKILL loses the newest; the 72 h soak saw a bump of
+41.9 on a TE MV: ``docs/soak_72h.json``, controller_resumes).
 
 Bumpless means the first move after the restart is the move the plant holds. The plant
 reports that move in every measurement (``Measurement.u``), so a restarted node can
@@ -23,7 +24,7 @@ from services.zenoh_session import SessionSettings, free_tcp_endpoint, open_sess
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
 SPEED = 10.0
-LOST_SAMPLES = 10  # checkpoints lost at the kill
+LOST_SAMPLES = 30  # samples whose checkpoints are lost at the kill
 
 
 class _LosingStore(UnitStore):
@@ -37,10 +38,12 @@ class _LosingStore(UnitStore):
             super().save_checkpoint(*a, **kw)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known gap: a restarted controller re-asserts the move of its last checkpoint on disk, "
-    "not the move the plant holds (Measurement.u); with checkpoints written in the "
-    "background, a kill under load makes that a bump"))
+@pytest.mark.xfail(strict=False, reason=(
+    "known gap: since 2cc1759 the restarted node starts from the plant's move (u_last, "
+    "align(u)), but a dynamic controller's internal state still comes from the stale "
+    "checkpoint: in ~7 of 8 runs the CSTR's multiple-model H-infinity/MRAC law's first "
+    "move is its lower limit -3.0 against a held ~1.8 (normal step 0.06); in the others it "
+    "is exactly the held move, so the marker is not strict"))
 def test_restart_resumes_from_the_move_the_plant_holds(tmp_path):
     cfg = get_unit("cstr")
     ep = free_tcp_endpoint()
@@ -64,10 +67,11 @@ def test_restart_resumes_from_the_move_the_plant_holds(tmp_path):
     tp.start()
     ctrl2 = store2 = s_ctrl2 = None
     try:
-        ctrl._transition({"op": "create", "grade": "OPII"})  # the moves keep changing
         t_end = time.monotonic() + 20
-        while ctrl.k < 30 and time.monotonic() < t_end:
+        while ctrl.k < 10 and time.monotonic() < t_end:
             time.sleep(0.01)
+        # the request is checkpointed synchronously; every later checkpoint is lost
+        ctrl._transition({"op": "create", "grade": "OPII"})  # the moves keep changing
         store.lose = True
         k0 = ctrl.k
         while ctrl.k < k0 + LOST_SAMPLES and time.monotonic() < t_end:
@@ -86,12 +90,17 @@ def test_restart_resumes_from_the_move_the_plant_holds(tmp_path):
                                daemon=True)
         tc2.start()
         t_end = time.monotonic() + 10
-        while not [m for w, m in mvs if w > killed] and time.monotonic() < t_end:
+        while (not [m for w, m in mvs if w > killed and not m.fallback]
+               and time.monotonic() < t_end):
             time.sleep(0.01)
-        first = next(m for w, m in mvs if w > killed)
+        after = [m for w, m in mvs if w > killed]
+        # every move up to and including the first computed one (held moves of missed
+        # deadlines, a re-asserted move) stays within one normal step of the held move
+        upto = after[:next(i for i, m in enumerate(after) if not m.fallback) + 1]
         recent = np.array([m.u for w, m in mvs if w < killed][-20:])
         step = np.max(np.abs(np.diff(recent, axis=0)), axis=0)
-        assert np.all(np.abs(np.asarray(first.u) - held) <= step + 1e-9), (first.u, held)
+        for m in upto:
+            assert np.all(np.abs(np.asarray(m.u) - held) <= step + 1e-9), (m, held, step)
         stop_c2.set()
         tc2.join(5)
     finally:
