@@ -429,7 +429,9 @@ class ControllerNode:
 
     # -- the sample ----------------------------------------------------------------------
     def _publish_mv(self, meas_seq: int, u, fallback: bool) -> None:
-        self.mv_seq += 1
+        # Sequence numbers grow across restarts too (µs of the wall clock, or +1): a node
+        # restored from an older checkpoint must not look stale to the plant.
+        self.mv_seq = max(self.mv_seq + 1, time.time_ns() // 1000)
         msg = MVMessage(unit=self.cfg.unit, seq=self.mv_seq, meas_seq=meas_seq, u=tuple(u),
                         sender=self.sender, fallback=fallback)
         self._mv_pub.put(msg.to_bytes())
@@ -445,6 +447,7 @@ class ControllerNode:
         self._align_pending = False
         if msg.mv_seq < 0:
             return  # a fresh plant: nothing to take over
+        self.mv_seq = max(self.mv_seq, msg.mv_seq)
         u = np.asarray(msg.u, float)
         align = getattr(self.controller, "align", None)
         if callable(align):
