@@ -30,7 +30,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
 DEPLOY = Path(__file__).resolve().parents[1] / "deploy" / "zenoh"
 FORGED_U = 0.123456789  # a move no controller of this test computes
-FORGED_SEQ = 10**9
+FORGED_SEQ = 2**62  # newer than any genuine seq (counters or microsecond clocks)
 
 
 def _make_pki(d: Path, names):
