@@ -395,6 +395,7 @@ class Soak:
         except Exception:
             return
         with self._mv_lock:
+            self._recent_meas.pop(seq, None)  # a restarted plant node reuses numbers: newest last
             self._recent_meas[seq] = payload
             while len(self._recent_meas) > 400:
                 self._recent_meas.pop(next(iter(self._recent_meas)))
