@@ -100,6 +100,23 @@ class _Worker:
                 log.exception("background task failed")
 
 
+def align_multimodel(ctl, u) -> bool:
+    """Bumpless take-over for a :class:`~controller.multimodel.MultiModelController`.
+
+    Its move becomes ``u`` and its dynamic states (shared state, law) are
+    re-initialized at the next sample from ``(u, y)``, as at its first sample; the
+    models' parameters, covariances and J values from the checkpoint are kept.
+    Returns False for an object that is not such a controller.
+    """
+    u = np.asarray(u, dtype=float)
+    if not (isinstance(getattr(ctl, "u_last", None), np.ndarray)
+            and hasattr(ctl, "initialized") and ctl.u_last.shape == u.shape):
+        return False
+    ctl.u_last = u.copy()
+    ctl.initialized = False
+    return True
+
+
 class ControllerNode:
     """Runs one unit's controller; see the module docstring.
 
@@ -441,8 +458,8 @@ class ControllerNode:
 
         The move the plant holds (``Measurement.u``) becomes the node's last move (the
         watchdog's hold) and is handed to the controller (``align(u)`` if it has one,
-        else its ``u_last`` array), so the move computed for this very sample starts
-        from it: no bump, however old the checkpoint on disk is.
+        else :func:`align_multimodel`), so the move computed for this very sample starts
+        from it and from the current measurement: no bump, however old the checkpoint.
         """
         self._align_pending = False
         if msg.mv_seq < 0:
@@ -452,9 +469,8 @@ class ControllerNode:
         align = getattr(self.controller, "align", None)
         if callable(align):
             align(u)
-        elif isinstance(getattr(self.controller, "u_last", None), np.ndarray) \
-                and self.controller.u_last.shape == u.shape:
-            self.controller.u_last = u.copy()  # MultiModelController keeps its move here
+        else:
+            align_multimodel(self.controller, u)
         with self._lock:
             self.u_last = u
             self.alarms.append(f"resumed at sample {msg.seq} from the plant's move")

@@ -610,7 +610,20 @@ class TEServiceController:
                                status=dec.status, alarms=tuple(alarms), extra=dec.extra)
 
     def align(self, u) -> None:
+        """Take over the plant's move: the core (five handles, issue 8's CORE_NAMES)
+        restarts from the matching valves and set points (re-initialized dynamics)."""
+        from services.controller_node import align_multimodel
+
         self.u = np.asarray(u, dtype=float).copy()
+        try:
+            from services.studies.te_control import CORE_NAMES
+        except ImportError:
+            return
+        alias = {"Tr_sp": "reactor_temperature_sp", "Pr_sp": "reactor_pressure_sp"}
+        idx = [self.mvs.index(alias.get(n, n)) if alias.get(n, n) in self.mvs else None
+               for n in CORE_NAMES]
+        if None not in idx:
+            align_multimodel(getattr(self.ctl, "core", None), self.u[idx])
 
     def checkpoint(self) -> dict[str, Any]:
         return {"ctl": self.ctl.checkpoint(), "plan": self.plan_def, "u": self.u.tolist()}
