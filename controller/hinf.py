@@ -38,6 +38,7 @@ __all__ = [
     "HInfWeights",
     "HInfDesign",
     "DiscreteController",
+    "equilibrium_state",
     "HInfSynthesisError",
     "synthesize",
     "siso_model_tf",
@@ -310,6 +311,54 @@ def _sampled_loop_radius(M: ct.StateSpace, K: DiscreteController) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(np.vstack([top, bot])))))
 
 
+def _integrator_projector(A: np.ndarray, tol: float = 1e-8) -> np.ndarray:
+    """Spectral projector onto the eigenvalue-1 modes of ``A`` (integrators), (nk, nk)."""
+    lam, V = np.linalg.eig(A)
+    idx = np.flatnonzero(np.abs(lam - 1.0) < tol)
+    if idx.size == 0:
+        return np.zeros_like(A)
+    W = np.linalg.inv(V)
+    return np.real(V[:, idx] @ W[idx, :])
+
+
+def equilibrium_state(ctrl: DiscreteController, e: float, slope: float = 0.0,
+                      tol: float = 1e-8) -> tuple[np.ndarray, np.ndarray]:
+    """Controller state on its trajectory for the error ramp ``e_k = e + k slope``.
+
+    Used to start a controller without an error history (bumpless take-over of a held
+    move). With ``P`` the spectral projector onto the integrators (eigenvalue 1 of A),
+    ``x_k = a + k b + k (k - 1)/2 c`` satisfies ``x_(k+1) = A x_k + B e_k`` for every k
+    when ``c = P B slope``, ``(I - A) b = (I - P) B slope`` with ``P b = P B e`` and
+    ``(I - A) a = (I - P) (B e - b)``: every mode that settles is on its trajectory,
+    every integrator integrates the error. An integrator's level is left at zero (the
+    law's ``u_hold`` absorbs the output offset).
+
+    Parameters
+    ----------
+    ctrl : DiscreteController
+        SISO controller, A of shape (nk, nk), B of shape (nk, 1).
+    e : float
+        Tracking error ``r - y`` at this sample (output units).
+    slope : float
+        Change of the error per sample (output units per sample).
+    tol : float
+        Distance from 1 within which an eigenvalue of A counts as an integrator.
+
+    Returns
+    -------
+    a, b : ndarray, shape (nk,)
+        The state at this sample and its change to the next sample.
+    """
+    A, B = ctrl.A, ctrl.B[:, 0]
+    P = _integrator_projector(A, tol)
+    Q = np.eye(ctrl.nk) - P
+    M = np.eye(ctrl.nk) - A
+    b_set, *_ = np.linalg.lstsq(M, Q @ B * float(slope), rcond=None)
+    b = Q @ b_set + P @ B * float(e)
+    a, *_ = np.linalg.lstsq(M, Q @ (B * float(e) - b), rcond=None)
+    return Q @ a, b
+
+
 class HInfLaw:
     """H-infinity control law for :class:`controller.multimodel.MultiModelController` (SISO).
 
@@ -323,6 +372,11 @@ class HInfLaw:
     the move is continuous. With input limits, the controller state is frozen
     while its update would push a clipped move further past the limit
     (directional conditional integration: no wind-up and no lock-up).
+
+    After :meth:`align` (a move held from outside, e.g. a restart from an old
+    checkpoint) the error history is unknown: a new controller's state then starts
+    in equilibrium with the error (:func:`equilibrium_state`) instead of at zero,
+    so that its fast modes do not kick the moves after the bumpless first one.
 
     Parameters
     ----------
@@ -350,6 +404,8 @@ class HInfLaw:
             raise ValueError(f"warm_samples: must be >= 0, got {warm_samples}")
         self.warm_samples = int(warm_samples)
         self._errors: list[float] = []
+        self._settled_start = False  # after align: new states start in equilibrium
+        self._ramp_from: float | None = None  # after align: the first error, for the slope
         self._designs: dict[int, tuple[np.ndarray, DiscreteController]] = {}
         self.model: int | None = None
         self.ctrl: DiscreteController | None = None
@@ -370,6 +426,23 @@ class HInfLaw:
         self.u_hold = float(np.asarray(u, dtype=float).reshape(-1)[0])
         self.model, self.ctrl, self.xk = None, None, np.zeros(0)
         self._errors = []
+        self._settled_start = False
+        self._ramp_from = None
+
+    def align(self, u, y) -> None:
+        """Bumpless take-over of the held move ``u`` at the measurement ``y``.
+
+        As :meth:`reset` (the next move is ``u``: ``u_hold`` absorbs the controller's
+        output), but the controller state is back-calculated in equilibrium with the
+        current error rather than zero (until a full error history is collected).
+        At the second sample, when the error's slope is known, the state is set once
+        more on the trajectory of that error ramp (:func:`equilibrium_state`) and the
+        move continues from the first one by the ramp's own increment, so the moves
+        after the first one do not kick either.
+        """
+        self.reset(u, y)
+        self._settled_start = True
+        self._ramp_from = math.nan  # the first error, set at the first sample
 
     @staticmethod
     def _model_params(ssm, j: int) -> np.ndarray:
@@ -417,16 +490,33 @@ class HInfLaw:
             # bumpless change: warm state from the error history, the hold absorbs the rest
             self.ctrl = ctrl
             self.model = model
-            x = np.zeros(ctrl.nk)
+            if self._settled_start:
+                x = equilibrium_state(ctrl, self._errors[0] if self._errors else e)[0]
+            else:
+                x = np.zeros(ctrl.nk)
             for e_old in self._errors:
                 x = ctrl.A @ x + ctrl.B[:, 0] * e_old
             self.xk = x
             self.u_hold = u_prev - float(ctrl.C[0] @ x + ctrl.D[0, 0] * e)
             self.n_controller_changes += 1
+        if self._ramp_from is not None:
+            if math.isnan(self._ramp_from):
+                self._ramp_from = e
+            else:  # second sample after align: on the ramp, continue by its increment
+                c = self.ctrl
+                a, b = equilibrium_state(c, e, e - self._ramp_from)
+                # x_0 - x_(-1) = b - c with c = P B slope (see equilibrium_state)
+                c_ramp = _integrator_projector(c.A) @ c.B[:, 0] * (e - self._ramp_from)
+                step = float(c.C[0] @ (b - c_ramp) + c.D[0, 0] * (e - self._ramp_from))
+                self.xk = a
+                self.u_hold = u_prev + step - float(c.C[0] @ a + c.D[0, 0] * e)
+                self._ramp_from = None
         if self.warm_samples:
             self._errors.append(e)
             if len(self._errors) > self.warm_samples:
                 del self._errors[0]
+            if len(self._errors) >= self.warm_samples:
+                self._settled_start = False  # a full history: warm up as usual
         c = self.ctrl
         u_raw = self.u_hold + float(c.C[0] @ self.xk + c.D[0, 0] * e)
         u = min(max(u_raw, self.u_min), self.u_max)
@@ -449,6 +539,8 @@ class HInfLaw:
             "xk": self.xk.tolist(),
             "u_hold": self.u_hold,
             "errors": list(self._errors),
+            "settled_start": self._settled_start,
+            "ramp_from": self._ramp_from,
             "counters": [self.n_syntheses, self.n_synthesis_failures, self.n_controller_changes],
         }
 
@@ -461,5 +553,8 @@ class HInfLaw:
         self.xk = np.asarray(state["xk"], dtype=float)
         self.u_hold = float(state["u_hold"])
         self._errors = [float(v) for v in state.get("errors", [])]
+        self._settled_start = bool(state.get("settled_start", False))
+        ramp = state.get("ramp_from")
+        self._ramp_from = None if ramp is None else float(ramp)
         self.n_syntheses, self.n_synthesis_failures, self.n_controller_changes = (
             int(v) for v in state["counters"])

@@ -116,6 +116,7 @@ class MRACLaw:
         self.n_rejected = 0
         self.n_gain_changes = 0
         self.last_plant: tuple[float, float, float, float] | None = None
+        self._align_u: float | None = None  # a held move to take over at the next sample
 
     def counters(self) -> dict[str, int]:
         return {"mrac_rejected_models": self.n_rejected, "mrac_gain_changes": self.n_gain_changes}
@@ -125,6 +126,19 @@ class MRACLaw:
         y0 = float(np.asarray(y, dtype=float).reshape(-1)[0])
         self.w1, self.w2 = u0, y0  # filters at steady state (Lambda(0) = 1)
         self.gains, self.model = None, None
+        self._align_u = None
+
+    def align(self, u, y) -> None:
+        """Bumpless take-over of the held move ``u`` at the measurement ``y``.
+
+        As :meth:`reset`, then at the first sample the input filter's state ``w1`` is
+        back-calculated so that the control law gives exactly ``u`` for the current
+        ``y`` and reference (with ``w2 = y``, the output filter at steady state); the
+        loop continues from there through the filter dynamics. Left at ``w1 = u`` when
+        the gain ``theta1`` on ``w1`` is zero.
+        """
+        self.reset(u, y)
+        self._align_u = float(np.asarray(u, dtype=float).reshape(-1)[0])
 
     @staticmethod
     def plant_of(ssm, j: int) -> tuple[tuple[float, float, float, float], float]:
@@ -166,6 +180,11 @@ class MRACLaw:
                 alarms.append(f"MRAC: model {model} rejected, previous gains kept: {exc}")
                 self.model = model
         g = self.gains
+        if self._align_u is not None:
+            rest = g.theta2 * self.w2 + g.theta3 * yv + g.c0 * r + self.u_bar
+            if g.theta1 != 0.0 and math.isfinite(g.theta1):
+                self.w1 = (self._align_u - rest) / g.theta1
+            self._align_u = None
         u = g.theta1 * self.w1 + g.theta2 * self.w2 + g.theta3 * yv + g.c0 * r + self.u_bar
         u = min(max(u, self.u_min), self.u_max)
         # filters 1/(s+1) with u and y held over the sample

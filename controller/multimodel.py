@@ -68,6 +68,9 @@ class ControlLaw(Protocol):
 
     def reset(self, u: np.ndarray, y: np.ndarray) -> None: ...
 
+    # optional: ``align(u, y)``, a re-initialization at a move held from outside (see
+    # MultiModelController.align); a law without it is reset instead
+
     def compute(self, k: int, model: int, ssm: StateSharedModel, y: np.ndarray,
                 reference: np.ndarray, u_last: np.ndarray) -> tuple[np.ndarray, dict]: ...
 
@@ -294,6 +297,7 @@ class MultiModelController:
                                       self.settings.index.hysteresis)
         self.hold = OutputHoldCorrection(ssm) if self.settings.y_hold == "foh" else None
         self.initialized = False
+        self._aligned = False  # the next (re-)initialization takes over a held move
         self.n_invalid = 0
         self.n_law_failures = 0
         self.n_reinit = 0
@@ -372,8 +376,13 @@ class MultiModelController:
             self.ssm.initialize(self.u_last, y)
             if self.hold is not None:
                 self.hold.reset(y)
-            self.law.reset(self.u_last, y)
+            align = getattr(self.law, "align", None) if self._aligned else None
+            if callable(align):
+                align(self.u_last, y)
+            else:
+                self.law.reset(self.u_last, y)
             self.initialized = True
+            self._aligned = False
         alarms: list[str] = []
         if self.hold is None:
             errors = self.ssm.errors(y)
@@ -459,6 +468,34 @@ class MultiModelController:
         self.index.copy_model(source, j)
         self.n_reinit += 1
 
+    def align(self, u) -> None:
+        """Take over a move held from outside (restart from an old checkpoint, manual to
+        automatic): bumpless transfer.
+
+        ``u`` becomes the last move, and at the next valid sample the dynamic states are
+        re-initialized from ``(u, y_k)`` as at a first sample: the shared state and the
+        first-order-hold correction at a steady state, and the control law through its
+        ``align(u, y)`` (which sets its internal states so that its first move is ``u``
+        given the current error) or, if it has none, its ``reset(u, y)``. The models'
+        parameters, covariances, J values and the active model are kept.
+
+        Parameters
+        ----------
+        u : array_like, shape (m,)
+            The move in force (absolute units); clipped to the input limits.
+
+        Raises
+        ------
+        ValueError
+            When ``u`` has the wrong length or is not finite.
+        """
+        u = np.asarray(u, dtype=float).reshape(-1)
+        if u.shape != self.u_last.shape or not np.all(np.isfinite(u)):
+            raise ValueError(f"u: expected {self.u_last.size} finite values, got {u!r}")
+        self.u_last = np.clip(u, self.u_min, self.u_max)
+        self.initialized = False
+        self._aligned = True
+
     # -- persistence ---------------------------------------------------------------------
     def checkpoint(self) -> dict[str, Any]:
         """Everything for a bumpless restart, as plain JSON data."""
@@ -488,6 +525,7 @@ class MultiModelController:
             raise ValueError("state.u_last: wrong length or non-finite")
         self.u_last = u
         self.initialized = bool(state["initialized"])
+        self._aligned = False
         if self.hold is not None:
             if "hold" in state:
                 self.hold.restore(state["hold"])
