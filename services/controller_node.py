@@ -358,6 +358,15 @@ class ControllerNode:
             queue = args.get("queue", False)
             if not isinstance(queue, bool):
                 return Reply(422, error="queue: expected a boolean")
+            # A controller that knows grades it cannot hold refuses them now, not
+            # inside a later sample (the transition would run toward nothing).
+            check = getattr(self.controller, "check_grade", None)
+            if check is not None and grade in self.info.grades:
+                try:
+                    with self._lock:
+                        check(grade)
+                except ValueError as exc:
+                    return Reply(422, error=str(exc))
             with self._lock:
                 tr = self.tm.request(grade, self.t, duration, queue=queue)
                 self._persist(tr, "pending", "queued" if tr.detail == "queued"

@@ -574,6 +574,19 @@ class TEServiceController:
         plan = TransitionPlan(d["start"], tuple(Leg(t, g) for t, g in d["legs"]), **extra)
         self.ctl.retarget(plan if d["freeze_h"] is None else _FrozenPlan(plan, d["freeze_h"]))
 
+    def check_grade(self, grade: str) -> None:
+        """Refuse a grade this control structure cannot hold from the current one.
+
+        Raises
+        ------
+        services.studies.te_grades.GradeError
+            (a ``ValueError``) naming the grade and the valve without margin.
+        """
+        from services.studies.te_grades import check_reachable
+
+        legs = self.plan_def["legs"]
+        check_reachable(legs[-1][1] if legs else self.plan_def["start"], grade)
+
     def on_transition(self, event: str, grade: str, t_s: float,
                       duration_s: float | None = None) -> None:
         """``running``: head for ``grade`` from ``t_s``; ``aborted``/``failed``: hold.

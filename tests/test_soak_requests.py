@@ -7,10 +7,6 @@ from test_service_loop import Harness
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known gap: the controller node accepts mode4 (202), then TEServiceController.on_transition "
-    "raises GradeError inside the sample ('sample N failed') and the transition runs toward a "
-    "grade nobody steers to until it times out; it should be refused with 422 at request time"))
 def test_unreachable_te_grade_is_refused_at_request_time(tmp_path):
     h = Harness(tmp_path, unit="te", speed=10_000.0, telemetry=False)
     try:
