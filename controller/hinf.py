@@ -490,8 +490,10 @@ class HInfLaw:
             # bumpless change: warm state from the error history, the hold absorbs the rest
             self.ctrl = ctrl
             self.model = model
-            if self._settled_start:
-                x = equilibrium_state(ctrl, self._errors[0] if self._errors else e)[0]
+            if self._settled_start:  # no full history: start on the ramp of the first two
+                hist = [*self._errors, e]
+                x = equilibrium_state(ctrl, hist[0], hist[1] - hist[0] if len(hist) > 1
+                                      else 0.0)[0]
             else:
                 x = np.zeros(ctrl.nk)
             for e_old in self._errors:

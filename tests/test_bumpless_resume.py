@@ -82,6 +82,25 @@ def test_hinf_resumes_from_the_held_move_without_a_kick(n_lost):
     assert np.all(after <= KICK_FACTOR * normal), (after.ravel(), normal)
 
 
+@pytest.mark.parametrize("change_at", [1, 3])
+def test_hinf_controller_change_soon_after_the_take_over_does_not_kick(change_at):
+    """A new controller (switch or re-synthesis) before a full error history exists."""
+    loop = _Loop("cstr", "hinf")
+    held = loop.stale_restart(30)
+    normal = loop.largest_recent_step()
+    for _ in range(change_at):
+        loop.sample()
+    law = loop.ctl.law
+    changes = law.n_controller_changes
+    law._designs.pop(loop.ctl.active)  # forces a fresh synthesis: a new controller object
+    for _ in range(N_AFTER_MOVES):
+        loop.sample()
+    assert law.n_controller_changes > changes
+    moves = np.array([held, *loop.moves[-N_AFTER_MOVES - change_at:]])
+    after = np.abs(np.diff(moves, axis=0))
+    assert np.all(after <= KICK_FACTOR * normal), (after.ravel(), normal)
+
+
 def test_hinf_stale_restart_without_align_bumps():
     """The gap this fixes: the stale checkpoint's controller state alone moves far."""
     loop = _Loop("cstr", "hinf")
