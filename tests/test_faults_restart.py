@@ -5,7 +5,9 @@ wall seconds since aca0348, so a SIGKILL loses the newest; the 72 h soak saw a b
 
 Bumpless means the first move after the restart is the move the plant holds. The plant
 reports that move in every measurement (``Measurement.u``), so a restarted node can
-always start from it, however old its checkpoint is.
+always start from it, however old its checkpoint is; the multiple-model controller
+takes it over with ``MultiModelController.align`` (its dynamic law re-initialized
+consistently with that move and the current error, ``tests/test_bumpless_resume.py``).
 """
 
 import threading
@@ -38,11 +40,6 @@ class _LosingStore(UnitStore):
             super().save_checkpoint(*a, **kw)
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "known residual gap: since 2cc1759/972dfa5 the restarted node takes over from the "
-    "plant's move and re-initializes a multiple-model controller's dynamic states, and "
-    "this passes in most runs; in about 1 of 10 (972dfa5's count) the H-infinity law's "
-    "first move after the reset still jumps, so the test cannot be strict yet"))
 def test_restart_resumes_from_the_move_the_plant_holds(tmp_path):
     cfg = get_unit("cstr")
     ep = free_tcp_endpoint()
