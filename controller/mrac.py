@@ -195,7 +195,7 @@ class MRACLaw:
     def checkpoint(self) -> dict[str, Any]:
         return {"w1": self.w1, "w2": self.w2, "u_bar": self.u_bar, "model": self.model,
                 "gains": None if self.gains is None else list(self.gains.as_tuple()),
-                "counters": [self.n_rejected, self.n_gain_changes]}
+                "counters": [self.n_rejected, self.n_gain_changes], "align_u": self._align_u}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.w1, self.w2 = float(state["w1"]), float(state["w2"])
@@ -203,3 +203,5 @@ class MRACLaw:
         self.model = state["model"]
         self.gains = None if state["gains"] is None else MRACGains(*state["gains"])
         self.n_rejected, self.n_gain_changes = (int(v) for v in state["counters"])
+        align_u = state.get("align_u")
+        self._align_u = None if align_u is None else float(align_u)

@@ -507,6 +507,7 @@ class MultiModelController:
             "law": self.law.checkpoint(),
             "u_last": self.u_last.tolist(),
             "initialized": self.initialized,
+            "aligned": self._aligned,
             **({"hold": self.hold.checkpoint()} if self.hold is not None else {}),
             "counters": {"n_invalid": self.n_invalid, "n_law_failures": self.n_law_failures,
                          "n_reinit": self.n_reinit, "n_restarts": self.n_restarts,
@@ -525,7 +526,7 @@ class MultiModelController:
             raise ValueError("state.u_last: wrong length or non-finite")
         self.u_last = u
         self.initialized = bool(state["initialized"])
-        self._aligned = False
+        self._aligned = bool(state.get("aligned", False))
         if self.hold is not None:
             if "hold" in state:
                 self.hold.restore(state["hold"])

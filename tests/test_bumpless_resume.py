@@ -184,3 +184,16 @@ def test_equilibrium_state_on_a_ramp_matches_simulation():
     assert x[1] == pytest.approx(x_long[1], abs=1e-9)
     x_next = ctrl.A @ x + ctrl.B[:, 0] * e
     np.testing.assert_allclose(x_next - x, b, atol=1e-9)
+
+
+@pytest.mark.parametrize("law", ["hinf", "mrac"])
+def test_a_take_over_survives_a_checkpoint_before_the_next_sample(law):
+    loop = _Loop("cstr", law)
+    held = loop.stale_restart(30)
+    state = json.loads(json.dumps(loop.ctl.checkpoint()))
+    other = _Loop("cstr", law)
+    other.run = loop.run  # the same plant, now driven by the restored controller
+    other.k = loop.k
+    other.ctl.restore(state)
+    first = other.sample()
+    np.testing.assert_allclose(first.u, held, rtol=0, atol=FIRST_MOVE_TOL)
