@@ -53,7 +53,8 @@ from controller.interfaces import ControlDecision
 from controller.state_shared import StateSharedModel
 from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
 
-__all__ = ["ControlLaw", "MultiModelSettings", "MultiModelController", "OutputHoldCorrection"]
+__all__ = ["ControlLaw", "HoldLaw", "MultiModelSettings", "MultiModelController",
+           "OutputHoldCorrection"]
 
 
 class ControlLaw(Protocol):
@@ -77,6 +78,27 @@ class ControlLaw(Protocol):
     def checkpoint(self) -> dict[str, Any]: ...
 
     def restore(self, state: dict[str, Any]) -> None: ...
+
+
+class HoldLaw:
+    """A :class:`ControlLaw` that keeps the last move ("controller off").
+
+    The models still adapt and the index still switches, so a loop can track
+    the plant with its outputs frozen (commissioning, benchmarks of the model
+    side alone).
+    """
+
+    def reset(self, u, y) -> None:
+        pass
+
+    def compute(self, k, model, ssm, y, reference, u_last):
+        return u_last, {"status": "solved"}
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        pass
 
 
 def _bounds(value, m: int, field: str, default: float) -> np.ndarray:

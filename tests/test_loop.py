@@ -12,7 +12,7 @@ from controller.hinf import HInfLaw, HInfWeights
 from controller.interfaces import SampleController
 from controller.loop import ise, run_closed_loop, settling_time
 from controller.mrac import MRACLaw
-from controller.multimodel import MultiModelController, MultiModelSettings
+from controller.multimodel import HoldLaw, MultiModelController, MultiModelSettings
 from controller.reference import ReferenceTrajectory, SetpointSchedule
 from controller.state_shared import ModelSpec, StateSharedModel
 from controller.switching import IndexSettings
@@ -228,28 +228,14 @@ def test_non_square_model_validates_outputs_by_their_own_count():
     theta = np.zeros((2 * 2 + 2, 1))  # n = 2: n(m + p) = 6 rows, p = 1 column
     theta[0, 0], theta[2, 0] = 0.3, 0.1
     ssm = StateSharedModel(A_POLY, 2, DT, [ModelSpec("M", theta, np.zeros(1))], p=1)
-    ctl = MultiModelController(ssm, _HoldLaw(), [0.5, 0.5], kinds=["fixed"])
+    ctl = MultiModelController(ssm, HoldLaw(), [0.5, 0.5], kinds=["fixed"])
     dec = ctl.step(0, 0.0, np.array([1.0]), np.array([[1.0]]))
     assert dec.status == "solved" and dec.u.shape == (2,)
     dec = ctl.step(1, DT, np.array([1.0, 2.0]), np.array([[1.0]]))
     assert dec.status == "invalid_measurement"
 
 
-class _HoldLaw:
-    def reset(self, u, y):
-        pass
-
-    def compute(self, k, model, ssm, y, reference, u_last):
-        return u_last, {"status": "solved"}
-
-    def checkpoint(self):
-        return {}
-
-    def restore(self, state):
-        pass
-
-
-class _SlackLaw(_HoldLaw):
+class _SlackLaw(HoldLaw):
     """Holds u and reports a soft-constraint slack (an MPC law's ``info["slack"]``)."""
 
     slack = 0.25
@@ -264,7 +250,7 @@ def test_law_slack_and_status_are_in_the_decision():
     assert dec.extra["constraint_slack"] == _SlackLaw.slack
     assert dec.extra["law_status"] == "solved"
     # a law without a soft constraint: None, not a made-up zero
-    ctl = _controller(_HoldLaw(), [_model("M1", TRUE)], ["fixed"])
+    ctl = _controller(HoldLaw(), [_model("M1", TRUE)], ["fixed"])
     assert ctl.step(0, 0.0, [Y0], [[Y0]]).extra["constraint_slack"] is None
 
 
@@ -274,7 +260,7 @@ def _reinit_controller(order):
     0, so nothing adapts and J is exactly what the test sets."""
     specs = {"M1": (_model("M1", TRUE), "fixed"), "M2": (_model("M2", WRONG), "fixed"),
              "R": (_model("R", WRONG, "adaptive"), "re-initialized")}
-    ctl = _controller(_HoldLaw(), [specs[n][0] for n in order], [specs[n][1] for n in order])
+    ctl = _controller(HoldLaw(), [specs[n][0] for n in order], [specs[n][1] for n in order])
     return ctl, {n: i for i, n in enumerate(order)}
 
 
@@ -301,3 +287,12 @@ def test_reinitialization_only_when_a_fixed_model_is_strictly_better(order):
     ctl.step(4, 4 * DT, [Y0], [[Y0]])
     assert ctl.n_reinit == 2
     np.testing.assert_array_equal(ctl.params(idx["R"]), ctl.params(idx["M2"]))
+
+
+def test_hold_law_keeps_the_last_move_while_models_adapt():
+    law = HoldLaw()
+    u_last = np.array([0.3, -1.2])
+    u, info = law.compute(0, 0, None, np.zeros(1), np.zeros((1, 1)), u_last)
+    assert info["status"] == "solved"
+    np.testing.assert_array_equal(u, u_last)
+    assert law.checkpoint() == {}

@@ -22,29 +22,13 @@ import time
 import numpy as np
 
 from controller.adaptation import NLSSettings
-from controller.multimodel import MultiModelController, MultiModelSettings
+from controller.multimodel import HoldLaw, MultiModelController, MultiModelSettings
 from controller.state_shared import ModelSpec, StateSharedModel
 from controller.switching import IndexSettings
 from services.benchmarking import latency_case
 
 NAME = "adapt-switch"
 DESCRIPTION = "per-sample cost of shared-state update + adaptation + switching (SISO, TE size)"
-
-
-class _NoLaw:
-    """A control law that holds the input: the bench times adapt + switch only."""
-
-    def reset(self, u, y):
-        pass
-
-    def compute(self, k, model, ssm, y, reference, u_last):
-        return u_last, {"status": "solved"}
-
-    def checkpoint(self):
-        return {}
-
-    def restore(self, state):
-        pass
 
 
 def add_arguments(parser) -> None:
@@ -68,7 +52,7 @@ def _controller(n: int, m: int, kinds: list[str], rng) -> MultiModelController:
                                 "fixed" if kind == "fixed" else "adaptive"))
     settings = MultiModelSettings(NLSSettings(kappa=10.0, gain=3.0, rate=1.0),
                                   IndexSettings(1.0, 0.1, 0.5, 0.5))
-    return MultiModelController(ssm, _NoLaw(), np.zeros(m), settings, kinds=kinds)
+    return MultiModelController(ssm, HoldLaw(), np.zeros(m), settings, kinds=kinds)
 
 
 def _time(ctl: MultiModelController, m: int, n_samples: int, rng) -> np.ndarray:
