@@ -81,11 +81,14 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
     app = FastAPI(title="ssmpc", version=_version(),
                   description="Transition controller for continuous process plants (v1).")
 
-    def call(unit: str, action: str, args: dict | None = None):
+    def forward(request, unit: str, action: str, args: dict | None):
         try:
-            return _unwrap(mesh.request(unit, action, args))
+            return _unwrap(request(unit, action, args))
         except MeshError as exc:
             raise HTTPException(status_code=exc.status, detail=exc.detail) from exc
+
+    def call(unit: str, action: str, args: dict | None = None):
+        return forward(mesh.request, unit, action, args)
 
     @app.get("/health", response_model=Health)
     def health() -> Health:
@@ -130,10 +133,7 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
         return call(unit, "transition", {"op": "abort", "id": tid})
 
     def call_plant(unit: str, action: str, args: dict | None = None):
-        try:
-            return _unwrap(mesh.request_plant(unit, action, args))
-        except MeshError as exc:
-            raise HTTPException(status_code=exc.status, detail=exc.detail) from exc
+        return forward(mesh.request_plant, unit, action, args)
 
     @app.get("/api/v1/units/{unit}/disturbances", responses=READ_ERRORS)
     def disturbances(unit: str = UNIT) -> dict:

@@ -105,17 +105,21 @@ def _int(obj: dict, name: str, *, minimum: int | None = None) -> int:
     return v
 
 
-def _float(obj: dict, name: str) -> float:
-    v = obj[name]
+def _number(v, label: str) -> float:
+    """A finite JSON number (not a bool) as float; ``label`` names the field in errors."""
     if isinstance(v, bool) or not isinstance(v, int | float):
-        raise MessageError(f"{name}: expected a number, got {type(v).__name__}")
+        raise MessageError(f"{label}: expected a number, got {type(v).__name__}")
     try:
         v = float(v)
     except OverflowError as exc:
-        raise MessageError(f"{name}: number out of range") from exc
+        raise MessageError(f"{label}: number out of range") from exc
     if not math.isfinite(v):
-        raise MessageError(f"{name}: non-finite value")
+        raise MessageError(f"{label}: non-finite value")
     return v
+
+
+def _float(obj: dict, name: str) -> float:
+    return _number(obj[name], name)
 
 
 def _str(obj: dict, name: str) -> str:
@@ -129,17 +133,7 @@ def _vector(obj: dict, name: str, length: int | None) -> tuple[float, ...]:
     v = obj[name]
     if not isinstance(v, list):
         raise MessageError(f"{name}: expected a list of numbers, got {type(v).__name__}")
-    out = []
-    for i, x in enumerate(v):
-        if isinstance(x, bool) or not isinstance(x, int | float):
-            raise MessageError(f"{name}[{i}]: expected a number, got {type(x).__name__}")
-        try:
-            x = float(x)
-        except OverflowError as exc:
-            raise MessageError(f"{name}[{i}]: number out of range") from exc
-        if not math.isfinite(x):
-            raise MessageError(f"{name}[{i}]: non-finite value")
-        out.append(x)
+    out = [_number(x, f"{name}[{i}]") for i, x in enumerate(v)]
     if length is not None and len(out) != length:
         raise MessageError(f"{name}: expected length {length}, got {len(out)}")
     return tuple(out)

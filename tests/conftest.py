@@ -2,7 +2,22 @@
 
 import os
 
+import pytest
+
 # As in the CLI: single-threaded BLAS for small matrices (set before numpy loads).
 for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+@pytest.fixture
+def stack(tmp_path):
+    """A CSTR unit over real Zenoh (test_service_loop.Harness) with a real api server."""
+    from test_api import ApiServer
+    from test_service_loop import Harness
+
+    h = Harness(tmp_path)
+    api = ApiServer(h)
+    yield h, api
+    api.close()
+    h.close()

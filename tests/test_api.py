@@ -6,7 +6,6 @@ import time
 import httpx
 import pytest
 import uvicorn
-from test_service_loop import Harness
 
 from api.app import create_app
 from api.mesh import Mesh
@@ -44,15 +43,6 @@ class ApiServer:
         self.thread.join(10)
         self.mesh.close()
         self.session.close()
-
-
-@pytest.fixture
-def stack(tmp_path):
-    h = Harness(tmp_path)
-    api = ApiServer(h)
-    yield h, api
-    api.close()
-    h.close()
 
 
 def test_health_units_openapi(stack):

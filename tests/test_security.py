@@ -10,7 +10,7 @@ import time
 
 import httpx
 import pytest
-from test_api import AUTH, TOKEN, ApiServer
+from test_api import AUTH, TOKEN
 from test_service_loop import Harness
 
 from services import keys
@@ -18,15 +18,6 @@ from services.messages import MVMessage
 from services.zenoh_session import free_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
-
-
-@pytest.fixture
-def stack(tmp_path):
-    h = Harness(tmp_path)
-    api = ApiServer(h)
-    yield h, api
-    api.close()
-    h.close()
 
 
 BAD_AUTH = [
