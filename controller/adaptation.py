@@ -40,6 +40,8 @@ from typing import Any
 
 import numpy as np
 
+from controller.packing import pack_array, unpack_array
+
 __all__ = ["AdaptiveKind", "NLSSettings", "NLSStep", "NormalizedLeastSquares"]
 
 
@@ -391,7 +393,9 @@ class NormalizedLeastSquares:
     def checkpoint(self) -> dict[str, Any]:
         """JSON-serialisable state (parameters, covariance, bound, counters).
 
-        The covariance is stored as given: dense ``P`` or the implicit ``c``, ``V``.
+        The covariance is stored as given: dense ``P`` or the implicit ``c``, ``V``,
+        packed exactly (:func:`controller.packing.pack_array`: a TE-size covariance as
+        decimal lists would cost ~6 ms of serialization per snapshot).
         """
         out = {
             "p": self.p.tolist(),
@@ -403,9 +407,9 @@ class NormalizedLeastSquares:
             "reset_reasons": dict(self.reset_reasons),
         }
         if self._Pd is not None:
-            out["P"] = self._Pd.tolist()
+            out["P"] = pack_array(self._Pd)
         else:
-            out["c"], out["V"] = self._c, self._V.tolist()
+            out["c"], out["V"] = self._c, pack_array(self._V)
         return out
 
     def restore(self, state: dict[str, Any]) -> None:
@@ -413,13 +417,13 @@ class NormalizedLeastSquares:
         if p.shape != self.p.shape or not np.all(np.isfinite(p)):
             raise ValueError(f"state: parameters must be {self.p.size} finite values")
         if state.get("P") is not None:
-            P = np.asarray(state["P"], dtype=float)
+            P = unpack_array(state["P"])
             if P.shape != (p.size, p.size) or not np.all(np.isfinite(P)):
                 raise ValueError("state.P: wrong shape or non-finite covariance")
             self._Pd = 0.5 * (P + P.T)
         else:
             c = float(state["c"])
-            V = np.asarray(state["V"], dtype=float).reshape(p.size, -1)
+            V = unpack_array(state["V"]).reshape(p.size, -1)
             if not (math.isfinite(c) and np.all(np.isfinite(V))):
                 raise ValueError("state.V: non-finite covariance")
             self._Pd, self._c, self._V = None, c, V

@@ -444,6 +444,7 @@ class ControllerNode:
                 "deadline_misses": self.stats.misses,
                 "fallback_moves": self.stats.fallbacks,
                 "budget_ms": self.stats.budget_s * 1e3,
+                "sample_ms": self.stats.percentiles_ms(),
                 "samples": self.stats.samples,
                 "bad_measurements": self.bad_measurements,
                 "stale_measurements": self.stale_measurements,

@@ -16,6 +16,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
+
 __all__ = ["TimingBudget", "SampleClock", "DeadlineStats", "Watchdog"]
 
 
@@ -128,6 +130,14 @@ class DeadlineStats:
     def slack_ms(self, elapsed_s: float) -> float:
         """Budget left over (negative on a miss), ms."""
         return (self.budget_s - elapsed_s) * 1e3
+
+    def percentiles_ms(self) -> dict:
+        """p50/p99/max of the kept compute times, ms (None before the first sample)."""
+        if not self.recent_ms:
+            return {"p50": None, "p99": None, "max": None, "n": 0}
+        a = np.asarray(self.recent_ms, dtype=float)
+        p50, p99 = np.percentile(a, [50, 99])
+        return {"p50": float(p50), "p99": float(p99), "max": float(a.max()), "n": int(a.size)}
 
     def as_dict(self) -> dict:
         return {"samples": self.samples, "deadline_misses": self.misses,

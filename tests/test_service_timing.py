@@ -67,3 +67,16 @@ def test_watchdog_fires_at_deadline_and_not_when_disarmed():
     time.sleep(0.6)
     assert not other.is_set()
     wd.close()
+
+
+def test_deadline_stats_percentiles_of_kept_samples():
+    from services.timing import DeadlineStats
+
+    st = DeadlineStats(budget_s=0.002, keep=100)
+    assert st.percentiles_ms() == {"p50": None, "p99": None, "max": None, "n": 0}
+    for i in range(1, 201):  # 1..200 ms; only the last 100 (101..200) are kept
+        st.record(i * 1e-3)
+    p = st.percentiles_ms()
+    assert p["n"] == 100 and p["max"] == 200.0
+    assert p["p50"] == 150.5 and abs(p["p99"] - 199.01) < 1e-9
+    assert st.misses == 198  # 3..200 ms: above the 2 ms budget (2 ms itself is in time)

@@ -88,6 +88,23 @@ def test_first_order_path_matches_ode_solution():
         np.testing.assert_allclose(first_order_path(t_end, 0.0, r0, sw), ref, atol=ODE_TOL)
 
 
+def test_first_order_path_for_many_times_equals_each_time_alone():
+    sw = [(1.0, np.array([10.0, -2.0]), np.array([2.0, 0.0])),
+          (4.0, np.array([3.0, 5.0]), 0.5)]
+    times = np.array([0.0, 0.5, 1.0, 1.0 + 1e-9, 2.5, 4.0, 7.0, 30.0])
+    many = first_order_path(times, 0.0, [0.0, 1.0], sw)
+    assert many.shape == (times.size, 2)
+    for i, t in enumerate(times):
+        np.testing.assert_array_equal(many[i], first_order_path(float(t), 0.0, [0.0, 1.0], sw))
+    plan = TransitionPlan("mode0", (Leg(1.0, "mode2"), Leg(9.0, "mode3")))
+    ym = plan.xmeas_ref(times)
+    assert ym.shape == (times.size, 41)
+    for i, t in enumerate(times):
+        np.testing.assert_array_equal(ym[i], plan.xmeas_ref(float(t)))
+    # the tau = 0 column steps at the switch
+    assert many[2, 1] == -2.0 and many[1, 1] == 1.0
+
+
 def test_plan_references_closed_form():
     plan = TransitionPlan("mode0", (Leg(1.0, "mode2"),), tau_xmeas_h=2.0, tau_xmv_h=3.0)
     g0, g2 = grade(0).g_mol, grade(2).g_mol

@@ -142,7 +142,8 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
         s.close()
         nodes.close()
     return {"speed": speed, "samples": cs["samples"], "deadline_misses": cs["deadline_misses"],
-            "held": ps["mv_held"], "plant_samples": ps["samples"]}
+            "held": ps["mv_held"], "plant_samples": ps["samples"],
+            "sample_ms": cs.get("sample_ms")}
 
 
 def speed_case(args, state_dir: str) -> dict:

@@ -125,6 +125,7 @@ CORE_NAMES = ("XMV3", "XMV4", "Pr_sp", "Tr_sp", "XMV11")
 PR_LIMITS = (2500.0, 2950.0)
 #: MPC controlled variables (XMEAS numbers, R7.15).
 CORE_CVS = (7, 11, 13, 16, 18)
+_CORE_CV_INDEX = np.array(CORE_CVS) - 1
 #: Reactor temperature set point range, degC (R7.12).
 TR_LIMITS = (110.0, 130.0)
 #: Alarm limits below the interlocks (XMEAS number -> (low, high), XMEAS units):
@@ -242,13 +243,14 @@ class TEController:
         self.plan = plan
 
     # -- pieces ---------------------------------------------------------------------------
-    def _production_step(self, t: float, xmeas: np.ndarray) -> float:
+    def _production_step(self, ym: np.ndarray, xmeas: np.ndarray) -> float:
         """Outer production loop of the MPC strategies: product flow (XMEAS 17)
-        trims the MPC's input target of the A+C feed (XMV 4)."""
+        trims the MPC's input target of the A+C feed (XMV 4). ``ym``: the plan's
+        XMEAS references now."""
         lp = self.production_loop
         y = float(xmeas[lp.cv - 1])
         if math.isfinite(y):
-            e = float(self.plan.xmeas_ref(t)[lp.cv - 1]) - y
+            e = float(ym[lp.cv - 1]) - y
             if self.e_p_prev is None:
                 self.e_p_prev = e
             self.p_trim += lp.gain * ((e - self.e_p_prev) + self.sample_h / lp.ti_h * e)
@@ -256,13 +258,13 @@ class TEController:
             self.e_p_prev = e
         return self.p_trim
 
-    def _a_trim_step(self, t: float, xmeas: np.ndarray) -> float:
+    def _a_trim_step(self, ym: np.ndarray, xmeas: np.ndarray) -> float:
         """Outer composition loop of the MPC strategies: A in the reactor feed
         (XMEAS 23, 0.1 h analyzer) trims the MPC's input target of the A feed (the
         PI baseline's loop of the same tuning, :data:`A_FEED_LOOP`)."""
         y = float(xmeas[A_FEED_LOOP.cv - 1])
         if math.isfinite(y):
-            e = float(self.plan.xmeas_ref(t)[A_FEED_LOOP.cv - 1]) - y
+            e = float(ym[A_FEED_LOOP.cv - 1]) - y
             if self.e_a_prev is None:
                 self.e_a_prev = e
             self.a_trim += A_FEED_LOOP.gain * ((e - self.e_a_prev)
@@ -280,7 +282,7 @@ class TEController:
             self.override = min(max(self.override, 0.0), OVERRIDE_MAX)
         return self.override
 
-    def _ratio_step(self, t: float, xmeas: np.ndarray) -> float:
+    def _ratio_step(self, t: float, ym: np.ndarray, xmeas: np.ndarray) -> float:
         ff = self.plan.d_fraction_ref(t)
         if self.s is None:
             self.s, self.s_ff_prev = ff, ff
@@ -288,7 +290,7 @@ class TEController:
         self.s_ff_prev = ff
         g = float(xmeas[39])
         if math.isfinite(g):
-            e = float(self.plan.xmeas_ref(t)[39] - g)
+            e = float(ym[39] - g)
             if self.e_g_prev is None:
                 self.e_g_prev = e
             s += self.ratio.gain * ((e - self.e_g_prev) + self.sample_h / self.ratio.ti_h * e)
@@ -302,8 +304,9 @@ class TEController:
         if callable(setter):
             setter(target)
 
-    def _core_ff(self, t: float) -> np.ndarray:
-        xv, ym = self.plan.xmv_ref(t), self.plan.xmeas_ref(t)
+    @staticmethod
+    def _core_ff(xv: np.ndarray, ym: np.ndarray) -> np.ndarray:
+        """Core handles' plan values from the valve and XMEAS references."""
         return np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
 
     # -- the sample ------------------------------------------------------------------------
@@ -322,27 +325,30 @@ class TEController:
                 side, lim = ("above", hi) if v > hi else ("below", lo)
                 alarms.append(f"XMEAS{cv} = {v:.1f} {side} its alarm limit {lim:g} "
                               f"(interlock ahead)")
-        s = self._ratio_step(t, xmeas)
-        xv = self.plan.xmv_ref(t)
-        ym = self.plan.xmeas_ref(t)
+        # every plan reference of the sample in one evaluation: now and the horizon
+        mpc = self.strategy != "pi"
+        n_ahead = self.horizon if mpc else 0
+        ym_all = self.plan.xmeas_ref(t + self.sample_h * np.arange(n_ahead + 1))
+        xv_all = self.plan.xmv_ref(np.array([t, t + n_ahead * self.sample_h]))
+        xv, ym = xv_all[0], ym_all[0]
+        s = self._ratio_step(t, ym, xmeas)
         u = np.full(12, np.nan)
         d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
         u[1] = np.clip(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0, 100.0)
         u[4], u[8], u[11] = xv[4], xv[8], xv[11]
-        ff = self._core_ff(t)
+        ff = self._core_ff(xv, ym)
         info: dict[str, Any] = {}
         if self.strategy == "pi":
             core_u = self.core.step(xmeas, ym, ff)
             status, fallback, active, J, names = "solved", False, -1, np.zeros(0), ()
         else:
-            yc = xmeas[[c - 1 for c in CORE_CVS]]
-            refs = np.array([self.plan.xmeas_ref(t + i * self.sample_h)[[c - 1 for c in CORE_CVS]]
-                             for i in range(1, self.horizon + 1)])
-            target = self._core_ff(t + self.horizon * self.sample_h)
+            yc = xmeas[_CORE_CV_INDEX]
+            refs = ym_all[1:, _CORE_CV_INDEX]
+            target = self._core_ff(xv_all[-1], ym_all[-1])
             if self.outer_a_loop:
-                target[0] = min(max(target[0] + self._a_trim_step(t, xmeas), 0.0), 100.0)
+                target[0] = min(max(target[0] + self._a_trim_step(ym, xmeas), 0.0), 100.0)
             if self.production_loop is not None:
-                target[1] = min(max(target[1] + self._production_step(t, xmeas), 0.0), 100.0)
+                target[1] = min(max(target[1] + self._production_step(ym, xmeas), 0.0), 100.0)
             self._set_input_target(target)
             dec = self.core.step(k, t, yc, refs)
             core_u, status, fallback = dec.u, dec.status, dec.fallback

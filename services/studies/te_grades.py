@@ -232,23 +232,31 @@ def first_order_path(t, t0: float, r0, switches) -> np.ndarray:
 
     Parameters
     ----------
-    t : float
-        Time (h), >= t0.
+    t : float or array_like, shape (K,)
+        Time(s) (h), >= t0.
     t0 : float
     r0 : array_like, shape (n,)
     switches : sequence of (time_h, target (n,), tau_h (n,) or float)
         Ascending times >= t0. ``tau = 0`` gives a step.
+
+    Returns
+    -------
+    ndarray, shape (n,) for a scalar ``t``, (K, n) for an array of times
     """
-    r = np.array(r0, dtype=float)
+    scalar = np.ndim(t) == 0
+    tt = np.atleast_1d(np.asarray(t, dtype=float))
+    r = np.array(np.broadcast_to(np.asarray(r0, dtype=float), (tt.size, np.size(r0))))
     for i, (ts, target, tau) in enumerate(switches):
-        if ts > t:
-            break
         if ts < t0:
             raise ValueError(f"switches: time {ts} before t0 = {t0}")
-        t_end = min(t, switches[i + 1][0]) if i + 1 < len(switches) else t
-        tau = np.broadcast_to(np.asarray(tau, dtype=float), r.shape)
-        r = _relax(r, np.asarray(target, dtype=float), tau, t_end - ts)
-    return r
+        on = tt >= ts
+        if not on.any():
+            break
+        t_next = switches[i + 1][0] if i + 1 < len(switches) else math.inf
+        dt = np.minimum(tt[on], t_next) - ts
+        tau = np.broadcast_to(np.asarray(tau, dtype=float), r.shape[1:])
+        r[on] = _relax(r[on], np.asarray(target, dtype=float), tau, dt[:, None])
+    return r[0] if scalar else r
 
 
 def _relax(r, target, tau, dt):
@@ -325,19 +333,22 @@ class TransitionPlan:
                 g = gr
         return g
 
-    def _path(self, t: float, attr: str, tau: float) -> np.ndarray:
+    def _path(self, t, attr: str, tau: float) -> np.ndarray:
         g0 = self._grades[0]
         sw = [(lg.t_h, getattr(g, attr), tau) for lg, g in zip(self.legs, self._grades[1:],
                                                                strict=True)]
         return first_order_path(t, 0.0, getattr(g0, attr), sw)
 
-    def xmeas_ref(self, t: float) -> np.ndarray:
-        """References of XMEAS 1-41 at ``t`` (41,): Table 7.3 rows, first-order between."""
+    def xmeas_ref(self, t) -> np.ndarray:
+        """References of XMEAS 1-41 at ``t`` (41,): Table 7.3 rows, first-order between.
+
+        An array of K times gives a (K, 41) array (one evaluation for a whole horizon)."""
         return self._path(t, "xmeas", self.tau_xmeas_h)
 
-    def xmv_ref(self, t: float) -> np.ndarray:
+    def xmv_ref(self, t) -> np.ndarray:
         """Valve references at ``t`` (12,): the grades' steady valves, first-order between
-        (XMV(5) and XMV(9) close this way toward modes 1-3)."""
+        (XMV(5) and XMV(9) close this way toward modes 1-3). An array of K times gives
+        (K, 12)."""
         return self._path(t, "xmv", self.tau_xmv_h)
 
     def d_fraction_ref(self, t: float) -> float:
