@@ -245,6 +245,7 @@ class NormalizedLeastSquares:
         self._Pd: np.ndarray | None = None
         self._c = 0.0
         self._V = np.zeros((p0.size, 0))
+        self._pending: tuple | None = None  # a deferred covariance step (update(defer=True))
         self._set_identity(float(settings.kappa))
         self.n_updates = 0
         self.n_resets = 0
@@ -264,6 +265,7 @@ class NormalizedLeastSquares:
     @property
     def P(self) -> np.ndarray:
         """The covariance (N, N); reading it in the implicit form makes it dense."""
+        self.commit()
         if self._Pd is None:
             self._Pd = self._c * np.eye(self.p.size) - self._V @ self._V.T
             self._V = np.zeros((self.p.size, 0))
@@ -271,6 +273,7 @@ class NormalizedLeastSquares:
 
     @P.setter
     def P(self, value) -> None:
+        self._pending = None
         self._Pd = np.array(value, dtype=float)
 
     @property
@@ -279,6 +282,7 @@ class NormalizedLeastSquares:
 
     def reset_covariance(self, reason: str = "requested") -> None:
         """Set ``P = reset_value I`` and count the reset under ``reason``."""
+        self.commit()
         self._set_identity(self.settings.reset_to)
         self.n_resets += 1
         self.reset_reasons[reason] = self.reset_reasons.get(reason, 0) + 1
@@ -288,6 +292,7 @@ class NormalizedLeastSquares:
         p = np.asarray(p, dtype=float).reshape(-1)
         if p.shape != self.p.shape or not np.all(np.isfinite(p)):
             raise ValueError(f"p: expected a finite vector of length {self.p.size}")
+        self.commit()
         self.p = p.copy()
         if reset_covariance:
             self._set_identity(self.settings.reset_to)
@@ -297,13 +302,21 @@ class NormalizedLeastSquares:
         W = np.atleast_2d(np.asarray(W, dtype=float))
         return np.asarray(y, dtype=float).reshape(-1) - W @ self.p
 
-    def update(self, W, y, *, freeze: bool = False) -> NLSStep:
+    def update(self, W, y, *, freeze: bool = False, defer: bool = False) -> NLSStep:
         """One adaptation step with measurement matrix ``W`` (m, N) and output ``y`` (m,).
 
         Invalid data (NaN/inf in ``W`` or ``y``, wrong shapes) skips the step
         (counted) and leaves ``p`` and ``P`` untouched. ``freeze=True`` computes
         the error but does not adapt.
+
+        ``defer=True`` updates ``p`` now and leaves the covariance step (the
+        ``P`` decrement and the check of its smallest eigenvalue, the costly part
+        at TE size) to :meth:`commit`, which a real-time caller runs after it has
+        sent its move; every reader of ``P`` and the next update commit first, so
+        the estimates are the same as without deferral. A floor reset found at
+        commit is counted then and not reported in the returned step.
         """
+        self.commit()
         W = np.atleast_2d(np.asarray(W, dtype=float))
         y = np.asarray(y, dtype=float).reshape(-1)
         m = y.size
@@ -329,8 +342,8 @@ class NormalizedLeastSquares:
         S = np.eye(m) + self.settings.rate * (W @ PWt)
         S = 0.5 * (S + S.T)
         try:
-            L = np.linalg.cholesky(S)  # S is SPD for a PSD P; failing means P is broken
-            S_inv = np.linalg.inv(L).T @ np.linalg.inv(L)
+            L_inv = np.linalg.inv(np.linalg.cholesky(S))  # S is SPD for a PSD P
+            S_inv = L_inv.T @ L_inv
         except np.linalg.LinAlgError:
             self.reset_covariance("singular")
             return NLSStep(e, False, True, "singular")
@@ -349,7 +362,23 @@ class NormalizedLeastSquares:
         if not math.isfinite(trace_dP):
             self.reset_covariance("nonfinite")
             return NLSStep(e, True, True, "nonfinite")
-        if dense:
+        if defer:
+            self._pending = (K, PWt, L_inv, trace_dP)
+            return NLSStep(e, True)
+        reason = self._covariance_step(K, PWt, L_inv, trace_dP)
+        return NLSStep(e, True, reason is not None, reason or "")
+
+    def commit(self) -> str | None:
+        """Apply a deferred covariance step (see :meth:`update`); returns the reason of a
+        covariance reset it caused, else None. A no-op when nothing is pending."""
+        if self._pending is None:
+            return None
+        pending, self._pending = self._pending, None
+        return self._covariance_step(*pending)
+
+    def _covariance_step(self, K, PWt, L_inv, trace_dP) -> str | None:
+        """``P -= g_d K (P W')'`` and the floor check; returns a reset reason or None."""
+        if self._Pd is not None:
             self._Pd -= self.g_d * (K @ PWt.T)
             self._since_sym += 1
             if self._since_sym >= 64:  # keep round-off from making P unsymmetric
@@ -358,7 +387,7 @@ class NormalizedLeastSquares:
                 self._since_sym = 0
         else:
             # g_d S^-1 = G G' with G = sqrt(g_d) L^-T: dP = (PWt G)(PWt G)'
-            G = math.sqrt(self.g_d) * np.linalg.inv(L).T
+            G = math.sqrt(self.g_d) * L_inv.T
             self._V = np.hstack((self._V, PWt @ G))
             if self._V.shape[1] > self.settings.lowrank_max_rank:
                 _ = self.P  # densify
@@ -371,15 +400,16 @@ class NormalizedLeastSquares:
                 if not math.isfinite(lam) or lam <= self.settings.eig_floor:
                     reason = "floor" if math.isfinite(lam) and lam > 0 else "singular"
                     self.reset_covariance(reason)
-                    return NLSStep(e, True, True, reason)
+                    return reason
                 self._lower = lam
             else:
                 self.reset_covariance("floor")
-                return NLSStep(e, True, True, "floor")
-        return NLSStep(e, True)
+                return "floor"
+        return None
 
     def smallest_eigenvalue(self) -> float:
         """Exact ``lambda_min(P)`` (for the dense form costly at large N)."""
+        self.commit()
         if self._Pd is not None:
             return float(np.linalg.eigvalsh(self._Pd)[0])
         if self._V.shape[1] == 0:
@@ -388,15 +418,18 @@ class NormalizedLeastSquares:
         return float(self._c - np.linalg.eigvalsh(self._V.T @ self._V)[-1])
 
     def counters(self) -> dict[str, int]:
+        self.commit()
         return {"updates": self.n_updates, "resets": self.n_resets, "skipped": self.n_skipped}
 
     def checkpoint(self) -> dict[str, Any]:
         """JSON-serialisable state (parameters, covariance, bound, counters).
 
-        The covariance is stored as given: dense ``P`` or the implicit ``c``, ``V``,
-        packed exactly (:func:`controller.packing.pack_array`: a TE-size covariance as
-        decimal lists would cost ~6 ms of serialization per snapshot).
+        A deferred covariance step is committed first. The covariance is stored as
+        given, dense ``P`` or the implicit ``c``, ``V``, packed exactly
+        (:func:`controller.packing.pack_array`: a TE-size covariance as decimal
+        lists would cost ~6 ms of serialization per snapshot).
         """
+        self.commit()
         out = {
             "p": self.p.tolist(),
             "lower": self._lower,
@@ -416,6 +449,7 @@ class NormalizedLeastSquares:
         p = np.asarray(state["p"], dtype=float).reshape(-1)
         if p.shape != self.p.shape or not np.all(np.isfinite(p)):
             raise ValueError(f"state: parameters must be {self.p.size} finite values")
+        self._pending = None
         if state.get("P") is not None:
             P = unpack_array(state["P"])
             if P.shape != (p.size, p.size) or not np.all(np.isfinite(P)):

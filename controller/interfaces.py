@@ -62,6 +62,12 @@ class SampleController(Protocol):
     ``y`` are the measured controlled variables (absolute units), ``reference``
     the set-point trajectory over the prediction horizon, shape ``(P, ny)`` (a
     controller without a horizon uses row 0).
+
+    A controller may also offer ``finish_sample()``: bookkeeping of the last sample
+    that its move does not need (state advance, covariance steps, preparing the
+    next sample's QP). A real-time caller runs it after sending the move; the
+    controller runs it itself at the next ``step`` or ``checkpoint`` if nobody did,
+    so the moves do not depend on whether or when it is called.
     """
 
     def step(self, k: int, t: float, y: np.ndarray, reference: np.ndarray) -> ControlDecision:

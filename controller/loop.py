@@ -178,6 +178,9 @@ def run_closed_loop(
             y = np.asarray(fault(k, y.copy()), dtype=float).reshape(-1)
         ref = reference.horizon(horizon)
         dec = controller.step(k, t, y, ref)
+        finish = getattr(controller, "finish_sample", None)
+        if callable(finish):
+            finish()  # the bookkeeping a real-time node does after sending the move
         names = dec.model_names or names
         ts.append(t)
         xs.append(x.copy())

@@ -325,6 +325,7 @@ class MultiModelController:
         self.n_reinit = 0
         self.n_restarts = 0
         self.n_samples = 0
+        self._deferred: tuple[np.ndarray, np.ndarray, int] | None = None
 
     # -- helpers -------------------------------------------------------------------------
     @property
@@ -340,6 +341,7 @@ class MultiModelController:
         return self.ssm.params_from_theta(self.ssm.theta(j), self.ssm.bias(j))
 
     def counters(self) -> dict[str, int]:
+        self.finish_sample()
         out = {
             "samples": self.n_samples,
             "invalid_measurements": self.n_invalid,
@@ -365,8 +367,23 @@ class MultiModelController:
 
     # -- the sample ------------------------------------------------------------------------
     def step(self, k: int, t: float, y, reference) -> ControlDecision:
+        """One sample: adapt, switch, compute the move (see the class notes).
+
+        The bookkeeping that the move does not need (the shared state's advance with
+        this sample's ``(u, y)``, the estimators' covariance steps, the law's
+        preparation of the next sample) is left to :meth:`finish_sample`, which a
+        real-time caller runs after it has sent the move; the next ``step`` (and
+        every checkpoint) runs it first if the caller did not, so the moves are the
+        same either way.
+        """
         t0 = time.perf_counter()
         self.n_samples += 1
+        try:
+            self.finish_sample()
+        except Exception as exc:  # never raise out of step: hold the input
+            self.n_law_failures += 1
+            return self._decision(self.u_last, "error", True,
+                                  [f"controller error, input held: {exc}"], t0)
         try:
             return self._step(k, t, y, reference, t0)
         except Exception as exc:  # never raise out of step: hold the input
@@ -416,7 +433,7 @@ class MultiModelController:
             W = self.ssm.regressor() if self.hold is None else self.hold.regressor()
             for j in self.adaptive:
                 est = self.estimators[j]
-                res = est.update(W, y)
+                res = est.update(W, y, defer=True)
                 if res.updated or res.reset:
                     self.ssm.set_params(j, est.p)
         # index (eq. 4.6) and switching
@@ -449,7 +466,7 @@ class MultiModelController:
             u, status, fallback = self.u_last.copy(), "law_failed", True
             alarms.append(f"control law failed, input held: {exc}")
         u = np.clip(u, self.u_min, self.u_max)
-        self.ssm.update(u, y)
+        self._deferred = (u, y, self.switcher.active)
         self.u_last = u
         extra: dict[str, Any] = {"switched": dec.switched, "best": dec.best,
                                  "law_status": status}
@@ -460,6 +477,21 @@ class MultiModelController:
         if self.record_params:
             extra["params"] = {j: self.estimators[j].p.copy() for j in self.adaptive}
         return self._decision(u, status, fallback, alarms, t0, extra)
+
+    def finish_sample(self) -> None:
+        """The sample's bookkeeping after its move (idempotent): advance the shared state
+        with ``(u, y)``, commit the estimators' covariance steps, let the law prepare the
+        next sample (``law.finish_sample(ssm, active)`` if it has one)."""
+        if self._deferred is None:
+            return
+        u, y, active = self._deferred
+        self._deferred = None
+        self.ssm.update(u, y)
+        for est in self.estimators.values():
+            est.commit()
+        finish = getattr(self.law, "finish_sample", None)
+        if callable(finish):
+            finish(self.ssm, active)
 
     def _best_fixed(self, J: np.ndarray) -> int | None:
         """Fixed model with the smallest finite J (None if there is none)."""
@@ -514,13 +546,16 @@ class MultiModelController:
         u = np.asarray(u, dtype=float).reshape(-1)
         if u.shape != self.u_last.shape or not np.all(np.isfinite(u)):
             raise ValueError(f"u: expected {self.u_last.size} finite values, got {u!r}")
+        self.finish_sample()
         self.u_last = np.clip(u, self.u_min, self.u_max)
         self.initialized = False
         self._aligned = True
 
     # -- persistence ---------------------------------------------------------------------
     def checkpoint(self) -> dict[str, Any]:
-        """Everything for a bumpless restart, as plain JSON data."""
+        """Everything for a bumpless restart, as plain JSON data (the last sample's
+        bookkeeping is finished first)."""
+        self.finish_sample()
         return {
             "ssm": self.ssm.checkpoint(),
             "estimators": {str(j): e.checkpoint() for j, e in self.estimators.items()},
@@ -537,6 +572,7 @@ class MultiModelController:
         }
 
     def restore(self, state: dict[str, Any]) -> None:
+        self._deferred = None
         self.ssm.restore(state["ssm"])
         for j, e in self.estimators.items():
             e.restore(state["estimators"][str(j)])

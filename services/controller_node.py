@@ -543,6 +543,12 @@ class ControllerNode:
             self.last_decision = decision
             for alarm in decision.alarms:
                 self.alarms.append(alarm)
+            finish = getattr(self.controller, "finish_sample", None)
+            if callable(finish):  # the sample's bookkeeping, now that the move is out
+                try:
+                    finish()
+                except Exception as exc:  # the next step retries it; never stall the loop
+                    self.alarms.append(f"bookkeeping after sample {msg.seq} failed: {exc}")
         for tr, state in changes:
             self._persist(tr, state)
         if self.telemetry is not None:

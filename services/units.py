@@ -622,6 +622,11 @@ class TEServiceController:
                                J=np.asarray(dec.J), solve_ms=dec.solve_ms, fallback=fallback,
                                status=dec.status, alarms=tuple(alarms), extra=dec.extra)
 
+    def finish_sample(self) -> None:
+        """The TE controller's bookkeeping after the move (see
+        :meth:`services.studies.te_control.TEController.finish_sample`)."""
+        self.ctl.finish_sample()
+
     def align(self, u) -> None:
         """Take over the plant's move: the core (five handles, issue 8's CORE_NAMES)
         restarts from the matching valves and set points (re-initialized dynamics)."""

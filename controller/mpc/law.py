@@ -78,6 +78,24 @@ class SharedStateSource:
         self.refreshes += 1
         return self._snap[j]
 
+    def refresh_ahead(self, j: int):
+        """Refresh adaptive model ``j``'s form now if it would be due at the next
+        :meth:`observe` (with the Θ it has now); returns the new form or None.
+
+        Run between samples (after the move is out), it takes the refresh and the QP
+        build that follows it off the next sample's critical path.
+        """
+        if self.ssm is None or self.ssm.kinds[j] != "adaptive":
+            return None
+        nxt = self._k + 1
+        if j in self._made and nxt - self._made[j] < self.adaptive_refresh:
+            return None
+        self._snap[j] = self._discrete_form(j)
+        self._restored.pop(j, None)
+        self._made[j] = nxt
+        self.refreshes += 1
+        return self._snap[j]
+
     def observe(self, u_prev, y) -> ModelView:
         n = self.ssm.n
         n_prev = n if self.n_prev is None else self.n_prev
@@ -166,6 +184,18 @@ class MPCLaw:
         self.mpc.filter.reset()
         self.mpc.plan = None
         self.source.n_prev = None
+
+    def finish_sample(self, ssm, model: int) -> None:
+        """Between samples: refresh every adaptive model's form and build its QP when
+        the refresh is due at the next sample (see
+        :meth:`SharedStateSource.refresh_ahead`), the inactive ones too, so that a
+        switch to an adaptive model finds its QP ready. ``model`` (the active one) is
+        not needed for that; it is part of the law protocol."""
+        self.source.ssm = ssm
+        for j in range(ssm.k):
+            form = self.source.refresh_ahead(j)
+            if form is not None:
+                self.mpc.prepare(j, form[0], form[1], form[2])
 
     def compute(self, k: int, model: int, ssm, y, reference, u_last):
         self.source.ssm = ssm

@@ -67,6 +67,7 @@ Use (service node and studies)::
     reg = RegulatoryLayer(sim, loops=spec.loops)             # the five inner PI loops
     # every spec.sample_steps plant steps (36 s), with xmeas = the 41 XMEAS:
     dec = ctl.step(k, t_h, xmeas, None)                      # reference: from the plan
+    ctl.finish_sample()                                      # after the move is out
     # dec.u: 12 XMV targets; write those in spec.written_xmvs, NaN = owned by a loop
     # (spec.loop_xmvs); dec.extra["setpoints"]: one per loop in spec.loops order
     # (T_r*, reactor level, separator level, stripper level, P_r*);
@@ -374,6 +375,13 @@ class TEController:
                                solve_ms=(time.perf_counter() - t0) * 1e3, fallback=fallback,
                                status=status, alarms=tuple(alarms), extra=extra)
 
+    def finish_sample(self) -> None:
+        """The core's bookkeeping after the move (see
+        :meth:`controller.multimodel.MultiModelController.finish_sample`)."""
+        finish = getattr(self.core, "finish_sample", None)
+        if callable(finish):
+            finish()
+
     def checkpoint(self) -> dict[str, Any]:
         return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,
                 "override": self.override, "a_trim": self.a_trim, "e_a_prev": self.e_a_prev,
@@ -666,6 +674,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
         t = sim.time
         xmeas = sim.xmeas
         dec = ctl.step(k, t, xmeas, None)
+        ctl.finish_sample()
         xmv = sim.xmv
         u = np.asarray(dec.u, dtype=float)
         for i in spec.written_xmvs:

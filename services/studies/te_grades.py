@@ -254,14 +254,18 @@ def first_order_path(t, t0: float, r0, switches) -> np.ndarray:
             break
         t_next = switches[i + 1][0] if i + 1 < len(switches) else math.inf
         dt = np.minimum(tt[on], t_next) - ts
-        tau = np.broadcast_to(np.asarray(tau, dtype=float), r.shape[1:])
-        r[on] = _relax(r[on], np.asarray(target, dtype=float), tau, dt[:, None])
+        r[on] = _relax(r[on], np.asarray(target, dtype=float), np.asarray(tau, dtype=float),
+                       dt[:, None])
     return r[0] if scalar else r
 
 
 def _relax(r, target, tau, dt):
-    with np.errstate(divide="ignore", over="ignore"):
-        a = np.where(tau > 0, np.exp(-dt / np.where(tau > 0, tau, 1.0)), 0.0)
+    if tau.ndim == 0 or np.all(tau == tau.flat[0]):  # one time constant (the plans' case)
+        t0 = float(tau.flat[0])
+        a = np.exp(-dt / t0) if t0 > 0 else np.zeros_like(dt)
+    else:
+        with np.errstate(divide="ignore", over="ignore"):
+            a = np.where(tau > 0, np.exp(-dt / np.where(tau > 0, tau, 1.0)), 0.0)
     return target + (r - target) * a
 
 
