@@ -187,6 +187,7 @@ class ControllerNode:
         self._dropped = 0
         self._worker = _Worker()
         self._checkpoint_due = False
+        self._busy_until = 0.0
         self._last_flush = time.perf_counter()
         self._checkpoint_cost_s = 0.0
         self._last_checkpoint_wall = time.perf_counter()
@@ -445,6 +446,7 @@ class ControllerNode:
                 "fallback_moves": self.stats.fallbacks,
                 "budget_ms": self.stats.budget_s * 1e3,
                 "sample_ms": self.stats.percentiles_ms(),
+                "slowest_sample": self.stats.worst,
                 "samples": self.stats.samples,
                 "bad_measurements": self.bad_measurements,
                 "stale_measurements": self.stale_measurements,
@@ -490,6 +492,7 @@ class ControllerNode:
 
     def process(self, arrived: float, msg: Measurement) -> None:
         """One sample: transition, reference, controller step, MV, bookkeeping."""
+        t_begin = time.perf_counter()
         if self._align_pending:
             self._align(msg)
         hold = self.u_last.copy()
@@ -523,7 +526,9 @@ class ControllerNode:
                 self._notify(tr, state)
             ref = self.tm.reference_at(msg.t, self.horizon)
             self.r = ref[0]
+        t_step = time.perf_counter()
         decision = self.controller.step(msg.seq, msg.t, self.y, ref)
+        t_stepped = time.perf_counter()
         fired = self._watchdog.disarm()
         elapsed = time.perf_counter() - arrived
         u = np.asarray(decision.u, float)
@@ -539,6 +544,13 @@ class ControllerNode:
             u = hold
         with self._lock:
             self.stats.record(elapsed, fallback=fired or decision.fallback)
+            self.stats.note_phases(elapsed, {
+                "sample": msg.seq, "queue_ms": (t_begin - arrived) * 1e3,
+                # > 0: the loop thread was still on the previous sample when this arrived
+                "previous_busy_ms": (self._busy_until - arrived) * 1e3,
+                "prepare_ms": (t_step - t_begin) * 1e3,
+                "controller_ms": (t_stepped - t_step) * 1e3,
+                "watchdog_ms": (arrived + elapsed - t_stepped) * 1e3})
             self.u_last = np.asarray(u, float)
             self.last_decision = decision
             for alarm in decision.alarms:
@@ -584,6 +596,7 @@ class ControllerNode:
             if item is not None:
                 try:
                     self.process(*item)
+                    self._busy_until = time.perf_counter()
                 except Exception as exc:  # the loop must go on; the plant holds meanwhile
                     log.exception("sample failed")
                     with self._lock:

@@ -195,6 +195,15 @@ def make_runner(cfg: UnitConfig, **kw):
     return ODERunner(cfg)
 
 
+def _percentiles_us(values_s) -> dict | None:
+    """p50/p99/max (µs) and count of a series of durations in s; None when empty."""
+    a = np.asarray(values_s, dtype=float) * 1e6
+    if a.size == 0:
+        return None
+    return {"p50_us": float(np.median(a)), "p99_us": float(np.percentile(a, 99)),
+            "max_us": float(a.max()), "n": int(a.size)}
+
+
 @dataclass
 class PlantCounters:
     samples: int = 0
@@ -245,6 +254,8 @@ class PlantNode:
         self._published_at = 0.0
         #: wall time from publishing measurement k to receiving the MV answering it, s
         self.loop_latency_s: deque[float] = deque(maxlen=20_000)
+        #: real-time mode: wall time from a sample boundary to its measurement going out, s
+        self.publish_lag_s: deque[float] = deque(maxlen=20_000)
         self._pub = session.declare_publisher(keys.meas(cfg.unit))
         self._sub = session.declare_subscriber(keys.mv(cfg.unit), self._on_mv)
         self._qry = session.declare_queryable(keys.plant_cmd_all(cfg.unit), self._on_query)
@@ -326,6 +337,7 @@ class PlantNode:
         if req.action == "reset_stats":
             with self._cond:
                 self.loop_latency_s.clear()
+                self.publish_lag_s.clear()
                 self.counters = PlantCounters()
             return Reply(200, self.status())
         return Reply(404, error=f"action: unknown plant action {req.action!r}")
@@ -333,10 +345,9 @@ class PlantNode:
     def status(self) -> dict:
         with self._cond:
             c = self.counters
-            lat = np.asarray(self.loop_latency_s, dtype=float) * 1e6
-            latency = ({"p50_us": float(np.median(lat)), "p99_us": float(np.percentile(lat, 99)),
-                        "max_us": float(lat.max()), "n": int(lat.size)} if lat.size else None)
-            return {"loop_latency": latency, "unit": self.cfg.unit, "sample": self.k,
+            latency = _percentiles_us(self.loop_latency_s)
+            return {"loop_latency": latency, "publish_lag": _percentiles_us(self.publish_lag_s),
+                    "unit": self.cfg.unit, "sample": self.k,
                     "t": self.runner.t,
                     "u": self.runner.u.tolist(), "mv_seq_applied": self._applied_mv_seq,
                     "samples": c.samples, "mv_accepted": c.mv_accepted, "mv_held": c.mv_held,
@@ -396,6 +407,7 @@ class PlantNode:
                 clock.wait_next(stop)
                 if stop.is_set():
                     break
+                self.publish_lag_s.append(time.perf_counter() - clock.deadline())
             with self._cond:
                 self.k += 1
             n += 1

@@ -110,6 +110,7 @@ class DeadlineStats:
         self.max_ms = 0.0
         self._keep = keep
         self.recent_ms: list[float] = []
+        self.worst: dict | None = None  # phase breakdown of the slowest sample (ms)
 
     def record(self, elapsed_s: float, *, fallback: bool = False) -> bool:
         """Record one sample's compute time; return True if it missed the budget."""
@@ -130,6 +131,13 @@ class DeadlineStats:
     def slack_ms(self, elapsed_s: float) -> float:
         """Budget left over (negative on a miss), ms."""
         return (self.budget_s - elapsed_s) * 1e3
+
+    def note_phases(self, elapsed_s: float, phases_ms: dict) -> None:
+        """Keep ``phases_ms`` (name -> ms) if this is the slowest sample so far: where
+        a miss came from (waiting for the loop thread, the controller, publishing)."""
+        ms = elapsed_s * 1e3
+        if self.worst is None or ms > self.worst["total_ms"]:
+            self.worst = {"total_ms": ms, **{k: float(v) for k, v in phases_ms.items()}}
 
     def percentiles_ms(self) -> dict:
         """p50/p99/max of the kept compute times, ms (None before the first sample)."""

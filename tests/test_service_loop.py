@@ -151,6 +151,12 @@ def test_closed_loop_transition_settles_at_the_grade(harness):
     assert st["grade"] == "OPII"
     for key in ("active_model", "J", "solve_ms", "deadline_misses", "fallback_moves"):
         assert key in st
+    # where the time of the slowest sample went: phases that add up to its total
+    worst = st["slowest_sample"]
+    parts = worst["queue_ms"] + worst["prepare_ms"] + worst["controller_ms"] + worst[
+        "watchdog_ms"]
+    assert worst["controller_ms"] > 0 and abs(parts - worst["total_ms"]) < 1e-6
+    assert worst["total_ms"] == pytest.approx(st["sample_ms"]["max"])
     h.ctrl.flush()
     events = [e["state"] for e in h.store.events(rep.data["id"])]
     assert events == ["pending", "running", "settled"]
@@ -259,6 +265,8 @@ def test_controller_gone_plant_holds_last_move(harness):
     assert st["sample"] > k0 + 10  # the plant keeps running in real time
     np.testing.assert_array_equal(h.plant.runner.u, u_before)
     assert st["mv_held"] >= 10
+    lag = st["publish_lag"]  # real-time mode: boundary -> measurement out, per sample
+    assert lag["n"] >= 10 and 0 <= lag["p50_us"] <= lag["max_us"]
 
 
 @pytest.mark.parametrize("unit, controller, grade", [

@@ -143,7 +143,9 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
         nodes.close()
     return {"speed": speed, "samples": cs["samples"], "deadline_misses": cs["deadline_misses"],
             "held": ps["mv_held"], "plant_samples": ps["samples"],
-            "sample_ms": cs.get("sample_ms")}
+            "sample_ms": cs.get("sample_ms"), "slowest_sample": cs.get("slowest_sample"),
+            "plant_loop_latency_us": ps.get("loop_latency"),
+            "plant_publish_lag_us": ps.get("publish_lag")}
 
 
 def speed_case(args, state_dir: str) -> dict:
