@@ -192,7 +192,7 @@ class ControllerNode:
         self._checkpoint_cost_s = 0.0
         self._last_checkpoint_wall = time.perf_counter()
         self._restore()
-        self._watchdog = Watchdog()
+        self._watchdog = Watchdog(period_hint_s=self.budget.wall_period_s)
         self._mv_pub = session.declare_publisher(keys.mv(cfg.unit))
         self._status_pub = session.declare_publisher(keys.status(cfg.unit))
         self._sub = session.declare_subscriber(keys.meas(cfg.unit), self._on_meas)

@@ -80,3 +80,35 @@ def test_deadline_stats_percentiles_of_kept_samples():
     assert p["n"] == 100 and p["max"] == 200.0
     assert p["p50"] == 150.5 and abs(p["p99"] - 199.01) < 1e-9
     assert st.misses == 198  # 3..200 ms: above the 2 ms budget (2 ms itself is in time)
+
+
+def test_watchdog_with_a_period_hint_wakes_only_at_deadlines():
+    period, budget = 0.02, 0.01
+    wd = Watchdog(period_hint_s=period)
+    t0 = time.perf_counter() + 0.01
+    fired_early = []
+    for k in range(15):  # a periodic loop whose steps end well inside the budget
+        while time.perf_counter() < t0 + k * period:
+            time.sleep(0.0005)
+        wd.arm(t0 + k * period + budget, lambda k=k: fired_early.append(k))
+        time.sleep(0.001)
+        assert wd.disarm() is False
+    assert not fired_early
+    # after the first arm the thread predicts the deadlines: no more wake-up requests
+    assert wd.n_notified <= 2
+    # an overrun still fires at its deadline, also one much earlier than predicted
+    fired = threading.Event()
+    at = []
+    n_before = wd.n_notified
+    deadline = time.perf_counter() + 0.002
+    wd.arm(deadline, lambda: (at.append(time.perf_counter()), fired.set()))
+    assert fired.wait(2.0)
+    assert wd.disarm() is True
+    assert at[0] >= deadline
+    assert wd.n_notified == n_before + 1  # it asked for the wake-up (prediction ~30 ms on)
+    wd.close()
+
+
+def test_watchdog_period_hint_is_validated():
+    with pytest.raises(ValueError, match="period_hint_s"):
+        Watchdog(period_hint_s=0.0)
