@@ -62,6 +62,7 @@ import scipy.linalg
 from numpy.typing import ArrayLike
 
 from controller.linear.mfd import LeftMFD, left_mfd
+from controller.packing import pack_array, unpack_array
 
 __all__ = [
     "companion_pair",
@@ -706,7 +707,11 @@ class StateSharedModel:
 
     # -- persistence ----------------------------------------------------------------
     def checkpoint(self) -> dict:
-        """JSON-serialisable snapshot (plain lists/floats); :meth:`restore` is exact."""
+        """JSON-serialisable snapshot; :meth:`restore` is exact.
+
+        The model parameters are packed (:func:`controller.packing.pack_array`);
+        plain lists, as older checkpoints hold them, are accepted by :meth:`restore`.
+        """
         return {
             "a": self.a.tolist(),
             "m": self.m,
@@ -714,7 +719,7 @@ class StateSharedModel:
             "dt": self.dt,
             "n": self._N.reshape(-1).tolist(),
             "models": [
-                {"name": s.spec.name, "kind": s.spec.kind, "theta": s.spec.theta.tolist(),
+                {"name": s.spec.name, "kind": s.spec.kind, "theta": pack_array(s.spec.theta),
                  "bias": s.spec.bias.tolist()}
                 for s in self._slots
             ],
@@ -737,7 +742,8 @@ class StateSharedModel:
         if float(state["dt"]) != self.dt:
             raise ValueError(f"state.dt: expected {self.dt}, got {state['dt']!r}")
         n = _vector(state["n"], self.order, "state.n")
-        specs = [ModelSpec(d["name"], d["theta"], d["bias"], d["kind"]) for d in state["models"]]
+        specs = [ModelSpec(d["name"], unpack_array(d["theta"]), d["bias"], d["kind"])
+                 for d in state["models"]]
         for s in specs:
             self._check_spec(s)
         self._Z[:, : self.n_deg] = n.reshape(self.m + self.p, self.n_deg)

@@ -232,7 +232,16 @@ class ControllerNode:
                      "fallback_moves": self.stats.fallbacks,
                      "recording_id": getattr(self.telemetry, "recording_id", None)}
             k, t = max(self.k, 0), self.t
-        self._worker.submit(self.store.save_checkpoint, k, t, state)
+        # encoded here (the loop thread calls this only when the slack allows): in the
+        # worker, json.dumps would hold the interpreter lock against the next step
+        try:
+            payload = self.store.encode_checkpoint(state)
+        except (TypeError, ValueError) as exc:  # NaN/inf or a foreign object: keep the old one
+            log.error("checkpoint not written (kept the previous one): %s", exc)
+            with self._lock:
+                self.alarms.append(f"checkpoint not written at sample {k}: {exc}")
+            return
+        self._worker.submit(self.store.save_checkpoint, k, t, payload)
         if wait:
             self._worker.wait()
 

@@ -129,8 +129,17 @@ class UnitStore:
                 for r in rows]
 
     # -- checkpoint ----------------------------------------------------------------
-    def save_checkpoint(self, sample: int, process_time: float, state: dict[str, Any]) -> None:
-        payload = json.dumps(state, allow_nan=False)
+    @staticmethod
+    def encode_checkpoint(state: dict[str, Any]) -> str:
+        """The stored text of a checkpoint (JSON; NaN/inf refused with ValueError)."""
+        return json.dumps(state, allow_nan=False)
+
+    def save_checkpoint(self, sample: int, process_time: float, state: dict[str, Any] | str
+                        ) -> None:
+        """Replace the unit's checkpoint in one transaction; ``state`` is the dict or its
+        :meth:`encode_checkpoint` text (encoded by the caller, e.g. on a thread that has
+        the time)."""
+        payload = state if isinstance(state, str) else self.encode_checkpoint(state)
         with self._lock:
             self._db.execute("BEGIN IMMEDIATE")
             try:

@@ -64,3 +64,15 @@ def test_checkpoint_overwrites(tmp_path):
     s.save_checkpoint(2, 0.2, {"v": 2})
     assert s.load_checkpoint()["state"] == {"v": 2}
     s.close()
+
+
+def test_checkpoint_encoded_by_the_caller_is_stored_as_is(tmp_path):
+    s = UnitStore(tmp_path / "u.sqlite", "cstr")
+    s.save_checkpoint(3, 1.5, {"x": [1.0, 2.0]})
+    text = UnitStore.encode_checkpoint({"x": [4.0], "nested": {"k": 1}})
+    s.save_checkpoint(7, 3.5, text)
+    cp = s.load_checkpoint()
+    assert cp["sample"] == 7 and cp["state"] == {"x": [4.0], "nested": {"k": 1}}
+    with pytest.raises(ValueError):
+        UnitStore.encode_checkpoint({"x": [float("nan")]})  # refused before any write
+    assert s.load_checkpoint()["sample"] == 7

@@ -18,6 +18,7 @@ import numpy as np
 
 from controller.mpc.controller import ModelView, MPCController
 from controller.mpc.settings import MPCSettings
+from controller.packing import pack_array, unpack_array
 
 __all__ = ["MPCLaw", "SharedStateSource"]
 
@@ -112,7 +113,7 @@ class SharedStateSource:
         snaps = {}
         for j, made in self._made.items():
             th = self._snap[j][2].T if j in self._snap else self._restored[j]  # Θ (2nm, p)
-            snaps[str(j)] = {"made": made, "theta": np.asarray(th).tolist()}
+            snaps[str(j)] = {"made": made, "theta": pack_array(th)}
         return {"n_prev": None if self.n_prev is None else self.n_prev.tolist(),
                 "k": self._k, "snapshots": snaps}
 
@@ -127,7 +128,7 @@ class SharedStateSource:
         self._k = int(state["k"])
         for key, snap in (state.get("snapshots") or {}).items():
             j = int(key)
-            th = np.asarray(snap["theta"], dtype=float)
+            th = unpack_array(snap["theta"])
             if th.ndim != 2 or not np.all(np.isfinite(th)):
                 raise ValueError(f"state.snapshots.{key}.theta: expected a finite matrix")
             self._restored[j] = th  # Θ, shape (2nm, p); the form is built on first use
