@@ -60,6 +60,7 @@ from services.units import (
     plausible_ranges,
     unit_info,
 )
+from services.zenoh_session import declare_loop_publisher
 
 __all__ = ["ControllerNode"]
 
@@ -193,7 +194,7 @@ class ControllerNode:
         self._last_checkpoint_wall = time.perf_counter()
         self._restore()
         self._watchdog = Watchdog(period_hint_s=self.budget.wall_period_s)
-        self._mv_pub = session.declare_publisher(keys.mv(cfg.unit))
+        self._mv_pub = declare_loop_publisher(session, keys.mv(cfg.unit))
         self._status_pub = session.declare_publisher(keys.status(cfg.unit))
         self._sub = session.declare_subscriber(keys.meas(cfg.unit), self._on_meas)
         self._qry = session.declare_queryable(keys.cmd_all(cfg.unit), self._on_query)

@@ -59,6 +59,7 @@ from collections import Counter
 from dataclasses import dataclass
 
 from services import keys
+from services.zenoh_session import declare_loop_publisher
 
 __all__ = [
     "KINDS",
@@ -330,8 +331,8 @@ class ChaosRelay:
         self._held: dict[str, bytes | None] = {"meas": None, "mv": None}
         self._seen_windows: set[int] = set()
         self._sched = _Scheduler()
-        self._pub = {"meas": controller_side.declare_publisher(keys.meas(unit)),
-                     "mv": plant_side.declare_publisher(keys.mv(unit))}
+        self._pub = {"meas": declare_loop_publisher(controller_side, keys.meas(unit)),
+                     "mv": declare_loop_publisher(plant_side, keys.mv(unit))}
         self._subs = [
             plant_side.declare_subscriber(keys.meas(unit), lambda s: self._on("meas", s)),
             controller_side.declare_subscriber(keys.mv(unit), lambda s: self._on("mv", s)),

@@ -41,6 +41,7 @@ from services import keys
 from services.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.timing import SampleClock, TimingBudget
 from services.units import UnitConfig, build_plant, cv_indices, mv_indices, time_scale_s
+from services.zenoh_session import declare_loop_publisher
 
 __all__ = ["ODERunner", "PlantNode", "PlantCounters"]
 
@@ -256,7 +257,7 @@ class PlantNode:
         self.loop_latency_s: deque[float] = deque(maxlen=20_000)
         #: real-time mode: wall time from a sample boundary to its measurement going out, s
         self.publish_lag_s: deque[float] = deque(maxlen=20_000)
-        self._pub = session.declare_publisher(keys.meas(cfg.unit))
+        self._pub = declare_loop_publisher(session, keys.meas(cfg.unit))
         self._sub = session.declare_subscriber(keys.mv(cfg.unit), self._on_mv)
         self._qry = session.declare_queryable(keys.plant_cmd_all(cfg.unit), self._on_query)
         self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "plant"))

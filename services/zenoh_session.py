@@ -18,7 +18,8 @@ import socket
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["SessionSettings", "build_config", "open_session", "free_port", "free_tcp_endpoint"]
+__all__ = ["SessionSettings", "build_config", "open_session", "declare_loop_publisher",
+           "free_port", "free_tcp_endpoint"]
 
 MODES = ("peer", "client", "router")
 
@@ -94,6 +95,21 @@ def open_session(settings: SessionSettings | None = None):
     import zenoh
 
     return zenoh.open(build_config(settings or SessionSettings()))
+
+
+def declare_loop_publisher(session, key_expr):
+    """A publisher for the control loop's own messages (measurements, moves).
+
+    Express (sent at once, not held back for batching), real-time priority (ahead
+    of status and telemetry on a shared link) and drop on congestion (a newer
+    sample replaces a message a congested link cannot take; the plant holds the
+    last move, as a DCS does).
+    """
+    import zenoh
+
+    return session.declare_publisher(key_expr, express=True,
+                                     priority=zenoh.Priority.REAL_TIME,
+                                     congestion_control=zenoh.CongestionControl.DROP)
 
 
 def free_port(host: str = "127.0.0.1") -> int:

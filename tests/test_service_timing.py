@@ -112,3 +112,26 @@ def test_watchdog_with_a_period_hint_wakes_only_at_deadlines():
 def test_watchdog_period_hint_is_validated():
     with pytest.raises(ValueError, match="period_hint_s"):
         Watchdog(period_hint_s=0.0)
+
+
+def test_loop_publishers_are_express_real_time_and_drop():
+    import queue
+
+    import zenoh
+
+    from services.zenoh_session import SessionSettings, declare_loop_publisher, open_session
+
+    s = open_session(SessionSettings())
+    try:
+        got: queue.Queue = queue.Queue()
+        sub = s.declare_subscriber("ssmpc/test/meas", got.put)
+        pub = declare_loop_publisher(s, "ssmpc/test/meas")
+        assert pub.priority == zenoh.Priority.REAL_TIME
+        assert pub.congestion_control == zenoh.CongestionControl.DROP
+        pub.put(b"x")
+        sample = got.get(timeout=5.0)
+        assert sample.express is True and sample.priority == zenoh.Priority.REAL_TIME
+        pub.undeclare()
+        sub.undeclare()
+    finally:
+        s.close()
