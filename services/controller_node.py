@@ -17,6 +17,12 @@ never stalls the plant; the late result is not published and the miss is
 counted. The controller's own fallback (``ControlDecision.fallback``: next
 move of the previous plan for the MPC) is counted too.
 
+Threads: a measurement is processed on the Zenoh thread that delivers it (no
+hand-over to another thread: waking one cost up to milliseconds on a loaded
+machine); one sample at a time, and a measurement that arrives while one is
+being processed replaces any older waiting one (only the newest is acted on, the
+others are counted as dropped) and is processed right after it.
+
 Status goes to ``ssmpc/<unit>/status`` every ``status_every`` samples;
 telemetry to Rerun in batches; a checkpoint (controller state, last move,
 transition state) to SQLite every ``checkpoint_every`` samples or 5 wall
@@ -45,7 +51,7 @@ from services import keys
 from services.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.store import UnitStore
 from services.telemetry import TelemetryLogger
-from services.timing import DeadlineStats, TimingBudget, Watchdog
+from services.timing import GC_PAUSES, DeadlineStats, TimingBudget, Watchdog
 from services.transitions import (
     ConflictError,
     TransitionError,
@@ -185,6 +191,8 @@ class ControllerNode:
         self._lock = threading.RLock()
         self._cond = threading.Condition()
         self._latest: tuple[float, Measurement] | None = None
+        self._busy = threading.Lock()  # held by whichever thread processes a sample
+        self._closing = False
         self._dropped = 0
         self._worker = _Worker()
         self._checkpoint_due = False
@@ -317,7 +325,32 @@ class ControllerNode:
             if self._latest is not None:
                 self._dropped += 1
             self._latest = (arrived, msg)
-            self._cond.notify()
+        self._drain()
+
+    def _drain(self) -> None:
+        """Process the waiting measurement on this thread unless another thread is
+        processing one (that thread takes it next)."""
+        while not self._closing:
+            if not self._busy.acquire(blocking=False):
+                return
+            try:
+                with self._cond:
+                    item, self._latest = self._latest, None
+                if item is None:
+                    return
+                self._process_logged(item)
+            finally:
+                self._busy.release()
+            # loop: a measurement may have arrived after the check and before the release
+
+    def _process_logged(self, item) -> None:
+        try:
+            self.process(*item)
+            self._busy_until = time.perf_counter()
+        except Exception as exc:  # the loop must go on; the plant holds meanwhile
+            log.exception("sample failed")
+            with self._lock:
+                self.alarms.append(f"sample {item[1].seq} failed: {exc}")
 
     def _on_query(self, query) -> None:
         try:
@@ -348,6 +381,7 @@ class ControllerNode:
         if req.action == "reset_stats":  # benchmarks: count from a warm loop on
             with self._lock:
                 self.stats = DeadlineStats(self.budget.budget_s)
+            GC_PAUSES.reset()
             return Reply(200, self.status())
         return Reply(404, error=f"action: unknown action {req.action!r}")
 
@@ -457,6 +491,7 @@ class ControllerNode:
                 "budget_ms": self.stats.budget_s * 1e3,
                 "sample_ms": self.stats.percentiles_ms(),
                 "slowest_sample": self.stats.worst,
+                "gc_pauses": GC_PAUSES.as_dict(),
                 "samples": self.stats.samples,
                 "bad_measurements": self.bad_measurements,
                 "stale_measurements": self.stale_measurements,
@@ -555,7 +590,8 @@ class ControllerNode:
         with self._lock:
             self.stats.record(elapsed, fallback=fired or decision.fallback)
             self.stats.note_phases(elapsed, {
-                "sample": msg.seq, "queue_ms": (t_begin - arrived) * 1e3,
+                "sample": msg.seq, "at_unix_s": time.time() - elapsed,
+                "queue_ms": (t_begin - arrived) * 1e3,
                 # > 0: the loop thread was still on the previous sample when this arrived
                 "previous_busy_ms": (self._busy_until - arrived) * 1e3,
                 "prepare_ms": (t_step - t_begin) * 1e3,
@@ -602,26 +638,26 @@ class ControllerNode:
         self._status_pub.put(encode({"schema": 1, "kind": "status", **self.status()}))
 
     def run(self, stop: threading.Event) -> None:
-        """Process measurements until ``stop`` is set."""
-        while not stop.is_set():
-            with self._cond:
-                if self._latest is None:
-                    self._cond.wait(0.1)
-                item, self._latest = self._latest, None
-            if item is not None:
-                try:
-                    self.process(*item)
-                    self._busy_until = time.perf_counter()
-                except Exception as exc:  # the loop must go on; the plant holds meanwhile
-                    log.exception("sample failed")
-                    with self._lock:
-                        self.alarms.append(f"sample {item[1].seq} failed: {exc}")
+        """Keep the node up until ``stop`` is set (the samples are processed on the
+        threads that deliver them, see the module notes; this picks up any left)."""
+        while not stop.wait(0.1):
+            self._drain()
 
     def close(self) -> None:
-        """Checkpoint, flush telemetry, undeclare everything (the caller closes the session)."""
+        """Checkpoint, flush telemetry, undeclare everything (the caller closes the session).
+
+        No sample starts after this is called; one in progress on a Zenoh thread is
+        finished (its move published) before the final checkpoint."""
+        self._closing = True
+        for ent in (self._plant_live, self._token, self._qry, self._sub):
+            try:
+                ent.undeclare()
+            except Exception:
+                pass
+        with self._busy:  # wait for a sample in progress
+            pass
         self._watchdog.close()
-        for ent in (self._plant_live, self._token, self._qry, self._sub, self._status_pub,
-                    self._mv_pub):
+        for ent in (self._status_pub, self._mv_pub):
             try:
                 ent.undeclare()
             except Exception:

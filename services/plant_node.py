@@ -39,7 +39,7 @@ import numpy as np
 
 from services import keys
 from services.messages import Measurement, MessageError, MVMessage, Reply, Request
-from services.timing import SampleClock, TimingBudget
+from services.timing import GC_PAUSES, SampleClock, TimingBudget
 from services.units import UnitConfig, build_plant, cv_indices, mv_indices, time_scale_s
 from services.zenoh_session import declare_loop_publisher
 
@@ -257,6 +257,8 @@ class PlantNode:
         self.loop_latency_s: deque[float] = deque(maxlen=20_000)
         #: real-time mode: wall time from a sample boundary to its measurement going out, s
         self.publish_lag_s: deque[float] = deque(maxlen=20_000)
+        self.worst_lag: tuple[float, float, int] = (0.0, 0.0, -1)  # (s, at unix s, sample)
+        self.advance_max_s = 0.0  # longest integration of one sample interval, s
         self._pub = declare_loop_publisher(session, keys.meas(cfg.unit))
         self._sub = session.declare_subscriber(keys.mv(cfg.unit), self._on_mv)
         self._qry = session.declare_queryable(keys.plant_cmd_all(cfg.unit), self._on_query)
@@ -339,7 +341,10 @@ class PlantNode:
             with self._cond:
                 self.loop_latency_s.clear()
                 self.publish_lag_s.clear()
+                self.worst_lag = (0.0, 0.0, -1)
+                self.advance_max_s = 0.0
                 self.counters = PlantCounters()
+            GC_PAUSES.reset()
             return Reply(200, self.status())
         return Reply(404, error=f"action: unknown plant action {req.action!r}")
 
@@ -347,7 +352,12 @@ class PlantNode:
         with self._cond:
             c = self.counters
             latency = _percentiles_us(self.loop_latency_s)
-            return {"loop_latency": latency, "publish_lag": _percentiles_us(self.publish_lag_s),
+            lag = _percentiles_us(self.publish_lag_s)
+            if lag is not None:  # when the worst one happened (to match other nodes' records)
+                lag.update(worst_at_unix_s=self.worst_lag[1], worst_sample=self.worst_lag[2])
+            return {"loop_latency": latency, "publish_lag": lag,
+                    "advance_max_ms": self.advance_max_s * 1e3,
+                    "gc_pauses": GC_PAUSES.as_dict(),
                     "unit": self.cfg.unit, "sample": self.k,
                     "t": self.runner.t,
                     "u": self.runner.u.tolist(), "mv_seq_applied": self._applied_mv_seq,
@@ -402,13 +412,18 @@ class PlantNode:
             u = self.runner.u if msg is None else np.asarray(msg.u)
             if msg is not None:
                 self._applied_mv_seq = msg.seq
+            t_adv = time.perf_counter()
             with self._lock:
                 self.runner.advance(u, self.cfg.sample_period_s)
+            self.advance_max_s = max(self.advance_max_s, time.perf_counter() - t_adv)
             if not self.lockstep:
                 clock.wait_next(stop)
                 if stop.is_set():
                     break
-                self.publish_lag_s.append(time.perf_counter() - clock.deadline())
+                lag = time.perf_counter() - clock.deadline()
+                self.publish_lag_s.append(lag)
+                if lag > self.worst_lag[0]:
+                    self.worst_lag = (lag, time.time() - lag, self.k + 1)
             with self._cond:
                 self.k += 1
             n += 1

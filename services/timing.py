@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TimingBudget", "SampleClock", "DeadlineStats", "Watchdog"]
+__all__ = ["TimingBudget", "SampleClock", "DeadlineStats", "Watchdog", "GC_PAUSES"]
 
 
 @dataclass(frozen=True)
@@ -252,3 +252,49 @@ class Watchdog:
                         action()
                     except Exception:  # a failing fallback must not kill the watchdog
                         pass
+
+
+class GCPauses:
+    """Pauses of the cyclic garbage collector, per generation (a source of deadline
+    misses that the phase breakdown cannot name). :meth:`install` once per process."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._t0 = 0.0
+        self.installed = False
+        self.reset()
+
+    def reset(self) -> None:
+        with self._lock:
+            self.count = [0, 0, 0]
+            self.max_ms = [0.0, 0.0, 0.0]
+            self.total_ms = [0.0, 0.0, 0.0]
+
+    def install(self) -> None:
+        import gc
+
+        if not self.installed:
+            gc.callbacks.append(self._callback)
+            self.installed = True
+
+    def _callback(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._t0 = time.perf_counter()
+            return
+        ms = (time.perf_counter() - self._t0) * 1e3
+        g = min(int(info.get("generation", 2)), 2)
+        with self._lock:
+            self.count[g] += 1
+            self.total_ms[g] += ms
+            self.max_ms[g] = max(self.max_ms[g], ms)
+
+    def as_dict(self) -> dict | None:
+        if not self.installed:
+            return None
+        with self._lock:
+            return {f"gen{g}": {"count": self.count[g], "max_ms": self.max_ms[g],
+                                "total_ms": self.total_ms[g]} for g in range(3)}
+
+
+#: The process's collector pauses (installed by the nodes' real-time tuning).
+GC_PAUSES = GCPauses()

@@ -333,7 +333,47 @@ def test_restart_from_an_old_checkpoint_is_not_stale_to_the_plant(harness):
     rejected_before = dict(h.plant.status()["mv_rejected"])
     applied_before = h.plant.status()["mv_seq_applied"]
     h.start_controller()
-    h.wait_samples(10)
+    h.wait_samples(10)  # counted from the restored (old) sample: may return at once
+    t_end = time.monotonic() + 10.0
+    while h.plant.status()["mv_seq_applied"] <= applied_before and time.monotonic() < t_end:
+        time.sleep(0.01)
     st = h.plant.status()
     assert st["mv_rejected"] == rejected_before  # none of the new moves looked stale
     assert st["mv_seq_applied"] > applied_before
+
+
+def test_samples_are_processed_on_the_delivering_thread(harness):
+    """No hand-over to a loop thread: with the node's run() loop stopped (not closed),
+    measurements are still answered; close() then stops them for good."""
+    h = harness()
+    h.wait_samples(3)
+    h.stop_ctrl.set()
+    h.ctrl_thread.join(5)
+    assert not h.ctrl_thread.is_alive()
+    h.wait_samples(10)  # still answered, on Zenoh's threads
+    h.ctrl.close()
+    h.store.close()
+    k = h.ctrl.k
+    time.sleep(0.3)
+    assert h.ctrl.k == k  # nothing processed after close
+
+
+def test_gc_pauses_are_recorded_per_generation():
+    import gc
+
+    from services.timing import GCPauses
+
+    rec = GCPauses()
+    assert rec.as_dict() is None  # not installed
+    rec.install()
+    try:
+        for _ in range(1000):
+            a = []
+            a.append(a)  # cyclic garbage
+        gc.collect(2)
+        d = rec.as_dict()
+        assert d["gen2"]["count"] >= 1 and d["gen2"]["max_ms"] > 0
+        rec.reset()
+        assert rec.as_dict()["gen2"]["count"] == 0
+    finally:
+        gc.callbacks.remove(rec._callback)

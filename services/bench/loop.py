@@ -145,6 +145,9 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
             "held": ps["mv_held"], "plant_samples": ps["samples"],
             "sample_ms": cs.get("sample_ms"), "slowest_sample": cs.get("slowest_sample"),
             "plant_loop_latency_us": ps.get("loop_latency"),
+            "controller_gc_pauses": cs.get("gc_pauses"),
+            "plant_gc_pauses": ps.get("gc_pauses"),
+            "plant_advance_max_ms": ps.get("advance_max_ms"),
             "plant_publish_lag_us": ps.get("publish_lag")}
 
 

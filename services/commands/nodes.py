@@ -104,6 +104,9 @@ def _realtime_tuning(rt_priority: int | None = None) -> None:
     import gc
     import os
 
+    from services.timing import GC_PAUSES
+
+    GC_PAUSES.install()
     gc.collect()
     gc.freeze()
     gc.set_threshold(50_000, 50, 100)
