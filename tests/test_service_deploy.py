@@ -50,3 +50,15 @@ def test_systemd_units_start_ssmpc_subcommands():
         sub = exec_line.split()[1]
         assert sub in ("router", "plant", "controller", "api"), unit.name
         assert "--zenoh-config" in exec_line
+
+
+def test_loop_units_run_under_sched_fifo_with_only_that_privilege():
+    for role in ("plant", "controller"):
+        text = (DEPLOY / "systemd" / f"ssmpc-{role}@.service").read_text()
+        exec_line = [ln for ln in text.splitlines() if ln.startswith("ExecStart=")][0]
+        prio = int(exec_line.split("--rt-priority", 1)[1].split()[0])
+        assert 1 <= prio <= 99
+        assert "AmbientCapabilities=CAP_SYS_NICE" in text
+        assert "CapabilityBoundingSet=CAP_SYS_NICE" in text
+        assert f"LimitRTPRIO={prio}" in text
+        assert "NoNewPrivileges=true" in text
