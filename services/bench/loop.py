@@ -13,6 +13,11 @@ latency
     Lock-step loop: wall time from the plant publishing measurement k to it
     receiving the MV answering k (Zenoh both ways + decode + controller step +
     encode), µs, p50/p99 from the plant node's record.
+jitter
+    The machine's own scheduling noise, side by side: one thread that sleeps to
+    1 ms boundaries for ``--jitter-seconds`` (before and after the speed ladder),
+    µs of oversleep, p50/p99/max and the count above 1 and 2 ms. A rung's misses
+    are not the loop's when a plain sleeper on the idle machine stalls as long.
 rest
     ``GET /api/v1/units/<unit>/status`` on the api node (uvicorn → Zenoh query
     → controller → back), µs, over a kept-alive HTTP connection, with the loop
@@ -47,8 +52,10 @@ def add_arguments(parser) -> None:
                         help="JSON overrides of the unit config (e.g. {\"strategy\": \"pi\"})")
     parser.add_argument("--rt-priority", type=int, default=None,
                         help="run plant and controller under SCHED_FIFO with this priority")
-    parser.add_argument("--cases", default="speed,latency,rest",
-                        help="comma-separated subset of speed, latency, rest")
+    parser.add_argument("--jitter-seconds", type=float, default=5.0,
+                        help="wall seconds of each scheduling-jitter probe")
+    parser.add_argument("--cases", default="jitter,speed,latency,rest",
+                        help="comma-separated subset of jitter, speed, latency, rest")
 
 
 class _Nodes:
@@ -171,8 +178,12 @@ def speed_case(args, state_dir: str) -> dict:
             best = r
         else:
             break
-    if best is None:
-        raise RuntimeError(f"no speed of {ladder} ran without deadline misses: {rungs}")
+    common = {"case": "speed", "unit": "x real time", "plant_unit": args.unit, "rungs": rungs,
+              "rt_priority": args.rt_priority, "controller": cfg.controller,
+              "strategy": cfg.strategy if cfg.plant == "te" else None}
+    if best is None:  # a result, not an error: every rung missed
+        return {**common, "median": 0.0, "p99": 0.0, "max": 0.0, "n": 0,
+                "note": f"no speed of {ladder} ran without deadline misses and held moves"}
     wall_period = cfg.sample_period_s / best["speed"]
     return {"case": "speed", "unit": "x real time", "median": best["speed"],
             "p99": best["speed"], "max": best["speed"], "n": best["samples"],
@@ -233,15 +244,66 @@ def rest_case_run(args, state_dir: str) -> dict:
                         loop="real time, speed 1")
 
 
+def scheduling_jitter(seconds: float, period_s: float = 1e-3, rt_priority: int | None = None
+                      ) -> list[float]:
+    """Oversleep (µs) of a thread sleeping to ``period_s`` boundaries for ``seconds``.
+
+    With ``rt_priority`` the probing thread runs under SCHED_FIFO, as the nodes do.
+    """
+    import os
+    import threading
+
+    out: list[float] = []
+    err: list[BaseException] = []
+
+    def probe():
+        try:
+            if rt_priority is not None:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt_priority))
+            t_end = time.perf_counter() + seconds
+            nxt = time.perf_counter()
+            while nxt < t_end:
+                nxt += period_s
+                delay = nxt - time.perf_counter()
+                if delay > 0:
+                    time.sleep(delay)
+                out.append((time.perf_counter() - nxt) * 1e6)
+        except BaseException as exc:  # reported by the caller
+            err.append(exc)
+
+    th = threading.Thread(target=probe, name="ssmpc-jitter-probe")
+    th.start()
+    th.join()
+    if err:
+        raise RuntimeError(f"jitter probe failed: {err[0]}")
+    return out
+
+
+def jitter_case(args, when: str) -> dict:
+    import numpy as np
+
+    us = scheduling_jitter(args.jitter_seconds, rt_priority=args.rt_priority)
+    a = np.asarray(us)
+    return latency_case("jitter", us, "us", when=when, period_us=1000.0,
+                        over_1ms=int(np.sum(a > 1000)), over_2ms=int(np.sum(a > 2000)),
+                        rt_priority=args.rt_priority)
+
+
 def run(args) -> list[dict]:
     cases = {c.strip() for c in args.cases.split(",") if c.strip()}
-    unknown = cases - {"speed", "latency", "rest"}
+    unknown = cases - {"jitter", "speed", "latency", "rest"}
     if unknown:
         raise ValueError(f"cases: unknown case(s) {', '.join(sorted(unknown))}")
+    if "jitter" in cases and not (args.jitter_seconds > 0):
+        raise ValueError(f"jitter_seconds: must be positive, got {args.jitter_seconds}")
     out = []
     with tempfile.TemporaryDirectory(prefix="ssmpc-bench-loop-") as state_dir:
+        if "jitter" in cases:
+            out.append(jitter_case(args, "before the speed ladder"))
         if "speed" in cases:
             out.append(speed_case(args, state_dir))
+            if "jitter" in cases:
+                out.append(jitter_case(args, "after the speed ladder"))
         if "latency" in cases:
             out.append(latency_case_run(args, state_dir))
         if "rest" in cases:

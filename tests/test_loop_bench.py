@@ -1,0 +1,43 @@
+"""Shape of ``ssmpc bench loop``'s JSON (no timing is asserted)."""
+
+from __future__ import annotations
+
+import json
+
+from services.cli import main
+
+
+def test_bench_loop_jitter_and_speed_rungs(capsys):
+    # a slow unit at a low speed: one rung, real nodes over Zenoh, jitter before and after
+    assert main(["bench", "loop", "--json", "--unit", "cstr", "--cases", "jitter,speed",
+                 "--speeds", "2", "--rung-seconds", "1", "--jitter-seconds", "0.2"]) == 0
+    doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert doc["bench"] == "loop" and doc["machine"]
+    cases = [c["case"] for c in doc["cases"]]
+    assert cases == ["jitter", "speed", "jitter"]
+    before, speed, after = doc["cases"]
+    assert before["when"] == "before the speed ladder" and after["when"].startswith("after")
+    for j in (before, after):
+        assert j["unit"] == "us" and j["n"] >= 50 and 0 <= j["median"] <= j["max"]
+        assert j["over_2ms"] <= j["over_1ms"] <= j["n"]
+    rung = speed["rungs"][0]
+    assert speed["median"] in (0.0, 2.0) and rung["speed"] == 2.0 and rung["samples"] > 0
+    for key in ("sample_ms", "slowest_sample", "plant_loop_latency_us",
+                "plant_publish_lag_us", "controller_gc_pauses", "plant_advance_max_ms"):
+        assert key in rung
+    assert rung["slowest_sample"]["controller_ms"] > 0
+
+
+def test_bench_loop_refuses_unknown_cases_and_bad_durations(capsys):
+    assert main(["bench", "loop", "--cases", "speed,warp"]) == 2
+    assert "cases: unknown case(s) warp" in capsys.readouterr().err
+    assert main(["bench", "loop", "--cases", "jitter", "--jitter-seconds", "0"]) == 2
+    assert "jitter_seconds" in capsys.readouterr().err
+
+
+def test_scheduling_jitter_probe_sleeps_to_boundaries():
+    from services.bench.loop import scheduling_jitter
+
+    us = scheduling_jitter(0.05, period_s=0.005)
+    assert 5 <= len(us) <= 11  # 10 boundaries in 50 ms (fewer if the probe overslept)
+    assert min(us) >= 0
