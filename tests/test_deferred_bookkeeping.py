@@ -50,6 +50,8 @@ def test_checkpoint_commits_a_pending_step():
 
 
 def _te_moves(finish: bool, n: int = 160):
+    from test_te_control_mpc import apply_decision
+
     from plant_sim.tennessee_eastman import TESimulator
     from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
     from services.studies.te_control import make_te_controller
@@ -68,12 +70,7 @@ def _te_moves(finish: bool, n: int = 160):
         if finish:
             ctl.finish_sample()
         moves.append(np.concatenate([dec.u, dec.extra["setpoints"]]))
-        xmv = sim.xmv
-        for i in spec.written_xmvs:
-            xmv[i - 1] = dec.u[i - 1]
-        sim.set_xmv(xmv)
-        reg.set_setpoints(dec.extra["setpoints"])
-        reg.run_steps(spec.sample_steps)
+        apply_decision(spec, sim, reg, dec)
     return np.array(moves), rebuild_in_step, law.source.refreshes
 
 

@@ -74,16 +74,21 @@ def test_ssmpc_mode0_to_mode2_to_mode3():
     assert abs(run.xmeas[-40:, 39].mean() - grade(3).g_mol) < G_BAND
 
 
+def apply_decision(spec, sim, reg, dec):
+    """Write a TE decision to the plant (its valves and the loops' set points) and run
+    one supervisory sample."""
+    x = sim.xmv
+    for i in spec.written_xmvs:
+        if np.isfinite(dec.u[i - 1]):
+            x[i - 1] = dec.u[i - 1]
+    sim.set_xmv(x)
+    reg.set_setpoints(dec.extra["setpoints"])
+    reg.run_steps(spec.sample_steps)
+
+
 def _drive(ctl, spec, sim, reg, k0, n):
     for k in range(k0, k0 + n):
-        dec = ctl.step(k, sim.time, sim.xmeas, None)
-        x = sim.xmv
-        for i in spec.written_xmvs:
-            if np.isfinite(dec.u[i - 1]):
-                x[i - 1] = dec.u[i - 1]
-        sim.set_xmv(x)
-        reg.set_setpoints(dec.extra["setpoints"])
-        reg.run_steps(spec.sample_steps)
+        apply_decision(spec, sim, reg, ctl.step(k, sim.time, sim.xmeas, None))
 
 
 RESTORE_ATOL = 1e-12  # % of valve range / kPa / degC: restored controller vs the original
@@ -112,13 +117,7 @@ def test_checkpoint_restore_is_bumpless(strategy):
         np.testing.assert_allclose(d2.u, d1.u, rtol=0, atol=RESTORE_ATOL)
         np.testing.assert_allclose(d2.extra["setpoints"], d1.extra["setpoints"], rtol=0,
                                    atol=RESTORE_ATOL)
-        x = sim.xmv
-        for i in spec.written_xmvs:
-            if np.isfinite(d1.u[i - 1]):
-                x[i - 1] = d1.u[i - 1]
-        sim.set_xmv(x)
-        reg.set_setpoints(d1.extra["setpoints"])
-        reg.run_steps(spec.sample_steps)
+        apply_decision(spec, sim, reg, d1)
 
 
 def test_idv1_drives_pressure_up_alarms_before_the_interlock():
