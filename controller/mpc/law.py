@@ -70,12 +70,20 @@ class SharedStateSource:
     def _form(self, j: int):
         if self.ssm.kinds[j] != "adaptive":
             return self.ssm.prediction_form(j)
-        if j in self._made and self._k - self._made[j] < self.adaptive_refresh:
+        if not self._due(j, self._k):
             if j not in self._snap:  # restored from a checkpoint: rebuild from its Θ
                 self._snap[j] = self._discrete_form(j, self._restored[j])
             return self._snap[j]
+        return self._refresh(j, self._k)
+
+    def _due(self, j: int, k: int) -> bool:
+        """Adaptive model j's form needs a refresh at observe counter ``k``."""
+        return j not in self._made or k - self._made[j] >= self.adaptive_refresh
+
+    def _refresh(self, j: int, k: int):
         self._snap[j] = self._discrete_form(j)
-        self._made[j] = self._k
+        self._restored.pop(j, None)
+        self._made[j] = k
         self.refreshes += 1
         return self._snap[j]
 
@@ -89,13 +97,7 @@ class SharedStateSource:
         if self.ssm is None or self.ssm.kinds[j] != "adaptive":
             return None
         nxt = self._k + 1
-        if j in self._made and nxt - self._made[j] < self.adaptive_refresh:
-            return None
-        self._snap[j] = self._discrete_form(j)
-        self._restored.pop(j, None)
-        self._made[j] = nxt
-        self.refreshes += 1
-        return self._snap[j]
+        return self._refresh(j, nxt) if self._due(j, nxt) else None
 
     def observe(self, u_prev, y) -> ModelView:
         n = self.ssm.n
