@@ -39,7 +39,7 @@ import numpy as np
 
 from services import keys
 from services.messages import Measurement, MessageError, MVMessage, Reply, Request
-from services.timing import GC_PAUSES, SampleClock, TimingBudget
+from services.timing import GC_PAUSES, SampleClock, TimingBudget, percentile_summary
 from services.units import UnitConfig, build_plant, cv_indices, mv_indices, time_scale_s
 from services.zenoh_session import declare_loop_publisher
 
@@ -198,11 +198,10 @@ def make_runner(cfg: UnitConfig, **kw):
 
 def _percentiles_us(values_s) -> dict | None:
     """p50/p99/max (µs) and count of a series of durations in s; None when empty."""
-    a = np.asarray(values_s, dtype=float) * 1e6
-    if a.size == 0:
+    s = percentile_summary(values_s, 1e6)
+    if s is None:
         return None
-    return {"p50_us": float(np.median(a)), "p99_us": float(np.percentile(a, 99)),
-            "max_us": float(a.max()), "n": int(a.size)}
+    return {"p50_us": s["p50"], "p99_us": s["p99"], "max_us": s["max"], "n": s["n"]}
 
 
 @dataclass

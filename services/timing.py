@@ -18,7 +18,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TimingBudget", "SampleClock", "DeadlineStats", "Watchdog", "GC_PAUSES"]
+__all__ = ["TimingBudget", "SampleClock", "DeadlineStats", "Watchdog", "GC_PAUSES",
+           "percentile_summary"]
+
+
+def percentile_summary(values, scale: float = 1.0) -> dict | None:
+    """``{"p50", "p99", "max", "n"}`` of ``values * scale``; None when there are none."""
+    a = np.asarray(values, dtype=float) * scale
+    if a.size == 0:
+        return None
+    p50, p99 = np.percentile(a, [50, 99])
+    return {"p50": float(p50), "p99": float(p99), "max": float(a.max()), "n": int(a.size)}
 
 
 @dataclass(frozen=True)
@@ -141,11 +151,8 @@ class DeadlineStats:
 
     def percentiles_ms(self) -> dict:
         """p50/p99/max of the kept compute times, ms (None before the first sample)."""
-        if not self.recent_ms:
-            return {"p50": None, "p99": None, "max": None, "n": 0}
-        a = np.asarray(self.recent_ms, dtype=float)
-        p50, p99 = np.percentile(a, [50, 99])
-        return {"p50": float(p50), "p99": float(p99), "max": float(a.max()), "n": int(a.size)}
+        return (percentile_summary(self.recent_ms)
+                or {"p50": None, "p99": None, "max": None, "n": 0})
 
     def as_dict(self) -> dict:
         return {"samples": self.samples, "deadline_misses": self.misses,
