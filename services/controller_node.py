@@ -491,6 +491,7 @@ class ControllerNode:
                 "budget_ms": self.stats.budget_s * 1e3,
                 "sample_ms": self.stats.percentiles_ms(),
                 "slowest_sample": self.stats.worst,
+                "missed_samples": list(self.stats.missed),
                 "gc_pauses": GC_PAUSES.as_dict(),
                 "samples": self.stats.samples,
                 "bad_measurements": self.bad_measurements,
@@ -538,6 +539,7 @@ class ControllerNode:
     def process(self, arrived: float, msg: Measurement) -> None:
         """One sample: transition, reference, controller step, MV, bookkeeping."""
         t_begin = time.perf_counter()
+        cpu_begin = time.thread_time()
         if self._align_pending:
             self._align(msg)
         hold = self.u_last.copy()
@@ -576,6 +578,7 @@ class ControllerNode:
         t_stepped = time.perf_counter()
         fired = self._watchdog.disarm()
         elapsed = time.perf_counter() - arrived
+        cpu_ms = (time.thread_time() - cpu_begin) * 1e3
         u = np.asarray(decision.u, float)
         if not fired:
             if u.shape != (self.nu,) or not np.all(np.isfinite(u)):
@@ -596,7 +599,13 @@ class ControllerNode:
                 "previous_busy_ms": (self._busy_until - arrived) * 1e3,
                 "prepare_ms": (t_step - t_begin) * 1e3,
                 "controller_ms": (t_stepped - t_step) * 1e3,
-                "watchdog_ms": (arrived + elapsed - t_stepped) * 1e3})
+                "watchdog_ms": (arrived + elapsed - t_stepped) * 1e3,
+                # this thread's CPU time from the start of processing to the move, and
+                # the rest of that span: waiting for the interpreter lock or a CPU. The
+                # guest counts time the host takes its vCPU away as CPU time (no steal
+                # time here), so a cpu_ms well above the usual one is the host's doing.
+                "cpu_ms": cpu_ms,
+                "waited_ms": (arrived + elapsed - t_begin) * 1e3 - cpu_ms})
             self.u_last = np.asarray(u, float)
             self.last_decision = decision
             for alarm in decision.alarms:

@@ -13,13 +13,41 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = ["TimingBudget", "SampleClock", "DeadlineStats", "Watchdog", "GC_PAUSES",
-           "percentile_summary"]
+           "percentile_summary", "miss_cause", "MISS_CAUSES"]
+
+#: Where a missed sample's time went, by its largest part (see :func:`miss_cause`).
+MISS_CAUSES = ("queued", "computing", "waiting")
+
+
+def miss_cause(phases_ms: dict) -> str:
+    """The largest part of a sample's time, from its phase breakdown.
+
+    Parameters
+    ----------
+    phases_ms : dict
+        A controller node's phase record (ms): ``queue_ms`` (from arrival to the start
+        of processing: decoding, a previous sample still running), ``cpu_ms`` (the
+        sample thread's CPU time while processing) and ``waited_ms`` (the rest of the
+        processing: waiting for the interpreter lock or for a CPU).
+
+    Returns
+    -------
+    str
+        One of :data:`MISS_CAUSES`: ``"queued"``, ``"computing"`` or ``"waiting"``.
+        A sample whose code is the usual one but whose ``cpu_ms`` is several times the
+        usual is "computing": on a VM the guest counts time the host takes the vCPU away
+        as CPU time.
+    """
+    parts = {"queued": phases_ms["queue_ms"], "computing": phases_ms["cpu_ms"],
+             "waiting": phases_ms["waited_ms"]}
+    return max(MISS_CAUSES, key=lambda k: parts[k])
 
 
 def percentile_summary(values, scale: float = 1.0) -> dict | None:
@@ -111,6 +139,9 @@ class SampleClock:
 class DeadlineStats:
     """Count samples and deadline misses; keep the compute times of the last samples."""
 
+    #: How many of the latest missed samples keep their phase breakdown.
+    KEEP_MISSED = 32
+
     def __init__(self, budget_s: float, keep: int = 4096) -> None:
         self.budget_s = float(budget_s)
         self.samples = 0
@@ -121,6 +152,8 @@ class DeadlineStats:
         self._keep = keep
         self.recent_ms: list[float] = []
         self.worst: dict | None = None  # phase breakdown of the slowest sample (ms)
+        #: phase breakdowns of the last :attr:`KEEP_MISSED` samples over budget (ms)
+        self.missed: deque[dict] = deque(maxlen=self.KEEP_MISSED)
 
     def record(self, elapsed_s: float, *, fallback: bool = False) -> bool:
         """Record one sample's compute time; return True if it missed the budget."""
@@ -143,11 +176,17 @@ class DeadlineStats:
         return (self.budget_s - elapsed_s) * 1e3
 
     def note_phases(self, elapsed_s: float, phases_ms: dict) -> None:
-        """Keep ``phases_ms`` (name -> ms) if this is the slowest sample so far: where
-        a miss came from (waiting for the loop thread, the controller, publishing)."""
+        """Keep ``phases_ms`` (name -> ms) if this is the slowest sample so far, and
+        among :attr:`missed` if it was over budget: where a miss came from (waiting for
+        the loop thread, the controller, publishing; computing or waiting)."""
         ms = elapsed_s * 1e3
+        record = None
         if self.worst is None or ms > self.worst["total_ms"]:
-            self.worst = {"total_ms": ms, **{k: float(v) for k, v in phases_ms.items()}}
+            record = {"total_ms": ms, **{k: float(v) for k, v in phases_ms.items()}}
+            self.worst = record
+        if elapsed_s > self.budget_s:
+            self.missed.append(record or {"total_ms": ms,
+                                          **{k: float(v) for k, v in phases_ms.items()}})
 
     def percentiles_ms(self) -> dict:
         """p50/p99/max of the kept compute times, ms (None before the first sample)."""

@@ -25,6 +25,9 @@ def test_bench_loop_jitter_and_speed_rungs(capsys):
     for key in ("sample_ms", "slowest_sample", "plant_loop_latency_us",
                 "plant_publish_lag_us", "controller_gc_pauses", "plant_advance_max_ms"):
         assert key in rung
+    assert set(rung["miss_causes"]) == {"queued", "computing", "waiting"}
+    assert sum(rung["miss_causes"].values()) == len(rung["missed_samples"])
+    assert len(rung["missed_samples"]) <= rung["deadline_misses"]
     assert rung["slowest_sample"]["controller_ms"] > 0
 
 

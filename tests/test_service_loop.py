@@ -157,6 +157,12 @@ def test_closed_loop_transition_settles_at_the_grade(harness):
         "watchdog_ms"]
     assert worst["controller_ms"] > 0 and abs(parts - worst["total_ms"]) < 1e-6
     assert worst["total_ms"] == pytest.approx(st["sample_ms"]["max"])
+    # processing time = this thread's CPU time + time it waited (lock or CPU)
+    assert worst["cpu_ms"] > 0 and worst["waited_ms"] > -0.05  # clocks differ in µs
+    assert worst["cpu_ms"] + worst["waited_ms"] == pytest.approx(
+        worst["total_ms"] - worst["queue_ms"], abs=1e-6)
+    assert st["missed_samples"] == [] or all(
+        m["total_ms"] > st["budget_ms"] for m in st["missed_samples"])
     h.ctrl.flush()
     events = [e["state"] for e in h.store.events(rep.data["id"])]
     assert events == ["pending", "running", "settled"]

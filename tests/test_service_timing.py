@@ -55,6 +55,25 @@ def test_deadline_stats_counts_misses_and_slack():
     assert s.as_dict()["max_ms"] == pytest.approx(2.0)
 
 
+def test_deadline_stats_keeps_the_phases_of_missed_samples_only():
+    s = DeadlineStats(budget_s=1e-3)
+    s.note_phases(0.5e-3, {"sample": 1})  # in time: only the slowest so far
+    assert list(s.missed) == [] and s.worst["sample"] == 1.0
+    for k in range(2, 2 + DeadlineStats.KEEP_MISSED + 5):
+        s.note_phases(1.5e-3, {"sample": k})
+    assert len(s.missed) == DeadlineStats.KEEP_MISSED  # bounded: the latest ones
+    assert s.missed[-1] == {"total_ms": 1.5, "sample": float(k)}
+    assert s.missed[0]["sample"] == 7.0 and s.worst["sample"] == 2.0
+
+
+def test_miss_cause_is_the_largest_part():
+    from services.timing import miss_cause
+
+    assert miss_cause({"queue_ms": 0.2, "cpu_ms": 1.9, "waited_ms": 0.1}) == "computing"
+    assert miss_cause({"queue_ms": 0.2, "cpu_ms": 0.5, "waited_ms": 1.4}) == "waiting"
+    assert miss_cause({"queue_ms": 2.5, "cpu_ms": 0.5, "waited_ms": 0.0}) == "queued"
+
+
 def test_watchdog_fires_at_deadline_and_not_when_disarmed():
     wd = Watchdog()
     fired = threading.Event()

@@ -8,7 +8,12 @@ speed
     with zero deadline misses (controller) and zero held samples (no MV in
     time at the plant). ``median`` is the highest passing speed (process s per
     wall s); the case also reports the wall period of that rung and the
-    equivalent speed for the TE sample period (36 s).
+    equivalent speed for the TE sample period (36 s). Each rung also carries the
+    phase records of its latest missed samples and ``miss_causes``, their count by
+    largest part (:func:`services.timing.miss_cause`): "queued" (before processing),
+    "computing" (the thread's CPU time: the step itself, or the host taking the
+    vCPU away, which a VM without steal time counts as CPU time), "waiting" (for the
+    interpreter lock or a CPU).
 latency
     Lock-step loop: wall time from the plant publishing measurement k to it
     receiving the MV answering k (Zenoh both ways + decode + controller step +
@@ -32,6 +37,7 @@ import tempfile
 import time
 
 from services.benchmarking import latency_case
+from services.timing import MISS_CAUSES, miss_cause
 
 NAME = "loop"
 DESCRIPTION = "closed loop over Zenoh: highest speed at zero misses, loop latency, REST latency"
@@ -148,6 +154,10 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
     finally:
         s.close()
         nodes.close()
+    missed = cs.get("missed_samples") or []
+    causes = {c: 0 for c in MISS_CAUSES}
+    for m in missed:  # the latest ones the controller kept (a bounded number)
+        causes[miss_cause(m)] += 1
     return {"speed": speed, "samples": cs["samples"], "deadline_misses": cs["deadline_misses"],
             "held": ps["mv_held"], "plant_samples": ps["samples"],
             "sample_ms": cs.get("sample_ms"), "slowest_sample": cs.get("slowest_sample"),
@@ -155,7 +165,8 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
             "controller_gc_pauses": cs.get("gc_pauses"),
             "plant_gc_pauses": ps.get("gc_pauses"),
             "plant_advance_max_ms": ps.get("advance_max_ms"),
-            "plant_publish_lag_us": ps.get("publish_lag")}
+            "plant_publish_lag_us": ps.get("publish_lag"),
+            "missed_samples": missed, "miss_causes": causes}
 
 
 def speed_case(args, state_dir: str) -> dict:
