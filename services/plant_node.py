@@ -196,6 +196,25 @@ def make_runner(cfg: UnitConfig, **kw):
     return ODERunner(cfg)
 
 
+#: Why a sample was held, from its record (see :func:`held_cause`).
+HELD_CAUSES = ("published_late", "answered_late", "no_answer")
+
+
+def held_cause(record: dict) -> str:
+    """Why a held sample's move missed its boundary, from the plant's record of it.
+
+    ``"no_answer"``: no MV answering it has come (controller gone, a lost message);
+    ``"published_late"``: the plant itself put the measurement out more than half a
+    period after its boundary (its own wake-up); ``"answered_late"``: otherwise, the
+    answer took too long (the controller, or delivery either way).
+    """
+    if record["answered_after_ms"] is None:
+        return "no_answer"
+    if record["publish_lag_ms"] > 0.5 * record["period_ms"]:
+        return "published_late"
+    return "answered_late"
+
+
 def _percentiles_us(values_s) -> dict | None:
     """p50/p99/max (µs) and count of a series of durations in s; None when empty."""
     s = percentile_summary(values_s, 1e6)
@@ -233,6 +252,9 @@ class PlantNode:
         A prepared plant runner (default :class:`ODERunner` of the unit's plant).
     """
 
+    #: How many of the latest held samples keep their record (see ``_note_held``).
+    KEEP_HELD = 32
+
     def __init__(self, cfg: UnitConfig, session, *, speed: float = 1.0,
                  expected_sender: str | None = None, lockstep: bool = False,
                  lockstep_timeout_s: float = 2.0, runner=None) -> None:
@@ -258,6 +280,10 @@ class PlantNode:
         self.publish_lag_s: deque[float] = deque(maxlen=20_000)
         self.worst_lag: tuple[float, float, int] = (0.0, 0.0, -1)  # (s, at unix s, sample)
         self.advance_max_s = 0.0  # longest integration of one sample interval, s
+        self._lag_now = 0.0  # publish lag of the current sample, s
+        #: real-time mode: the latest held samples, where their time went (ms)
+        self.held_samples: deque[dict] = deque(maxlen=self.KEEP_HELD)
+        self._held_open: dict[int, tuple[dict, float]] = {}  # sample -> (record, published at)
         self._pub = declare_loop_publisher(session, keys.meas(cfg.unit))
         self._sub = session.declare_subscriber(keys.mv(cfg.unit), self._on_mv)
         self._qry = session.declare_queryable(keys.plant_cmd_all(cfg.unit), self._on_query)
@@ -286,6 +312,9 @@ class PlantNode:
             self.last_mv_seq = msg.seq
             if msg.meas_seq == self.k and not msg.fallback:
                 self.loop_latency_s.append(time.perf_counter() - self._published_at)
+            elif msg.meas_seq in self._held_open:  # the answer to a held sample, late
+                record, published_at = self._held_open.pop(msg.meas_seq)
+                record["answered_after_ms"] = (time.perf_counter() - published_at) * 1e3
             self._pending = msg
             self._cond.notify_all()
 
@@ -342,6 +371,8 @@ class PlantNode:
                 self.publish_lag_s.clear()
                 self.worst_lag = (0.0, 0.0, -1)
                 self.advance_max_s = 0.0
+                self.held_samples.clear()
+                self._held_open.clear()
                 self.counters = PlantCounters()
             GC_PAUSES.reset()
             return Reply(200, self.status())
@@ -356,6 +387,7 @@ class PlantNode:
                 lag.update(worst_at_unix_s=self.worst_lag[1], worst_sample=self.worst_lag[2])
             return {"loop_latency": latency, "publish_lag": lag,
                     "advance_max_ms": self.advance_max_s * 1e3,
+                    "held_samples": [dict(r) for r in self.held_samples],
                     "gc_pauses": GC_PAUSES.as_dict(),
                     "unit": self.cfg.unit, "sample": self.k,
                     "t": self.runner.t,
@@ -388,9 +420,26 @@ class PlantNode:
             msg, self._pending = self._pending, None
             if msg is None:
                 self.counters.mv_held += 1
+                if not self.lockstep:
+                    self._note_held()
             else:
                 self.counters.mv_accepted += 1
             return msg
+
+    def _note_held(self) -> None:
+        """Record where the time of held sample k went (caller holds ``_cond``).
+
+        ``publish_lag_ms``: how late measurement k went out after its boundary;
+        ``answered_after_ms``: wall time from its publication to the arrival of the MV
+        answering it (filled in when that MV comes; None if it never does). The sample
+        was held because the two add up to more than ``period_ms``.
+        """
+        record = {"sample": self.k, "at_unix_s": time.time(),
+                  "period_ms": self.budget.wall_period_s * 1e3,
+                  "publish_lag_ms": self._lag_now * 1e3, "answered_after_ms": None}
+        self.held_samples.append(record)
+        self._held_open = {k: v for k, v in self._held_open.items() if k >= self.k - 4}
+        self._held_open[self.k] = (record, self._published_at)
 
     def run(self, stop: threading.Event, max_samples: int | None = None) -> None:
         """Run until ``stop`` is set (or ``max_samples`` samples have been integrated).
@@ -420,6 +469,7 @@ class PlantNode:
                 if stop.is_set():
                     break
                 lag = time.perf_counter() - clock.deadline()
+                self._lag_now = lag
                 self.publish_lag_s.append(lag)
                 if lag > self.worst_lag[0]:
                     self.worst_lag = (lag, time.time() - lag, self.k + 1)

@@ -28,7 +28,18 @@ def test_bench_loop_jitter_and_speed_rungs(capsys):
     assert set(rung["miss_causes"]) == {"queued", "computing", "waiting"}
     assert sum(rung["miss_causes"].values()) == len(rung["missed_samples"])
     assert len(rung["missed_samples"]) <= rung["deadline_misses"]
+    assert set(rung["held_causes"]) == {"published_late", "answered_late", "no_answer"}
+    assert sum(rung["held_causes"].values()) == len(rung["held_samples"]) <= rung["held"]
     assert rung["slowest_sample"]["controller_ms"] > 0
+
+
+def test_held_cause_names_the_part_that_was_late():
+    from services.plant_node import held_cause
+
+    rec = {"period_ms": 3.6, "publish_lag_ms": 0.1, "answered_after_ms": 4.0}
+    assert held_cause(rec) == "answered_late"
+    assert held_cause({**rec, "publish_lag_ms": 2.5, "answered_after_ms": 1.2}) == "published_late"
+    assert held_cause({**rec, "answered_after_ms": None}) == "no_answer"
 
 
 def test_bench_loop_refuses_unknown_cases_and_bad_durations(capsys):

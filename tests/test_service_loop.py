@@ -275,6 +275,31 @@ def test_controller_gone_plant_holds_last_move(harness):
     assert lag["n"] >= 10 and 0 <= lag["p50_us"] <= lag["max_us"]
 
 
+def test_held_samples_record_where_their_time_went(harness):
+    h = harness(lockstep=False, speed=0.5)  # 100 ms wall period
+    h.wait_samples(3)
+    h.stop_controller()
+    time.sleep(0.45)  # the plant holds at each boundary now
+    k = h.plant.k - 1  # held at the last boundary; its answer may still come, late
+    pub = h.s_client.declare_publisher(keys.mv("cstr"))
+    late = MVMessage(unit="cstr", seq=time.time_ns() // 1000 + 10**6, meas_seq=k, u=(0.45,),
+                     sender="cstr-controller")
+    pub.put(late.to_bytes())
+    time.sleep(0.35)
+    st = h.plant.status()
+    recs = st["held_samples"]
+    assert 3 <= len(recs) <= PlantNode.KEEP_HELD
+    by_sample = {r["sample"]: r for r in recs}
+    answered = by_sample[k]
+    assert answered["period_ms"] == pytest.approx(100.0)
+    # held: its answer came after the boundary, i.e. later than the period less the lag
+    assert answered["answered_after_ms"] > answered["period_ms"] - answered["publish_lag_ms"]
+    assert all(r["answered_after_ms"] is None for r in recs if r["sample"] != k)
+    assert all(r["publish_lag_ms"] >= 0 for r in recs)
+    assert st["mv_seq_applied"] == late.seq  # the late answer still acts (newest move)
+    pub.undeclare()
+
+
 @pytest.mark.parametrize("unit, controller, grade", [
     ("cstr", "hinf", "OPII"),
     ("cstr", "mrac", "OPII"),

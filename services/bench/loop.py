@@ -13,7 +13,9 @@ speed
     largest part (:func:`services.timing.miss_cause`): "queued" (before processing),
     "computing" (the thread's CPU time: the step itself, or the host taking the
     vCPU away, which a VM without steal time counts as CPU time), "waiting" (for the
-    interpreter lock or a CPU).
+    interpreter lock or a CPU). Likewise the plant's latest held samples and
+    ``held_causes`` (:func:`services.plant_node.held_cause`): "published_late" (the
+    plant's own wake-up at the boundary), "answered_late", "no_answer".
 latency
     Lock-step loop: wall time from the plant publishing measurement k to it
     receiving the MV answering k (Zenoh both ways + decode + controller step +
@@ -37,6 +39,7 @@ import tempfile
 import time
 
 from services.benchmarking import latency_case
+from services.plant_node import HELD_CAUSES, held_cause
 from services.timing import MISS_CAUSES, miss_cause
 
 NAME = "loop"
@@ -158,6 +161,10 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
     causes = {c: 0 for c in MISS_CAUSES}
     for m in missed:  # the latest ones the controller kept (a bounded number)
         causes[miss_cause(m)] += 1
+    held = ps.get("held_samples") or []
+    held_causes = {c: 0 for c in HELD_CAUSES}
+    for h in held:
+        held_causes[held_cause(h)] += 1
     return {"speed": speed, "samples": cs["samples"], "deadline_misses": cs["deadline_misses"],
             "held": ps["mv_held"], "plant_samples": ps["samples"],
             "sample_ms": cs.get("sample_ms"), "slowest_sample": cs.get("slowest_sample"),
@@ -166,7 +173,8 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
             "plant_gc_pauses": ps.get("gc_pauses"),
             "plant_advance_max_ms": ps.get("advance_max_ms"),
             "plant_publish_lag_us": ps.get("publish_lag"),
-            "missed_samples": missed, "miss_causes": causes}
+            "missed_samples": missed, "miss_causes": causes,
+            "held_samples": held, "held_causes": held_causes}
 
 
 def speed_case(args, state_dir: str) -> dict:
