@@ -105,6 +105,31 @@ def test_first_order_path_for_many_times_equals_each_time_alone():
     assert many[2, 1] == -2.0 and many[1, 1] == 1.0
 
 
+def test_plan_references_are_first_order_path_bit_for_bit():
+    # the plan evaluates from a table built at its switches; the general path walks
+    # every segment from t = 0: both must give the same floats
+    plan = TransitionPlan("mode0", (Leg(1.0, "mode2"), Leg(2.5, "mode3"), Leg(9.0, "mode0")),
+                          tau_xmeas_h=0.7, tau_xmv_h=1.3)
+    times = np.concatenate([[-1.0, 0.0, 1.0, 2.5, 9.0, 1.0 + 1e-12, 2.5 - 1e-12],
+                            np.linspace(0.0, 30.0, 301)])
+    g = [grade(n) for n in ("mode0", "mode2", "mode3", "mode0")]
+    for attr, tau, got in (("xmeas", 0.7, plan.xmeas_ref), ("xmv", 1.3, plan.xmv_ref)):
+        sw = [(t, getattr(gr, attr), tau) for t, gr in zip((1.0, 2.5, 9.0), g[1:])]
+        want = first_order_path(times, 0.0, getattr(g[0], attr), sw)
+        np.testing.assert_array_equal(got(times), want)
+        for t in times[:7]:
+            np.testing.assert_array_equal(got(float(t)), first_order_path(t, 0.0,
+                                                                           getattr(g[0], attr),
+                                                                           sw))
+    sw = [(t, np.array([gr.d_fraction]), 1.3) for t, gr in zip((1.0, 2.5, 9.0), g[1:])]
+    for t in times:
+        assert plan.d_fraction_ref(float(t)) == float(
+            first_order_path(t, 0.0, np.array([g[0].d_fraction]), sw)[0])
+    step = TransitionPlan("mode0", (Leg(1.0, "mode2"),), tau_xmeas_h=0.0)
+    np.testing.assert_array_equal(step.xmeas_ref(np.array([0.5, 1.0, 3.0])),
+                                  [g[0].xmeas, g[1].xmeas, g[1].xmeas])
+
+
 def test_plan_references_closed_form():
     plan = TransitionPlan("mode0", (Leg(1.0, "mode2"),), tau_xmeas_h=2.0, tau_xmv_h=3.0)
     g0, g2 = grade(0).g_mol, grade(2).g_mol

@@ -270,6 +270,48 @@ def _relax(r, target, tau, dt):
 
 
 @dataclass(frozen=True)
+class _PathTable:
+    """:func:`first_order_path` of one plan tabulated at its switches (per-sample speed).
+
+    Row 0 is the start (from ``-inf``, target = start value); row i > 0 the i-th switch
+    with the value the path has there (``start``) and its target. A time is evaluated
+    in the segment of the last switch at or before it with the same operations as
+    :func:`first_order_path`, so the values are bit for bit the same.
+    """
+
+    times: np.ndarray  # (L,), ascending, times[0] = -inf
+    start: np.ndarray  # (L, n)
+    target: np.ndarray  # (L, n)
+    tau: float
+
+    @classmethod
+    def build(cls, times, values, tau: float) -> _PathTable:
+        r = np.asarray(values[0], dtype=float)
+        start, target = [r], [r]
+        for i, ts in enumerate(times):
+            if i > 0:  # the path at this switch: the previous segment relaxed to its end
+                r = _relax(r[None, :], target[-1], np.asarray(tau, dtype=float),
+                           np.array([[ts - times[i - 1]]]))[0]
+            start.append(r)
+            target.append(np.asarray(values[i + 1], dtype=float))
+        return cls(np.array([-math.inf, *times]), np.array(start), np.array(target),
+                   float(tau))
+
+    def __call__(self, t) -> np.ndarray:
+        tt = np.asarray(t, dtype=float)
+        scalar = tt.ndim == 0
+        tt = tt.reshape(-1)
+        i = np.searchsorted(self.times, tt, side="right") - 1
+        target = self.target[i]
+        if self.tau > 0:
+            a = np.exp(-(tt - self.times[i])[:, None] / self.tau)
+            r = target + (self.start[i] - target) * a
+        else:
+            r = target
+        return r[0] if scalar else r
+
+
+@dataclass(frozen=True)
 class Leg:
     """From ``t_h`` on, head for ``grade`` (``modeN``)."""
 
@@ -305,6 +347,7 @@ class TransitionPlan:
     tau_xmeas_h: float = TAU_DEFAULT_H["xmeas"]
     tau_xmv_h: float = TAU_DEFAULT_H["xmv"]
     _grades: tuple = field(default=(), repr=False, compare=False)
+    _tables: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "start", parse_grade(self.start))
@@ -322,8 +365,14 @@ class TransitionPlan:
             check_reachable(prev, lg.grade)
             prev = lg.grade
         object.__setattr__(self, "legs", legs)
-        object.__setattr__(self, "_grades", (grade(self.start),) + tuple(grade(lg.grade)
-                                                                            for lg in legs))
+        grades = (grade(self.start),) + tuple(grade(lg.grade) for lg in legs)
+        object.__setattr__(self, "_grades", grades)
+        times = [lg.t_h for lg in legs]
+        object.__setattr__(self, "_tables", {
+            "xmeas": _PathTable.build(times, [g.xmeas for g in grades], self.tau_xmeas_h),
+            "xmv": _PathTable.build(times, [g.xmv for g in grades], self.tau_xmv_h),
+            "d_fraction": _PathTable.build(times, [np.array([g.d_fraction]) for g in grades],
+                                           self.tau_xmv_h)})
 
     @property
     def final(self) -> Grade:
@@ -337,30 +386,21 @@ class TransitionPlan:
                 g = gr
         return g
 
-    def _path(self, t, attr: str, tau: float) -> np.ndarray:
-        g0 = self._grades[0]
-        sw = [(lg.t_h, getattr(g, attr), tau) for lg, g in zip(self.legs, self._grades[1:],
-                                                               strict=True)]
-        return first_order_path(t, 0.0, getattr(g0, attr), sw)
-
     def xmeas_ref(self, t) -> np.ndarray:
         """References of XMEAS 1-41 at ``t`` (41,): Table 7.3 rows, first-order between.
 
         An array of K times gives a (K, 41) array (one evaluation for a whole horizon)."""
-        return self._path(t, "xmeas", self.tau_xmeas_h)
+        return self._tables["xmeas"](t)
 
     def xmv_ref(self, t) -> np.ndarray:
         """Valve references at ``t`` (12,): the grades' steady valves, first-order between
         (XMV(5) and XMV(9) close this way toward modes 1-3). An array of K times gives
         (K, 12)."""
-        return self._path(t, "xmv", self.tau_xmv_h)
+        return self._tables["xmv"](t)
 
     def d_fraction_ref(self, t: float) -> float:
         """Feedforward D share of the D+E feed mass at ``t``."""
-        g0 = self._grades[0]
-        sw = [(lg.t_h, np.array([g.d_fraction]), self.tau_xmv_h)
-              for lg, g in zip(self.legs, self._grades[1:], strict=True)]
-        return float(first_order_path(t, 0.0, np.array([g0.d_fraction]), sw)[0])
+        return float(self._tables["d_fraction"](t)[0])
 
 
 # -- metrics ------------------------------------------------------------------------------
