@@ -39,6 +39,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.linalg.lapack import dpotrf as _potrf
+from scipy.linalg.lapack import dtrtri as _trtri
 
 from controller.packing import pack_array, unpack_array
 
@@ -246,6 +248,7 @@ class NormalizedLeastSquares:
         self._c = 0.0
         self._V = np.zeros((p0.size, 0))
         self._pending: tuple | None = None  # a deferred covariance step (update(defer=True))
+        self._check_finite = False
         self._set_identity(float(settings.kappa))
         self.n_updates = 0
         self.n_resets = 0
@@ -269,12 +272,14 @@ class NormalizedLeastSquares:
         if self._Pd is None:
             self._Pd = self._c * np.eye(self.p.size) - self._V @ self._V.T
             self._V = np.zeros((self.p.size, 0))
+        self._check_finite = True  # the caller may write into it
         return self._Pd
 
     @P.setter
     def P(self, value) -> None:
         self._pending = None
         self._Pd = np.array(value, dtype=float)
+        self._check_finite = True  # checked (and reset if need be) at the next update
 
     @property
     def n_params(self) -> int:
@@ -320,43 +325,51 @@ class NormalizedLeastSquares:
         W = np.atleast_2d(np.asarray(W, dtype=float))
         y = np.asarray(y, dtype=float).reshape(-1)
         m = y.size
-        if W.shape != (m, self.p.size) or not (np.all(np.isfinite(W)) and np.all(np.isfinite(y))):
+        if W.shape != (m, self.p.size):
             self.n_skipped += 1
             return NLSStep(np.full(m, np.nan), False, reason="invalid_data")
-        dense = self._Pd is not None
-        if not np.all(np.isfinite(self._Pd if dense else self._V)):
-            self.reset_covariance("nonfinite")
-            dense = self._Pd is not None
-        e = y - W @ self.p
+        with np.errstate(invalid="ignore", over="ignore"):  # bad data is a skip, not a warning
+            e = y - W @ self.p
+        # p is finite, so a NaN/inf anywhere in W or y makes e non-finite (inf * 0 is NaN)
+        if not np.isfinite(e).all():
+            self.n_skipped += 1
+            return NLSStep(np.full(m, np.nan), False, reason="invalid_data")
+        if self._check_finite:  # a covariance set from outside (the steps check their own)
+            self._check_finite = False
+            if not np.isfinite(self._Pd if self._Pd is not None else self._V).all():
+                self.reset_covariance("nonfinite")
         if freeze:
             self.n_skipped += 1
             return NLSStep(e, False, reason="frozen")
-        if self.settings.dead_zone > 0 and np.max(np.abs(e)) <= self.settings.dead_zone:
+        if self.settings.dead_zone > 0 and np.abs(e).max() <= self.settings.dead_zone:
             self.n_dead_zone += 1
             return NLSStep(e, False, reason="dead_zone")
         Wt = W.T
-        if dense:
+        if self._Pd is not None:
             PWt = self._Pd @ Wt  # (N, m)
         else:
             PWt = self._c * Wt - self._V @ (self._V.T @ Wt)
         S = np.eye(m) + self.settings.rate * (W @ PWt)
         S = 0.5 * (S + S.T)
-        try:
-            L_inv = np.linalg.inv(np.linalg.cholesky(S))  # S is SPD for a PSD P
-            S_inv = L_inv.T @ L_inv
-        except np.linalg.LinAlgError:
+        # S is SPD for a PSD P: S = L L', S^-1 = L^-T L^-1 (LAPACK directly: at m = 5
+        # numpy.linalg's wrappers cost ~5x the factorization)
+        L, info = _potrf(S, lower=1)
+        if info == 0:
+            L_inv, info = _trtri(L, lower=1)
+        if info != 0:
             self.reset_covariance("singular")
             return NLSStep(e, False, True, "singular")
+        S_inv = L_inv.T @ L_inv
         K = PWt @ S_inv  # P W' S^-1, (N, m)
         p_new = self.p + self.g_d * (K @ e)
-        if not np.all(np.isfinite(p_new)) or np.max(np.abs(p_new)) > self.settings.max_abs_param:
+        if not np.abs(p_new).max() <= self.settings.max_abs_param:  # also NaN
             self.reset_covariance("diverged")
             return NLSStep(e, False, True, "diverged")
-        clipped = np.clip(p_new, self.lower, self.upper)
-        if not np.array_equal(clipped, p_new):
+        clipped = np.minimum(np.maximum(p_new, self.lower), self.upper)
+        if (clipped != p_new).any():
             self.n_projections += 1
             p_new = clipped
-        trace_dP = self.g_d * float(np.sum(K * PWt))  # trace(g_d K PWt')
+        trace_dP = self.g_d * float(np.vdot(K, PWt))  # trace(g_d K PWt')
         self.p = p_new
         self.n_updates += 1
         if not math.isfinite(trace_dP):
@@ -379,7 +392,11 @@ class NormalizedLeastSquares:
     def _covariance_step(self, K, PWt, L_inv, trace_dP) -> str | None:
         """``P -= g_d K (P W')'`` and the floor check; returns a reset reason or None."""
         if self._Pd is not None:
-            self._Pd -= self.g_d * (K @ PWt.T)
+            dP = self.g_d * (K @ PWt.T)
+            if not np.isfinite(dP).all():
+                self.reset_covariance("nonfinite")
+                return "nonfinite"
+            self._Pd -= dP
             self._since_sym += 1
             if self._since_sym >= 64:  # keep round-off from making P unsymmetric
                 self._Pd += self._Pd.T
@@ -388,7 +405,11 @@ class NormalizedLeastSquares:
         else:
             # g_d S^-1 = G G' with G = sqrt(g_d) L^-T: dP = (PWt G)(PWt G)'
             G = math.sqrt(self.g_d) * L_inv.T
-            self._V = np.hstack((self._V, PWt @ G))
+            block = PWt @ G
+            if not np.isfinite(block).all():
+                self.reset_covariance("nonfinite")
+                return "nonfinite"
+            self._V = np.hstack((self._V, block))
             if self._V.shape[1] > self.settings.lowrank_max_rank:
                 _ = self.P  # densify
         # trace of the PSD decrement bounds its largest eigenvalue

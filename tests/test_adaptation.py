@@ -80,6 +80,30 @@ def test_nan_measurement_skips_the_update_and_leaves_state_clean():
     np.testing.assert_array_equal(nls.P, P0)
 
 
+@pytest.mark.parametrize("W", [
+    [[np.inf, 1.0, 1.0]],        # inf against a zero parameter
+    [[np.inf, -np.inf, 1.0]],    # infinities that would cancel
+    [[1.0, 1.0, 1.0], [np.nan, 0.0, 0.0]],
+])
+def test_nonfinite_regressor_skips_even_where_it_meets_zero_parameters(W):
+    nls = NormalizedLeastSquares(NLSSettings(), np.array([0.0, 0.0, 2.0]), dt=0.05)
+    W = np.array(W)
+    step = nls.update(W, np.ones(W.shape[0]))
+    assert not step.updated and step.reason == "invalid_data"
+    assert np.isnan(step.error).all() and nls.n_skipped == 1
+    np.testing.assert_array_equal(nls.p, [0.0, 0.0, 2.0])
+
+
+def test_covariance_set_from_outside_is_checked_at_the_next_update():
+    nls = NormalizedLeastSquares(NLSSettings(), np.zeros(2), dt=0.05)
+    P = np.eye(2)
+    P[1, 0] = np.nan
+    nls.P = P
+    step = nls.update(np.array([[1.0, 1.0]]), np.array([1.0]))
+    assert step.updated and nls.reset_reasons == {"nonfinite": 1}
+    assert np.isfinite(nls.p).all() and np.isfinite(nls.P).all()
+
+
 def test_singular_covariance_is_reset_and_counted():
     nls = NormalizedLeastSquares(NLSSettings(), np.zeros(3), dt=0.05)
     state = nls.checkpoint()
