@@ -230,13 +230,13 @@ class NormalizedLeastSquares:
     def __init__(self, settings: NLSSettings, p0, dt: float, lower=None, upper=None) -> None:
         self.settings = settings
         p0 = np.asarray(p0, dtype=float).reshape(-1)
-        if p0.size == 0 or not np.all(np.isfinite(p0)):
+        if p0.size == 0 or not np.isfinite(p0).all():
             raise ValueError("p0: must be a non-empty finite vector")
         self.lower = np.full(p0.size, -np.inf) if lower is None else np.asarray(lower, float)
         self.upper = np.full(p0.size, np.inf) if upper is None else np.asarray(upper, float)
         if self.lower.shape != p0.shape or self.upper.shape != p0.shape:
             raise ValueError(f"lower, upper: must have length {p0.size}")
-        if np.any(np.isnan(self.lower)) or np.any(np.isnan(self.upper)) or np.any(
+        if np.isnan(self.lower).any() or np.isnan(self.upper).any() or np.any(
                 self.lower > self.upper):
             raise ValueError("lower, upper: must not be NaN and lower <= upper")
         self.n_projections = 0
@@ -295,7 +295,7 @@ class NormalizedLeastSquares:
     def set_params(self, p, *, reset_covariance: bool = True) -> None:
         """Replace the parameters (re-initialization); optionally reset ``P`` (not counted)."""
         p = np.asarray(p, dtype=float).reshape(-1)
-        if p.shape != self.p.shape or not np.all(np.isfinite(p)):
+        if p.shape != self.p.shape or not np.isfinite(p).all():
             raise ValueError(f"p: expected a finite vector of length {self.p.size}")
         self.commit()
         self.p = p.copy()
@@ -468,18 +468,18 @@ class NormalizedLeastSquares:
 
     def restore(self, state: dict[str, Any]) -> None:
         p = np.asarray(state["p"], dtype=float).reshape(-1)
-        if p.shape != self.p.shape or not np.all(np.isfinite(p)):
+        if p.shape != self.p.shape or not np.isfinite(p).all():
             raise ValueError(f"state: parameters must be {self.p.size} finite values")
         self._pending = None
         if state.get("P") is not None:
             P = unpack_array(state["P"])
-            if P.shape != (p.size, p.size) or not np.all(np.isfinite(P)):
+            if P.shape != (p.size, p.size) or not np.isfinite(P).all():
                 raise ValueError("state.P: wrong shape or non-finite covariance")
             self._Pd = 0.5 * (P + P.T)
         else:
             c = float(state["c"])
             V = unpack_array(state["V"]).reshape(p.size, -1)
-            if not (math.isfinite(c) and np.all(np.isfinite(V))):
+            if not (math.isfinite(c) and np.isfinite(V).all()):
                 raise ValueError("state.V: non-finite covariance")
             self._Pd, self._c, self._V = None, c, V
         self.p = p.copy()

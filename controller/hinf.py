@@ -228,7 +228,7 @@ def synthesize(num, den, weights: HInfWeights, dt: float) -> HInfDesign:
         raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
     num = np.trim_zeros(np.atleast_1d(np.asarray(num, dtype=float)), "f")
     den = np.atleast_1d(np.asarray(den, dtype=float))
-    if num.size == 0 or not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))):
+    if num.size == 0 or not (np.isfinite(num).all() and np.isfinite(den).all()):
         raise HInfSynthesisError("model: numerator is zero or the model is not finite")
     if num.size >= den.size:
         raise HInfSynthesisError("model: must be strictly proper")

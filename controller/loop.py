@@ -202,7 +202,7 @@ def run_closed_loop(
         except Exception as exc:  # a diverging plant makes the integrator fail
             completed, reason = False, f"plant step failed at t = {t:.6g}: {exc}"
             break
-        if not np.all(np.isfinite(x_next)):
+        if not np.isfinite(x_next).all():
             completed, reason = False, f"plant state not finite at t = {t + dt:.6g}"
             break
         if state_bounds is not None and (np.any(x_next < state_bounds[0])

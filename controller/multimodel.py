@@ -105,7 +105,7 @@ def _bounds(value, m: int, field: str, default: float) -> np.ndarray:
     if value is None:
         return np.full(m, default)
     arr = np.broadcast_to(np.asarray(value, dtype=float), (m,)).copy()
-    if np.any(np.isnan(arr)):
+    if np.isnan(arr).any():
         raise ValueError(f"{field}: must not be NaN")
     return arr
 
@@ -159,7 +159,7 @@ class MultiModelSettings:
             raise ValueError("index: must be an IndexSettings")
         lo = np.atleast_1d(np.asarray(-math.inf if self.u_min is None else self.u_min, float))
         hi = np.atleast_1d(np.asarray(math.inf if self.u_max is None else self.u_max, float))
-        if np.any(np.isnan(lo)) or np.any(np.isnan(hi)):
+        if np.isnan(lo).any() or np.isnan(hi).any():
             raise ValueError("u_min, u_max: must not be NaN")
         if lo.shape == hi.shape and np.any(lo > hi):
             raise ValueError("u_min: must not exceed u_max")
@@ -212,18 +212,20 @@ class OutputHoldCorrection:
 
     def _theta2(self) -> np.ndarray:
         """theta2 of every model, shape (k, n) (the same vector in every output block)."""
-        nm = self.n * self.ssm.m
-        return np.stack([self.ssm.theta(j)[nm : nm + self.n, 0] for j in range(self.ssm.k)])
+        return self.ssm.theta2_all()
 
     def estimates(self) -> np.ndarray:
         """A-priori estimates of all models with the first-order hold, shape (k, p)."""
         est = self.ssm.estimates()
         t2 = self._theta2()
-        free = self.c @ self.Fbd_T - self.y_prev[:, None] * self.h[None, :]  # (p, n)
+        cF = self.c @ self.Fbd_T
+        free = cF - self.y_prev[:, None] * self.h[None, :]  # (p, n)
         num = est + t2 @ free.T  # (k, p)
         den = 1.0 - t2 @ self.h  # (k,)
         safe = np.abs(den) > 1e-6
-        out = est + t2 @ (self.c @ self.Fbd_T).T  # fallback: no slope over the sample
+        if safe.all():
+            return num / den[:, None]
+        out = est + t2 @ cF.T  # fallback: no slope over the sample
         out[safe] = num[safe] / den[safe, None]
         return out
 
@@ -251,7 +253,7 @@ class OutputHoldCorrection:
     def restore(self, state: dict[str, Any]) -> None:
         c = np.asarray(state["c"], dtype=float).reshape(self.c.shape)
         y = np.asarray(state["y_prev"], dtype=float).reshape(self.y_prev.shape)
-        if not (np.all(np.isfinite(c)) and np.all(np.isfinite(y))):
+        if not (np.isfinite(c).all() and np.isfinite(y).all()):
             raise ValueError("state.hold: non-finite first-order-hold correction")
         self.c, self.y_prev = c, y
 
@@ -288,7 +290,7 @@ class MultiModelController:
         self.settings = settings or MultiModelSettings()
         m = ssm.m
         self.u_last = _bounds(u0, m, "u0", 0.0)
-        if not np.all(np.isfinite(self.u_last)):
+        if not np.isfinite(self.u_last).all():
             raise ValueError("u0: must be finite")
         self.u_min = _bounds(self.settings.u_min, m, "u_min", -math.inf)
         self.u_max = _bounds(self.settings.u_max, m, "u_max", math.inf)
@@ -395,20 +397,20 @@ class MultiModelController:
         m = self.ssm.m
         ny = getattr(self.ssm, "p", m)  # outputs (= inputs for the seed's square models)
         y = np.asarray(y, dtype=float).reshape(-1)
-        valid = y.shape == (ny,) and bool(np.all(np.isfinite(y)))
+        valid = y.shape == (ny,) and bool(np.isfinite(y).all())
         if not valid:
             self.n_invalid += 1
             alarm = (f"invalid measurement at sample {k}: sample skipped, input held, "
                      f"adaptation frozen ({self.n_invalid} so far)")
             if self.initialized:
                 y_sub = self.ssm.estimates()[self.switcher.active]
-                if np.all(np.isfinite(y_sub)):
+                if np.isfinite(y_sub).all():
                     if self.hold is not None:
                         self.hold.advance(y_sub)
                     self.ssm.update(self.u_last, y_sub)
             return self._decision(self.u_last, "invalid_measurement", True, [alarm], t0)
         ref = np.atleast_2d(np.asarray(reference, dtype=float))
-        if ref.shape[1] != ny or not np.all(np.isfinite(ref)):
+        if ref.shape[1] != ny or not np.isfinite(ref).all():
             return self._decision(self.u_last, "invalid_reference", True,
                                   [f"invalid reference at sample {k}: input held"], t0)
         if not self.initialized:
@@ -459,7 +461,7 @@ class MultiModelController:
             status = str(info.get("status", "solved"))
             fallback = bool(info.get("fallback", False))
             alarms.extend(info.get("alarms", ()))
-            if u.shape != (m,) or not np.all(np.isfinite(u)):
+            if u.shape != (m,) or not np.isfinite(u).all():
                 raise ValueError(f"control law returned an invalid move {u!r}")
         except Exception as exc:
             self.n_law_failures += 1
@@ -544,7 +546,7 @@ class MultiModelController:
             When ``u`` has the wrong length or is not finite.
         """
         u = np.asarray(u, dtype=float).reshape(-1)
-        if u.shape != self.u_last.shape or not np.all(np.isfinite(u)):
+        if u.shape != self.u_last.shape or not np.isfinite(u).all():
             raise ValueError(f"u: expected {self.u_last.size} finite values, got {u!r}")
         self.finish_sample()
         self.u_last = np.clip(u, self.u_min, self.u_max)
@@ -580,7 +582,7 @@ class MultiModelController:
         self.switcher.restore(state["switcher"])
         self.law.restore(state["law"])
         u = np.asarray(state["u_last"], dtype=float).reshape(-1)
-        if u.shape != self.u_last.shape or not np.all(np.isfinite(u)):
+        if u.shape != self.u_last.shape or not np.isfinite(u).all():
             raise ValueError("state.u_last: wrong length or non-finite")
         self.u_last = u
         self.initialized = bool(state["initialized"])

@@ -54,7 +54,7 @@ class SetpointSchedule:
             b <= a for a, b in zip(times[:-1], times[1:])
         ):
             raise ValueError("times: must be finite and strictly increasing")
-        if not np.all(np.isfinite(values)):
+        if not np.isfinite(values).all():
             raise ValueError("values: must be finite")
         values.setflags(write=False)
         object.__setattr__(self, "times", times)
@@ -147,7 +147,7 @@ class ReferenceTrajectory:
         if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
         tau = np.broadcast_to(np.asarray(time_constant, dtype=float), (schedule.ny,)).copy()
-        if not np.all(np.isfinite(tau)) or np.any(tau < 0):
+        if not np.isfinite(tau).all() or np.any(tau < 0):
             raise ValueError(f"time_constant: must be finite and >= 0, got {time_constant!r}")
         self.schedule = schedule
         self.tau = tau
@@ -156,7 +156,7 @@ class ReferenceTrajectory:
             self.a = np.where(tau > 0, np.exp(-self.dt / np.where(tau > 0, tau, 1.0)), 0.0)
         self.t = float(t0)
         r0 = schedule.at(t0) if initial is None else np.asarray(initial, dtype=float).reshape(-1)
-        if r0.shape != (schedule.ny,) or not np.all(np.isfinite(r0)):
+        if r0.shape != (schedule.ny,) or not np.isfinite(r0).all():
             raise ValueError(f"initial: expected {schedule.ny} finite values")
         self.r = r0.copy()
 
@@ -199,6 +199,6 @@ class ReferenceTrajectory:
 
     def restore(self, state: dict[str, Any]) -> None:
         r = np.asarray(state["r"], dtype=float).reshape(-1)
-        if r.shape != (self.ny,) or not np.all(np.isfinite(r)):
+        if r.shape != (self.ny,) or not np.isfinite(r).all():
             raise ValueError(f"state: expected {self.ny} finite reference values")
         self.t, self.r = float(state["t"]), r.copy()

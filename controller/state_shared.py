@@ -88,7 +88,7 @@ def _vector(value: ArrayLike, n: int | None, field: str) -> np.ndarray:
         raise ValueError(f"{field}: not a numeric vector ({exc})") from exc
     if n is not None and arr.size != n:
         raise ValueError(f"{field}: expected length {n}, got {arr.size}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         bad = [int(i) for i in np.flatnonzero(~np.isfinite(arr))]
         raise ValueError(f"{field}: non-finite value at index {bad}")
     return arr
@@ -270,7 +270,7 @@ def _theta_matrix(theta, n: int, m: int, field: str, p: int | None = None) -> np
     if th.shape != (n * (m + p), p):
         raise ValueError(f"{field}: expected shape {(n * (m + p), p)} (n(m+p) x p, = 2nm x m "
                          f"when square), got {th.shape}")
-    if not np.all(np.isfinite(th)):
+    if not np.isfinite(th).all():
         raise ValueError(f"{field}: non-finite entries")
     return th
 
@@ -321,7 +321,7 @@ class ModelSpec:
             raise ValueError(f"theta: not a numeric matrix ({exc})") from exc
         if th.ndim != 2 or th.shape[1] < 1 or th.shape[0] <= th.shape[1]:
             raise ValueError(f"theta: expected shape (2nm, m), got {th.shape}")
-        if not np.all(np.isfinite(th)):
+        if not np.isfinite(th).all():
             raise ValueError("theta: non-finite entries")
         m = th.shape[1]
         b = np.zeros(m) if self.bias is None else _vector(self.bias, m, "bias")
@@ -481,6 +481,15 @@ class StateSharedModel:
 
     def theta(self, j: int) -> np.ndarray:
         return self.model(j).theta
+
+    def theta2_all(self) -> np.ndarray:
+        """theta2 (= a - d, eq. 3.16) of every model, shape (k, n): the first output
+        block's (all blocks hold the same vector for structured models). A read-only
+        view of the stacked parameters, current after :meth:`set_theta`."""
+        nm = self.n_deg * self.m
+        view = self._T[:: self.p, nm : nm + self.n_deg]
+        view.flags.writeable = False
+        return view
 
     def bias(self, j: int) -> np.ndarray:
         return self.model(j).bias

@@ -71,7 +71,7 @@ class IndexSettings:
             raise ValueError(f"min_dwell: must be a finite number > 0, got {self.min_dwell!r}")
         if self.output_weights is not None:
             w = np.asarray(self.output_weights, dtype=float)
-            if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w)) or np.any(w < 0):
+            if w.ndim != 1 or w.size == 0 or not np.isfinite(w).all() or np.any(w < 0):
                 raise ValueError("output_weights: must be a non-empty vector of finite values >= 0")
 
 
@@ -129,7 +129,7 @@ class PerformanceIndex:
         Non-finite errors are not allowed here (the caller skips such samples).
         """
         e2 = self.squared_errors(errors)
-        if not np.all(np.isfinite(e2)):
+        if not np.isfinite(e2).all():
             raise ValueError("errors: non-finite model error (skip the sample instead)")
         self.integral = self.decay * self.integral + self.dt * e2
         self.J = self.settings.mu * e2 + self.settings.nu * self.integral

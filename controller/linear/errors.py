@@ -42,8 +42,8 @@ def average_relative_error(y_ref: ArrayLike, y_est: ArrayLike, nominal: ArrayLik
         raise ValueError(f"nominal: expected length {yr.shape[1]}, got {nom.size}")
     if yr.shape[0] == 0:
         raise ValueError("y_ref: no samples")
-    if np.any(nom == 0) or not np.all(np.isfinite(nom)):
+    if np.any(nom == 0) or not np.isfinite(nom).all():
         raise ValueError("nominal: entries must be finite and nonzero (ARe divides by them)")
-    if not (np.all(np.isfinite(yr)) and np.all(np.isfinite(ye))):
+    if not (np.isfinite(yr).all() and np.isfinite(ye).all()):
         raise ValueError("y_ref, y_est: non-finite samples")
     return 100.0 * np.mean(np.abs(yr - ye), axis=0) / np.abs(nom)

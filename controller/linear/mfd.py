@@ -46,7 +46,7 @@ class LeftMFD:
         d = np.array(self.d, dtype=float).reshape(-1)
         N = np.array(self.N, dtype=float)
         D0 = np.array(self.D0, dtype=float)
-        if d.size < 1 or not np.all(np.isfinite(d)):
+        if d.size < 1 or not np.isfinite(d).all():
             raise ValueError("d: must be a non-empty finite coefficient vector")
         if d[-1] != 1.0:
             raise ValueError(f"d: must be monic (d[-1] == 1, lowest power first), got {d[-1]}")
@@ -55,7 +55,7 @@ class LeftMFD:
             raise ValueError(f"N: expected shape (p, m, {n}), got {N.shape}")
         if D0.shape != N.shape[:2]:
             raise ValueError(f"D0: expected shape {N.shape[:2]}, got {D0.shape}")
-        if not (np.all(np.isfinite(N)) and np.all(np.isfinite(D0))):
+        if not (np.isfinite(N).all() and np.isfinite(D0).all()):
             raise ValueError("N, D0: non-finite entries")
         for name, arr in (("d", d), ("N", N), ("D0", D0)):
             arr.setflags(write=False)

@@ -24,7 +24,7 @@ def _matrix(value: ArrayLike, field: str) -> np.ndarray:
         arr = arr.reshape(1, -1) if field in ("C",) else arr.reshape(-1, 1)
     if arr.ndim != 2:
         raise ValueError(f"{field}: expected a 2-D matrix, got {arr.ndim} dimensions")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise ValueError(f"{field}: non-finite entries")
     return arr
 

@@ -192,7 +192,7 @@ class MPCController:
         self.settings = settings
         self.source = source
         u0 = np.asarray(u0, dtype=float).reshape(-1)
-        if u0.size != settings.nu or not np.all(np.isfinite(u0)):
+        if u0.size != settings.nu or not np.isfinite(u0).all():
             raise ValueError(f"u0: expected {settings.nu} finite values, got {u0.tolist()}")
         self.u = u0.copy()
         self.filter = FirstOrderFilter(settings.filter_alpha)
@@ -226,7 +226,7 @@ class MPCController:
             arr = np.asarray(u_target, dtype=float).reshape(-1)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"u_target: not a numeric vector ({exc})") from exc
-        if arr.size != self.settings.nu or not np.all(np.isfinite(arr)):
+        if arr.size != self.settings.nu or not np.isfinite(arr).all():
             raise ValueError(f"u_target: expected {self.settings.nu} finite values, got "
                              f"{arr.tolist()}")
         self.u_target = arr.copy()
@@ -239,7 +239,7 @@ class MPCController:
         this sample). Forwarded to the state source when it accepts it.
         """
         d = np.asarray(d, dtype=float).reshape(-1)
-        if not np.all(np.isfinite(d)):
+        if not np.isfinite(d).all():
             return
         self.d_prev = d.copy() if self.d is None else self.d
         self.d = d.copy()
@@ -273,7 +273,7 @@ class MPCController:
         if R.shape[0] < s.P:
             R = np.vstack([R, np.repeat(R[-1:], s.P - R.shape[0], axis=0)])
         R = R[:s.P]
-        if not np.all(np.isfinite(R)):
+        if not np.isfinite(R).all():
             return None
         return R
 
@@ -314,7 +314,7 @@ class MPCController:
         try:
             s = self.settings
             y = np.asarray(y, dtype=float).reshape(-1)
-            if y.size != s.ny or not np.all(np.isfinite(y)):
+            if y.size != s.ny or not np.isfinite(y).all():
                 self.counters["invalid_measurement"] += 1
                 if self.filter.state is not None:
                     # Keep the model state in step with time, on the last good value.

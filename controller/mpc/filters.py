@@ -33,7 +33,7 @@ class FirstOrderFilter:
     def update(self, y) -> np.ndarray:
         """Filter one sample ``y`` (shape (ny,)) and return ``y_f(k)``."""
         y = np.asarray(y, dtype=float)
-        if not np.all(np.isfinite(y)):
+        if not np.isfinite(y).all():
             if self.state is None:
                 return y.copy()
             return self.state.copy()

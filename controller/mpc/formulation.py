@@ -288,7 +288,7 @@ def build_formulation(Phi, Gamma, C, settings: MPCSettings,
     if C.shape[0] != s.ny:
         raise ValueError(f"C: expected {s.ny} output rows, got {C.shape[0]}")
     for name, m in (("Phi", Phi), ("Gamma", Gamma), ("C", C)):
-        if not np.all(np.isfinite(m)):
+        if not np.isfinite(m).all():
             raise ValueError(f"{name}: non-finite entries")
     S_x, S_u, T_x, T_u = prediction_matrices(Phi_a, Psi_a, C_a, s.P, s.M,
                                              terminal=terminal_weight is not None)
@@ -346,7 +346,7 @@ def build_formulation(Phi, Gamma, C, settings: MPCSettings,
     S_d = None
     if Gamma_d is not None:
         Gamma_d = np.asarray(Gamma_d, dtype=float).reshape(Phi.shape[0], -1)
-        if not np.all(np.isfinite(Gamma_d)):
+        if not np.isfinite(Gamma_d).all():
             raise ValueError("Gamma_d: non-finite entries")
         Psi_d = np.vstack([Gamma_d, C @ Gamma_d])
         S_d = np.zeros((s.P * s.ny, Gamma_d.shape[1]))

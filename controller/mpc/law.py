@@ -131,7 +131,7 @@ class SharedStateSource:
         for key, snap in (state.get("snapshots") or {}).items():
             j = int(key)
             th = unpack_array(snap["theta"])
-            if th.ndim != 2 or not np.all(np.isfinite(th)):
+            if th.ndim != 2 or not np.isfinite(th).all():
                 raise ValueError(f"state.snapshots.{key}.theta: expected a finite matrix")
             self._restored[j] = th  # Θ, shape (2nm, p); the form is built on first use
             self._made[j] = int(snap["made"])

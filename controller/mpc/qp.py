@@ -100,8 +100,8 @@ class QPSolver(ABC):
         """Solve with the vectors ``v``; ``warm`` overrides :attr:`warm_start` once."""
         warm = self.warm_start if warm is None else warm
         t0 = time.perf_counter()
-        if not (np.all(np.isfinite(v.f)) and not np.any(np.isnan(v.lb)) and not np.any(
-                np.isnan(v.ub)) and not np.any(np.isnan(v.bl)) and not np.any(np.isnan(v.bu))):
+        if not (np.isfinite(v.f).all() and not np.isnan(v.lb).any() and not np.any(
+                np.isnan(v.ub)) and not np.isnan(v.bl).any() and not np.isnan(v.bu).any()):
             return QPResult("nan", None, 0, (time.perf_counter() - t0) * 1e3, float("nan"),
                             self.name, "non-finite QP data")
         try:
@@ -110,7 +110,7 @@ class QPSolver(ABC):
             return QPResult("error", None, 0, (time.perf_counter() - t0) * 1e3, float("nan"),
                             self.name, f"{type(exc).__name__}: {exc}")
         ms = (time.perf_counter() - t0) * 1e3
-        if x is not None and not np.all(np.isfinite(x)):
+        if x is not None and not np.isfinite(x).all():
             status, x = "nan", None
         if status != "solved":
             x = None if status == "nan" else x

@@ -36,9 +36,9 @@ def _vector(name: str, value, n: int, *, allow_inf: bool, default: float | None 
         arr = np.full(n, float(arr[0]))
     if arr.size != n:
         raise MPCSettingsError(f"{name}: expected {n} values, got {arr.size}")
-    if np.any(np.isnan(arr)):
+    if np.isnan(arr).any():
         raise MPCSettingsError(f"{name}: NaN at index {np.flatnonzero(np.isnan(arr)).tolist()}")
-    if not allow_inf and not np.all(np.isfinite(arr)):
+    if not allow_inf and not np.isfinite(arr).all():
         raise MPCSettingsError(f"{name}: must be finite")
     arr = arr.copy()
     arr.setflags(write=False)

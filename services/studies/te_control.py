@@ -469,7 +469,7 @@ class TEMPCOptions:
         if len(self.du_max) != 5 or min(self.du_max) <= 0:
             raise ValueError("du_max: need 5 positive values")
         tw = np.asarray(self.target_weight, dtype=float)
-        if tw.size not in (1, 5) or not np.all(np.isfinite(tw)) or np.any(tw < 0):
+        if tw.size not in (1, 5) or not np.isfinite(tw).all() or np.any(tw < 0):
             raise ValueError(f"target_weight: one or 5 finite values >= 0, got "
                              f"{self.target_weight!r}")
         for name in ("output_weight", "move_weight", "index_dwell_h", "nls_gain"):
