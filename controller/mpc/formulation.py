@@ -56,7 +56,9 @@ def augment(Phi, Gamma, C):
     C_a : ndarray, shape (ny, n+ny)
     """
     Phi = np.atleast_2d(np.asarray(Phi, dtype=float))
-    Gamma = np.asarray(Gamma, dtype=float).reshape(Phi.shape[0], -1)
+    Gamma = np.asarray(Gamma, dtype=float)
+    if Gamma.ndim != 2 or Gamma.shape[0] != Phi.shape[0]:
+        Gamma = Gamma.reshape(Phi.shape[0], -1)
     C = np.atleast_2d(np.asarray(C, dtype=float))
     n, ny = Phi.shape[0], C.shape[0]
     if Phi.shape != (n, n):
@@ -281,7 +283,9 @@ def build_formulation(Phi, Gamma, C, settings: MPCSettings,
     s = settings
     Phi_a, Psi_a, C_a = augment(Phi, Gamma, C)
     Phi = np.atleast_2d(np.asarray(Phi, dtype=float))
-    Gamma = np.asarray(Gamma, dtype=float).reshape(Phi.shape[0], -1)
+    Gamma = np.asarray(Gamma, dtype=float)
+    if Gamma.ndim != 2 or Gamma.shape[0] != Phi.shape[0]:
+        Gamma = Gamma.reshape(Phi.shape[0], -1)
     C = np.atleast_2d(np.asarray(C, dtype=float))
     if Gamma.shape[1] != s.nu:
         raise ValueError(f"Gamma: expected {s.nu} input columns, got {Gamma.shape[1]}")
@@ -401,5 +405,8 @@ class FormulationCache:
 
 
 def _same(a: np.ndarray, b) -> bool:
+    # the form is stored as given (read-only), so the usual look-up is an identity
+    if a is b:
+        return True
     b = np.asarray(b)
-    return a is b or (a.size == b.size and np.array_equal(a, b.reshape(a.shape)))
+    return a.size == b.size and np.array_equal(a, b.reshape(a.shape))
