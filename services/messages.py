@@ -133,17 +133,23 @@ def _vector(obj: dict, name: str, length: int | None) -> tuple[float, ...]:
     v = obj[name]
     if not isinstance(v, list):
         raise MessageError(f"{name}: expected a list of numbers, got {type(v).__name__}")
-    out = [_number(x, f"{name}[{i}]") for i, x in enumerate(v)]
+    out = None
+    if all(type(x) is float for x in v):  # the usual message: one pass per check
+        out = tuple(v)
+        if not all(map(math.isfinite, out)):
+            out = None  # the slow path names the element
+    if out is None:
+        out = tuple(_number(x, f"{name}[{i}]") for i, x in enumerate(v))
     if length is not None and len(out) != length:
         raise MessageError(f"{name}: expected length {length}, got {len(out)}")
-    return tuple(out)
+    return out
 
 
 def _finite_tuple(values, name: str) -> tuple[float, ...]:
-    out = tuple(float(x) for x in values)
-    for i, x in enumerate(out):
-        if not math.isfinite(x):
-            raise MessageError(f"{name}[{i}]: non-finite value")
+    out = tuple(map(float, values))
+    if not all(map(math.isfinite, out)):
+        i = next(i for i, x in enumerate(out) if not math.isfinite(x))
+        raise MessageError(f"{name}[{i}]: non-finite value")
     return out
 
 
