@@ -325,13 +325,12 @@ class NormalizedLeastSquares:
         W = np.atleast_2d(np.asarray(W, dtype=float))
         y = np.asarray(y, dtype=float).reshape(-1)
         m = y.size
-        if W.shape != (m, self.p.size):
-            self.n_skipped += 1
-            return NLSStep(np.full(m, np.nan), False, reason="invalid_data")
-        with np.errstate(invalid="ignore", over="ignore"):  # bad data is a skip, not a warning
-            e = y - W @ self.p
+        e = None
+        if W.shape == (m, self.p.size):
+            with np.errstate(invalid="ignore", over="ignore"):  # bad data: a skip, no warning
+                e = y - W @ self.p
         # p is finite, so a NaN/inf anywhere in W or y makes e non-finite (inf * 0 is NaN)
-        if not np.isfinite(e).all():
+        if e is None or not np.isfinite(e).all():
             self.n_skipped += 1
             return NLSStep(np.full(m, np.nan), False, reason="invalid_data")
         if self._check_finite:  # a covariance set from outside (the steps check their own)

@@ -133,12 +133,9 @@ def _vector(obj: dict, name: str, length: int | None) -> tuple[float, ...]:
     v = obj[name]
     if not isinstance(v, list):
         raise MessageError(f"{name}: expected a list of numbers, got {type(v).__name__}")
-    out = None
-    if all(type(x) is float for x in v):  # the usual message: one pass per check
-        out = tuple(v)
-        if not all(map(math.isfinite, out)):
-            out = None  # the slow path names the element
-    if out is None:
+    if all(type(x) is float for x in v) and all(map(math.isfinite, v)):
+        out = tuple(v)  # the usual message: one pass per check
+    else:  # element by element, to name the bad one
         out = tuple(_number(x, f"{name}[{i}]") for i, x in enumerate(v))
     if length is not None and len(out) != length:
         raise MessageError(f"{name}: expected length {length}, got {len(out)}")

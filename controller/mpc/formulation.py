@@ -40,6 +40,15 @@ __all__ = [
 ]
 
 
+def _input_matrix(Gamma, n: int) -> np.ndarray:
+    """``Gamma`` as an (n, nu) float matrix; the given array itself when it already is
+    one (the formulation cache recognizes an unchanged model by identity)."""
+    Gamma = np.asarray(Gamma, dtype=float)
+    if Gamma.ndim != 2 or Gamma.shape[0] != n:
+        Gamma = Gamma.reshape(n, -1)
+    return Gamma
+
+
 def augment(Phi, Gamma, C):
     """Augmented Δu model of eq. 6.3.
 
@@ -56,9 +65,7 @@ def augment(Phi, Gamma, C):
     C_a : ndarray, shape (ny, n+ny)
     """
     Phi = np.atleast_2d(np.asarray(Phi, dtype=float))
-    Gamma = np.asarray(Gamma, dtype=float)
-    if Gamma.ndim != 2 or Gamma.shape[0] != Phi.shape[0]:
-        Gamma = Gamma.reshape(Phi.shape[0], -1)
+    Gamma = _input_matrix(Gamma, Phi.shape[0])
     C = np.atleast_2d(np.asarray(C, dtype=float))
     n, ny = Phi.shape[0], C.shape[0]
     if Phi.shape != (n, n):
@@ -283,9 +290,7 @@ def build_formulation(Phi, Gamma, C, settings: MPCSettings,
     s = settings
     Phi_a, Psi_a, C_a = augment(Phi, Gamma, C)
     Phi = np.atleast_2d(np.asarray(Phi, dtype=float))
-    Gamma = np.asarray(Gamma, dtype=float)
-    if Gamma.ndim != 2 or Gamma.shape[0] != Phi.shape[0]:
-        Gamma = Gamma.reshape(Phi.shape[0], -1)
+    Gamma = _input_matrix(Gamma, Phi.shape[0])
     C = np.atleast_2d(np.asarray(C, dtype=float))
     if Gamma.shape[1] != s.nu:
         raise ValueError(f"Gamma: expected {s.nu} input columns, got {Gamma.shape[1]}")

@@ -100,8 +100,9 @@ class QPSolver(ABC):
         """Solve with the vectors ``v``; ``warm`` overrides :attr:`warm_start` once."""
         warm = self.warm_start if warm is None else warm
         t0 = time.perf_counter()
-        if not (np.isfinite(v.f).all() and not np.isnan(v.lb).any() and not np.any(
-                np.isnan(v.ub)) and not np.isnan(v.bl).any() and not np.isnan(v.bu).any()):
+        if not (np.isfinite(v.f).all() and not np.isnan(v.lb).any()
+                and not np.isnan(v.ub).any() and not np.isnan(v.bl).any()
+                and not np.isnan(v.bu).any()):
             return QPResult("nan", None, 0, (time.perf_counter() - t0) * 1e3, float("nan"),
                             self.name, "non-finite QP data")
         try:

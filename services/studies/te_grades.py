@@ -275,39 +275,33 @@ class _PathTable:
 
     Row 0 is the start (from ``-inf``, target = start value); row i > 0 the i-th switch
     with the value the path has there (``start``) and its target. A time is evaluated
-    in the segment of the last switch at or before it with the same operations as
-    :func:`first_order_path`, so the values are bit for bit the same.
+    in the segment of the last switch at or before it by :func:`_relax`, as
+    :func:`first_order_path` does, so the values are bit for bit the same.
     """
 
     times: np.ndarray  # (L,), ascending, times[0] = -inf
     start: np.ndarray  # (L, n)
     target: np.ndarray  # (L, n)
-    tau: float
+    tau: np.ndarray  # 0-d
 
     @classmethod
     def build(cls, times, values, tau: float) -> _PathTable:
+        tau = np.asarray(float(tau))
         r = np.asarray(values[0], dtype=float)
         start, target = [r], [r]
         for i, ts in enumerate(times):
             if i > 0:  # the path at this switch: the previous segment relaxed to its end
-                r = _relax(r[None, :], target[-1], np.asarray(tau, dtype=float),
-                           np.array([[ts - times[i - 1]]]))[0]
+                r = _relax(r[None, :], target[-1], tau, np.array([[ts - times[i - 1]]]))[0]
             start.append(r)
             target.append(np.asarray(values[i + 1], dtype=float))
-        return cls(np.array([-math.inf, *times]), np.array(start), np.array(target),
-                   float(tau))
+        return cls(np.array([-math.inf, *times]), np.array(start), np.array(target), tau)
 
     def __call__(self, t) -> np.ndarray:
         tt = np.asarray(t, dtype=float)
         scalar = tt.ndim == 0
         tt = tt.reshape(-1)
         i = np.searchsorted(self.times, tt, side="right") - 1
-        target = self.target[i]
-        if self.tau > 0:
-            a = np.exp(-(tt - self.times[i])[:, None] / self.tau)
-            r = target + (self.start[i] - target) * a
-        else:
-            r = target
+        r = _relax(self.start[i], self.target[i], self.tau, (tt - self.times[i])[:, None])
         return r[0] if scalar else r
 
 
