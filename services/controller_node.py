@@ -23,7 +23,10 @@ machine); one sample at a time, and a measurement that arrives while one is
 being processed replaces any older waiting one (only the newest is acted on, the
 others are counted as dropped) and is processed right after it.
 
-Status goes to ``ssmpc/<unit>/status`` every ``status_every`` samples;
+Status goes to ``ssmpc/<unit>/status`` every ``status_every`` samples, but no
+more often than every :attr:`ControllerNode.STATUS_MIN_WALL_S` of wall time (at
+10,000x a status every 10 samples would be ~280 messages a second, each ~1 ms of
+the loop thread; queries answer with a fresh status at any time);
 telemetry to Rerun in batches; a checkpoint (controller state, last move,
 transition state) to SQLite every ``checkpoint_every`` samples or 5 wall
 seconds — on the first such sample with time for the snapshot before the next
@@ -198,6 +201,7 @@ class ControllerNode:
         self._checkpoint_due = False
         self._busy_until = 0.0
         self._last_flush = time.perf_counter()
+        self._last_status_wall = -math.inf
         self._checkpoint_cost_s = 0.0
         self._last_checkpoint_wall = time.perf_counter()
         self._restore()
@@ -256,6 +260,8 @@ class ControllerNode:
 
     #: Longest wall time telemetry stays buffered, s.
     TELEMETRY_MAX_WALL_S = 1.0
+    #: Shortest wall time between two published status messages, s.
+    STATUS_MIN_WALL_S = 0.2
     #: A checkpoint is also due after this wall time (slow speeds: samples are far apart), s.
     CHECKPOINT_WALL_S = 5.0
     #: Longest wall time between checkpoints however little slack the loop has, s.
@@ -633,9 +639,11 @@ class ControllerNode:
             self._checkpoint_due = True
         if self._checkpoint_due:
             self._maybe_checkpoint(arrived, forced=bool(changes))
-        if msg.seq % self.cfg.status_every == 0:
-            # on this thread, after the move: ~0.1 ms of Python that, run by the worker,
-            # would contend with the next step for the interpreter lock
+        if (msg.seq % self.cfg.status_every == 0
+                and time.perf_counter() - self._last_status_wall >= self.STATUS_MIN_WALL_S):
+            # on this thread, after the move: Python that, run by the worker, would
+            # contend with the next step for the interpreter lock
+            self._last_status_wall = time.perf_counter()
             try:
                 self._publish_status()
             except Exception:

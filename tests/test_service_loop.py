@@ -408,3 +408,30 @@ def test_gc_pauses_are_recorded_per_generation():
         assert rec.as_dict()["gen2"]["count"] == 0
     finally:
         gc.callbacks.remove(rec._callback)
+
+
+def test_status_is_published_at_most_every_min_wall_interval(harness):
+    """Status every ``status_every`` samples, but not faster than STATUS_MIN_WALL_S of
+    wall time: a fast loop must not spend its thread on status messages."""
+    from services.messages import decode_object
+
+    got = []
+    h = harness(status_every=1)
+    sub = h.s_client.declare_subscriber(
+        keys.status(h.cfg.unit),
+        lambda s: got.append((time.monotonic(), decode_object(s.payload.to_bytes(), "status"))))
+    try:
+        h.wait_samples(5)
+        k0, t0 = h.ctrl.k, time.monotonic()
+        time.sleep(1.5)
+        k1, t1 = h.ctrl.k, time.monotonic()
+    finally:
+        sub.undeclare()
+    window = [(t, m) for t, m in got if t0 <= t <= t1]
+    samples_per_status = (k1 - k0) / max(len(window), 1)
+    assert k1 - k0 > 3 * len(window)  # many more samples than status messages
+    floor = ControllerNode.STATUS_MIN_WALL_S
+    assert len(window) <= (t1 - t0) / floor + 2, samples_per_status
+    assert len(window) >= 3  # still published while the loop runs
+    seqs = [m["sample"] for _, m in window]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)  # fresh each time
