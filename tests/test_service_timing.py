@@ -154,3 +154,28 @@ def test_loop_publishers_are_express_real_time_and_drop():
         sub.undeclare()
     finally:
         s.close()
+
+
+def test_node_tuning_runs_blas_on_the_calling_thread_only():
+    """A node's BLAS must not use worker threads: OpenBLAS's spin-wait between calls
+    takes a vCPU from the plant and Zenoh (seen: 100 % of one of two vCPUs at 10,000x)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import json, numpy, scipy.linalg\n"
+        "from threadpoolctl import threadpool_info\n"
+        "before = [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas']\n"
+        "from services.commands.nodes import _realtime_tuning\n"
+        "_realtime_tuning()\n"
+        "after = [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas']\n"
+        "print(json.dumps([before, after]))\n")
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True, env=env).stdout
+    before, after = json.loads(out.strip().splitlines()[-1])
+    assert after and all(n == 1 for n in after)
+    if (os.cpu_count() or 1) > 1:
+        assert max(before) > 1  # the default this protects against

@@ -97,15 +97,21 @@ def _realtime_tuning(rt_priority: int | None = None) -> None:
     The objects made at start-up (modules, models, JIT code) are moved out of the
     collector's way (``gc.freeze``) and young-generation collections become rarer;
     the GIL is handed between the Zenoh callback threads and the loop more often
-    than the default 5 ms. With ``rt_priority`` every thread of the process
+    than the default 5 ms. BLAS runs on the calling thread only: the loop's matrices
+    are small (TE: 213 parameters at most), and OpenBLAS's worker threads spin-wait
+    between calls, which at 10,000x kept one of two vCPUs busy, away from the plant
+    and Zenoh. With ``rt_priority`` every thread of the process
     (including Zenoh's) runs under ``SCHED_FIFO`` (Linux, needs CAP_SYS_NICE), as a
     control loop on a shared machine should.
     """
     import gc
     import os
 
+    from threadpoolctl import threadpool_limits
+
     from services.timing import GC_PAUSES
 
+    threadpool_limits(limits=1, user_api="blas")
     GC_PAUSES.install()
     gc.collect()
     gc.freeze()
