@@ -26,3 +26,25 @@ def machine_description() -> str:
         pass
     return (f"{cpu}, {os.cpu_count()} cores{mem}, {platform.system()} {platform.release()}, "
             f"Python {platform.python_version()}")
+
+
+def cpu_idle_settings(root: str = "/sys") -> dict:
+    """How the CPUs idle, as far as the kernel tells: it changes loop latencies.
+
+    Returns ``{"governor", "driver", "guest_halt_poll_ns"}``; a value the kernel does not
+    expose is None. In a KVM guest with the ``haltpoll`` governor, ``guest_halt_poll_ns``
+    is how long an idle vCPU polls before it halts (0: it halts at once and every wake-up
+    goes through the host; see ``docs/realtime.md``).
+    """
+
+    def read(path: str) -> str | None:
+        try:
+            with open(os.path.join(root, path)) as fh:
+                return fh.read().strip() or None
+        except OSError:
+            return None
+
+    poll = read("module/haltpoll/parameters/guest_halt_poll_ns")
+    return {"governor": read("devices/system/cpu/cpuidle/current_governor"),
+            "driver": read("devices/system/cpu/cpuidle/current_driver"),
+            "guest_halt_poll_ns": int(poll) if poll is not None and poll.isdigit() else None}

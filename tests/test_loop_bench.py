@@ -31,6 +31,9 @@ def test_bench_loop_jitter_and_speed_rungs(capsys):
     assert set(rung["held_causes"]) == {"published_late", "answered_late", "no_answer"}
     assert sum(rung["held_causes"].values()) == len(rung["held_samples"]) <= rung["held"]
     assert rung["slowest_sample"]["controller_ms"] > 0
+    # how the CPUs idle is part of the result (it moves loop latencies by ~30 % in a VM)
+    for c in (before, speed, after):
+        assert set(c["cpu_idle"]) == {"governor", "driver", "guest_halt_poll_ns"}
 
 
 def test_held_cause_names_the_part_that_was_late():
@@ -55,3 +58,19 @@ def test_scheduling_jitter_probe_sleeps_to_boundaries():
     us = scheduling_jitter(0.05, period_s=0.005)
     assert 5 <= len(us) <= 11  # 10 boundaries in 50 ms (fewer if the probe overslept)
     assert min(us) >= 0
+
+
+def test_cpu_idle_settings_read_from_sysfs(tmp_path):
+    from services.machine import cpu_idle_settings
+
+    assert cpu_idle_settings(str(tmp_path)) == {
+        "governor": None, "driver": None, "guest_halt_poll_ns": None}
+    idle = tmp_path / "devices/system/cpu/cpuidle"
+    idle.mkdir(parents=True)
+    (idle / "current_governor").write_text("haltpoll\n")
+    (idle / "current_driver").write_text("haltpoll\n")
+    poll = tmp_path / "module/haltpoll/parameters"
+    poll.mkdir(parents=True)
+    (poll / "guest_halt_poll_ns").write_text("200000\n")
+    assert cpu_idle_settings(str(tmp_path)) == {
+        "governor": "haltpoll", "driver": "haltpoll", "guest_halt_poll_ns": 200000}

@@ -39,6 +39,7 @@ import tempfile
 import time
 
 from services.benchmarking import latency_case
+from services.machine import cpu_idle_settings
 from services.plant_node import HELD_CAUSES, held_cause
 from services.timing import MISS_CAUSES, miss_cause
 
@@ -198,18 +199,16 @@ def speed_case(args, state_dir: str) -> dict:
         else:
             break
     common = {"case": "speed", "unit": "x real time", "plant_unit": args.unit, "rungs": rungs,
-              "rt_priority": args.rt_priority, "controller": cfg.controller,
+              "rt_priority": args.rt_priority, "cpu_idle": cpu_idle_settings(),
+              "controller": cfg.controller,
               "strategy": cfg.strategy if cfg.plant == "te" else None}
     if best is None:  # a result, not an error: every rung missed
         return {**common, "median": 0.0, "p99": 0.0, "max": 0.0, "n": 0,
                 "note": f"no speed of {ladder} ran without deadline misses and held moves"}
     wall_period = cfg.sample_period_s / best["speed"]
-    return {"case": "speed", "unit": "x real time", "median": best["speed"],
-            "p99": best["speed"], "max": best["speed"], "n": best["samples"],
-            "plant_unit": args.unit, "wall_period_ms": wall_period * 1e3,
-            "te_equivalent_speed": TE_SAMPLE_PERIOD_S / wall_period, "rungs": rungs,
-            "rt_priority": args.rt_priority, "controller": cfg.controller,
-            "strategy": cfg.strategy if cfg.plant == "te" else None}
+    return {**common, "median": best["speed"], "p99": best["speed"], "max": best["speed"],
+            "n": best["samples"], "wall_period_ms": wall_period * 1e3,
+            "te_equivalent_speed": TE_SAMPLE_PERIOD_S / wall_period}
 
 
 def latency_case_run(args, state_dir: str) -> dict:
@@ -305,7 +304,7 @@ def jitter_case(args, when: str) -> dict:
     a = np.asarray(us)
     return latency_case("jitter", us, "us", when=when, period_us=1000.0,
                         over_1ms=int(np.sum(a > 1000)), over_2ms=int(np.sum(a > 2000)),
-                        rt_priority=args.rt_priority)
+                        rt_priority=args.rt_priority, cpu_idle=cpu_idle_settings())
 
 
 def run(args) -> list[dict]:
