@@ -288,8 +288,8 @@ class MPCController:
             how = "shift"
         elif self.plan is not None:
             self.plan_index = s.M  # plan used up: hold from now on
-        du = np.clip(du, -s.du_max, s.du_max)
-        u = np.clip(self.u + du, s.u_min, s.u_max)
+        du = np.minimum(np.maximum(du, -s.du_max), s.du_max)  # np.clip, without its overhead
+        u = np.minimum(np.maximum(self.u + du, s.u_min), s.u_max)
         return u, how
 
     def _decision(self, u, view, *, fallback, status, solve_ms, alarms=(), extra=None):
@@ -356,7 +356,8 @@ class MPCController:
                 z = res.x
                 plan = z[:form.n_moves].reshape(s.M, s.nu)
                 self.plan, self.plan_index = plan.copy(), 0
-                u = np.clip(self.u + np.clip(plan[0], -s.du_max, s.du_max), s.u_min, s.u_max)
+                du = np.minimum(np.maximum(plan[0], -s.du_max), s.du_max)  # as np.clip
+                u = np.minimum(np.maximum(self.u + du, s.u_min), s.u_max)
                 if form.has_slack:
                     extra["slack"] = float(z[-1])
                 extra["predicted"] = form.predict(x_a, z[:form.n_moves], dd)

@@ -335,7 +335,7 @@ class TEController:
         s = self._ratio_step(t, ym, xmeas)
         u = np.full(12, np.nan)
         d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
-        u[1] = np.clip(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0, 100.0)
+        u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0)
         u[4], u[8], u[11] = xv[4], xv[8], xv[11]
         ff = self._core_ff(xv, ym)
         info: dict[str, Any] = {}
