@@ -29,7 +29,7 @@ class Harness:
     """A controller node and a plant node of one unit, each on its own session."""
 
     def __init__(self, tmp_path, unit="cstr", speed=100.0, lockstep=True, telemetry=True,
-                 start_plant=True, controller_factory=None, **cfg_over):
+                 start_plant=True, controller_factory=None, busy_poll=False, **cfg_over):
         from dataclasses import replace
 
         self.cfg = replace(get_unit(unit), **cfg_over)
@@ -39,6 +39,7 @@ class Harness:
         self.lockstep = lockstep
         self.telemetry = telemetry
         self.controller_factory = controller_factory
+        self.busy_poll = busy_poll
         self.s_ctrl = open_session(SessionSettings(listen=(self.ep,), lease_ms=LEASE_MS))
         self.s_plant = open_session(SessionSettings(connect=(self.ep,), lease_ms=LEASE_MS))
         self.s_client = open_session(SessionSettings(connect=(self.ep,), lease_ms=LEASE_MS))
@@ -68,7 +69,7 @@ class Harness:
         self.stop_ctrl = threading.Event()
         ctl = None if self.controller_factory is None else self.controller_factory(self.cfg)
         self.ctrl = ControllerNode(self.cfg, self.s_ctrl, self.store, tel, speed=self.speed,
-                                   controller=ctl)
+                                   controller=ctl, busy_poll=self.busy_poll)
         th = threading.Thread(target=self.ctrl.run, args=(self.stop_ctrl,), daemon=True)
         th.start()
         self.ctrl_thread = th
@@ -435,3 +436,52 @@ def test_status_is_published_at_most_every_min_wall_interval(harness):
     assert len(window) >= 3  # still published while the loop runs
     seqs = [m["sample"] for _, m in window]
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)  # fresh each time
+
+
+def test_busy_poll_processes_samples_on_the_run_thread(harness):
+    """--busy-poll: the run() thread polls for measurements and processes them itself
+    (Zenoh's threads only queue them); the loop runs a transition as the default does, and
+    close() ends the polling."""
+    h = harness(busy_poll=True)
+    threads = set()
+    step = h.ctrl.controller.step
+
+    def spy(*a, **kw):
+        threads.add(threading.current_thread().ident)
+        return step(*a, **kw)
+
+    h.ctrl.controller.step = spy
+    h.wait_samples(5)
+    assert threads == {h.ctrl_thread.ident}
+    rep = h.query("transition", {"op": "create", "grade": "OPII"})
+    assert h.wait_transition(rep.data["id"])["state"] == "settled"
+    assert abs(h.query("status").data["cv"]["y"] - CSTR_OPII_Y) <= SETTLE_TOL
+    h.stop_ctrl.set()
+    h.ctrl_thread.join(5)
+    assert not h.ctrl_thread.is_alive()  # the poll loop ends when asked
+
+
+def test_busy_poll_acts_on_the_newest_of_queued_measurements(harness):
+    """Measurements that queued while the loop was busy: only the newest is processed,
+    the others are counted as dropped (the same rule as the default mode)."""
+    h = harness(busy_poll=True, start_plant=False)
+    h.stop_ctrl.set()  # no poll loop: measurements stay queued
+    h.ctrl_thread.join(5)
+    pub = h.s_client.declare_publisher(keys.meas(h.cfg.unit))
+    grades = h.ctrl.info.grades[h.cfg.initial_grade]
+    y0, u0 = grades["setpoints"], grades["mv"]
+    time.sleep(0.3)
+    for k in range(3):
+        pub.put(Measurement(h.cfg.unit, k, 10.0 * k, tuple(y0), tuple(u0)).to_bytes())
+    time.sleep(0.3)
+    stop = threading.Event()
+    th = threading.Thread(target=h.ctrl.run, args=(stop,), daemon=True)
+    th.start()
+    t_end = time.monotonic() + 5
+    while h.ctrl.k < 2 and time.monotonic() < t_end:
+        time.sleep(0.01)
+    stop.set()
+    th.join(5)
+    pub.undeclare()
+    assert h.ctrl.k == 2 and h.ctrl.stats.samples == 1
+    assert h.ctrl.status()["dropped_measurements"] == 2

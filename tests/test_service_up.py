@@ -89,12 +89,15 @@ def test_up_transition_and_clean_shutdown(tmp_path):
     assert os.path.getsize(tmp_path / "ssmpc-cstr.rrd") > 0
 
 
-def test_up_ctrl_c_stops_every_process(tmp_path):
-    """Ctrl-C in a terminal: SIGINT to the whole foreground process group."""
+@pytest.mark.parametrize("busy_poll", [False, True])
+def test_up_ctrl_c_stops_every_process(tmp_path, busy_poll):
+    """Ctrl-C in a terminal: SIGINT to the whole foreground process group (also with a
+    controller that polls without sleeping)."""
     port = free_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "services.cli", "up", "--unit", "cstr", "--speed", "5",
-         "--port", str(port), "--state-dir", str(tmp_path), "--duration", "120"],
+         "--port", str(port), "--state-dir", str(tmp_path), "--duration", "120"]
+        + (["--busy-poll"] if busy_poll else []),
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
         start_new_session=True)
     try:
@@ -106,6 +109,9 @@ def test_up_ctrl_c_stops_every_process(tmp_path):
                 break
         children = _children(proc.pid)
         assert len(children) == 3
+        cmdlines = [open(f"/proc/{c}/cmdline", "rb").read().split(b"\0") for c in children]
+        polling = [c for c in cmdlines if b"controller" in c and b"--busy-poll" in c]
+        assert len(polling) == (1 if busy_poll else 0)
         os.killpg(proc.pid, signal.SIGINT)
         assert proc.wait(timeout=30) == 0
         time.sleep(0.2)

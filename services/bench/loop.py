@@ -62,6 +62,8 @@ def add_arguments(parser) -> None:
                         help="JSON overrides of the unit config (e.g. {\"strategy\": \"pi\"})")
     parser.add_argument("--rt-priority", type=int, default=None,
                         help="run plant and controller under SCHED_FIFO with this priority")
+    parser.add_argument("--busy-poll", action="store_true",
+                        help="run the controller node with --busy-poll (one CPU polling)")
     parser.add_argument("--jitter-seconds", type=float, default=5.0,
                         help="wall seconds of each scheduling-jitter probe")
     parser.add_argument("--cases", default="jitter,speed,latency,rest",
@@ -72,7 +74,8 @@ class _Nodes:
     """Controller, plant and (optionally) api nodes as child processes."""
 
     def __init__(self, unit: str, speed: float, lockstep: bool, api: bool, state_dir: str,
-                 rt_priority: int | None = None, unit_config: str | None = None):
+                 rt_priority: int | None = None, unit_config: str | None = None,
+                 busy_poll: bool = False):
         from services.commands.up import _spawn, _wait_ready
         from services.zenoh_session import free_port
 
@@ -89,7 +92,7 @@ class _Nodes:
         deadline = time.monotonic() + 120
         try:
             c = _spawn(["controller", *common, "--listen", ep_c, "--state-dir", state_dir,
-                        "--no-telemetry"])
+                        "--no-telemetry"] + (["--busy-poll"] if busy_poll else []))
             self.procs.append(c)
             _wait_ready(c, "controller", deadline)
             p = _spawn(["plant", *common, "--listen", ep_p, "--connect", ep_c]
@@ -141,11 +144,12 @@ def _wait_running(session, unit: str, samples: int = 50, timeout_s: float = 300.
 
 
 def _rung(unit: str, speed: float, seconds: float, state_dir: str,
-          rt_priority: int | None = None, unit_config: str | None = None) -> dict:
+          rt_priority: int | None = None, unit_config: str | None = None,
+          busy_poll: bool = False) -> dict:
     from services import keys
 
     nodes = _Nodes(unit, speed, lockstep=False, api=False, state_dir=state_dir,
-                   rt_priority=rt_priority, unit_config=unit_config)
+                   rt_priority=rt_priority, unit_config=unit_config, busy_poll=busy_poll)
     s = _client_session(nodes)
     try:
         _wait_running(s, unit)
@@ -191,7 +195,7 @@ def speed_case(args, state_dir: str) -> dict:
     rungs = []
     for speed in ladder:
         r = _rung(args.unit, speed, args.rung_seconds, state_dir, args.rt_priority,
-                  args.unit_config)
+                  args.unit_config, busy_poll=args.busy_poll)
         rungs.append(r)
         ok = r["deadline_misses"] == 0 and r["held"] == 0 and r["samples"] > 0
         if ok:
@@ -199,7 +203,8 @@ def speed_case(args, state_dir: str) -> dict:
         else:
             break
     common = {"case": "speed", "unit": "x real time", "plant_unit": args.unit, "rungs": rungs,
-              "rt_priority": args.rt_priority, "cpu_idle": cpu_idle_settings(),
+              "rt_priority": args.rt_priority, "busy_poll": args.busy_poll,
+              "cpu_idle": cpu_idle_settings(),
               "controller": cfg.controller,
               "strategy": cfg.strategy if cfg.plant == "te" else None}
     if best is None:  # a result, not an error: every rung missed
@@ -218,7 +223,8 @@ def latency_case_run(args, state_dir: str) -> dict:
 
     cfg = load_unit_config(args.unit, args.unit_config)
     nodes = _Nodes(args.unit, 1.0, lockstep=True, api=False, state_dir=state_dir,
-                   rt_priority=args.rt_priority, unit_config=args.unit_config)
+                   rt_priority=args.rt_priority, unit_config=args.unit_config,
+                   busy_poll=args.busy_poll)
     s = _client_session(nodes)
     try:
         _wait_running(s, args.unit)
@@ -234,7 +240,8 @@ def latency_case_run(args, state_dir: str) -> dict:
             "max": lat["max_us"], "n": lat["n"], "plant_unit": args.unit, "mode": "lockstep",
             "samples_per_wall_s": rate, "lockstep_speed": rate * cfg.sample_period_s,
             "te_equivalent_speed": rate * TE_SAMPLE_PERIOD_S,
-            "sample_period_s": cfg.sample_period_s, "rt_priority": args.rt_priority}
+            "sample_period_s": cfg.sample_period_s, "rt_priority": args.rt_priority,
+            "busy_poll": args.busy_poll}
 
 
 def rest_case_run(args, state_dir: str) -> dict:

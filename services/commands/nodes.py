@@ -78,6 +78,9 @@ def register(sub) -> None:
                         "instead of a file")
     p.add_argument("--no-telemetry", action="store_true", help="do not record telemetry")
     p.add_argument("--sender", default=None, help="sender id written into MV messages")
+    p.add_argument("--busy-poll", action="store_true",
+                   help="poll for measurements without sleeping: the step starts from warm "
+                        "caches, at the cost of one CPU at 100%% (docs/realtime.md)")
     p.set_defaults(func=run_controller)
 
     p = sub.add_parser("api", help="run the REST api node (FastAPI on uvicorn)")
@@ -235,7 +238,7 @@ def run_controller(args) -> int:
     node = None
     try:
         node = ControllerNode(cfg, session, store, telemetry, speed=args.speed,
-                              sender=args.sender)
+                              sender=args.sender, busy_poll=args.busy_poll)
         _realtime_tuning(args.rt_priority)
         _ready("controller", cfg.unit, zid=session.zid(), store=store.path)
         node.run(stop)

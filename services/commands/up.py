@@ -42,6 +42,8 @@ def register(sub) -> None:
     p.add_argument("--lockstep", action="store_true",
                    help="plant waits for each MV instead of the wall clock")
     p.add_argument("--lease-ms", type=int, default=1000, help="Zenoh lease, ms (default 1000)")
+    p.add_argument("--busy-poll", action="store_true",
+                   help="controller polls for measurements (warm caches; one CPU at 100%%)")
     p.add_argument("--ready-timeout", type=float, default=120.0,
                    help="longest wait for the nodes to start, s")
     p.add_argument("--resume", action="store_true",
@@ -136,7 +138,8 @@ def run_up(args) -> int:
     procs: list[subprocess.Popen] = []
     try:
         deadline = time.monotonic() + args.ready_timeout
-        ctrl = _spawn(["controller", *common, "--listen", p_ctrl, "--state-dir", args.state_dir])
+        ctrl = _spawn(["controller", *common, "--listen", p_ctrl, "--state-dir", args.state_dir]
+                      + (["--busy-poll"] if args.busy_poll else []))
         procs.append(ctrl)
         print(_wait_ready(ctrl, "controller", deadline), flush=True)
         plant = _spawn(["plant", *common, "--listen", p_plant, "--connect", p_ctrl]
