@@ -240,6 +240,12 @@ def run_controller(args) -> int:
         node = ControllerNode(cfg, session, store, telemetry, speed=args.speed,
                               sender=args.sender, busy_poll=args.busy_poll)
         _realtime_tuning(args.rt_priority)
+        if args.busy_poll and args.rt_priority is not None:
+            # a SCHED_FIFO thread that never sleeps keeps its CPU from every thread of
+            # lower or equal priority (Zenoh's, the kernel's) but for the RT throttling
+            logging.getLogger("ssmpc.controller").warning(
+                "--busy-poll with --rt-priority: the polling thread holds one CPU under "
+                "SCHED_FIFO; give the node a CPU of its own (isolcpus, taskset)")
         _ready("controller", cfg.unit, zid=session.zid(), store=store.path)
         node.run(stop)
     finally:
