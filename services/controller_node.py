@@ -24,9 +24,9 @@ being processed replaces any older waiting one (only the newest is acted on, the
 others are counted as dropped) and is processed right after it.
 
 Status goes to ``ssmpc/<unit>/status`` every ``status_every`` samples, but no
-more often than every :attr:`ControllerNode.STATUS_MIN_WALL_S` of wall time (at
-10,000x a status every 10 samples would be ~280 messages a second, each ~1 ms of
-the loop thread; queries answer with a fresh status at any time);
+more often than every :attr:`ControllerNode.STATUS_MIN_WALL_S` of wall time (TE at
+10,000x: every 10 samples is ~28 messages a second at ~1.3 ms of the loop thread
+each; queries answer with a fresh status at any time);
 telemetry to Rerun in batches; a checkpoint (controller state, last move,
 transition state) to SQLite every ``checkpoint_every`` samples or 5 wall
 seconds — on the first such sample with time for the snapshot before the next
