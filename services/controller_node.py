@@ -596,8 +596,7 @@ class ControllerNode:
         decision = self.controller.step(msg.seq, msg.t, self.y, ref)
         t_stepped = time.perf_counter()
         fired = self._watchdog.disarm()
-        elapsed = time.perf_counter() - arrived
-        cpu_ms = (time.thread_time() - cpu_begin) * 1e3
+        t_disarmed = time.perf_counter()
         u = np.asarray(decision.u, float)
         if not fired:
             if u.shape != (self.nu,) or not np.all(np.isfinite(u)):
@@ -609,6 +608,9 @@ class ControllerNode:
             self._publish_mv(msg.seq, u, fb)
         else:
             u = hold
+        # the budget covers the move going out, not only its computation
+        elapsed = time.perf_counter() - arrived
+        cpu_ms = (time.thread_time() - cpu_begin) * 1e3
         with self._lock:
             self.stats.record(elapsed, fallback=fired or decision.fallback)
             self.stats.note_phases(elapsed, {
@@ -618,7 +620,8 @@ class ControllerNode:
                 "previous_busy_ms": (self._busy_until - arrived) * 1e3,
                 "prepare_ms": (t_step - t_begin) * 1e3,
                 "controller_ms": (t_stepped - t_step) * 1e3,
-                "watchdog_ms": (arrived + elapsed - t_stepped) * 1e3,
+                "watchdog_ms": (t_disarmed - t_stepped) * 1e3,
+                "publish_ms": (arrived + elapsed - t_disarmed) * 1e3,
                 # this thread's CPU time from the start of processing to the move, and
                 # the rest of that span: waiting for the interpreter lock or a CPU. The
                 # guest counts time the host takes its vCPU away as CPU time (no steal
