@@ -31,6 +31,10 @@ def test_bench_loop_jitter_and_speed_rungs(capsys):
     assert set(rung["held_causes"]) == {"published_late", "answered_late", "no_answer"}
     assert sum(rung["held_causes"].values()) == len(rung["held_samples"]) <= rung["held"]
     assert rung["slowest_sample"]["controller_ms"] > 0
+    probe, w = rung["probe_stalls"], rung["with_probe_stall"]
+    assert probe["wakeups"] >= 300 and probe["over_2ms"] <= probe["over_1ms"]
+    assert w["of_missed"] == len(rung["missed_samples"]) and 0 <= w["missed"] <= w["of_missed"]
+    assert w["of_held"] == len(rung["held_samples"]) and 0 <= w["held"] <= w["of_held"]
     # how the CPUs idle is part of the result (it moves loop latencies by ~30 % in a VM)
     assert speed["busy_poll"] is False  # how the controller waited is part of the result
     for c in (before, speed, after):
@@ -75,3 +79,34 @@ def test_cpu_idle_settings_read_from_sysfs(tmp_path):
     (poll / "guest_halt_poll_ns").write_text("200000\n")
     assert cpu_idle_settings(str(tmp_path)) == {
         "governor": "haltpoll", "driver": "haltpoll", "guest_halt_poll_ns": 200000}
+
+
+def test_samples_are_matched_to_overlapping_probe_stalls():
+    from services.bench.loop import _sample_windows, coincident
+
+    # stalls as (end, length), wall clock s
+    stalls = [(100.010, 0.003), (200.000, 0.0015)]
+    missed = [{"at_unix_s": 100.0085, "total_ms": 2.0},   # inside the first stall
+              {"at_unix_s": 150.0, "total_ms": 2.0},      # far from both
+              {"at_unix_s": 200.0012, "total_ms": 0.5}]   # starts 1.2 ms after the 2nd
+    held = [{"at_unix_s": 100.0160, "period_ms": 3.6},   # period 100.0124-100.016: +2.4 ms
+            {"at_unix_s": 199.9990, "period_ms": 3.6}]   # period holds the second stall
+    m, h = _sample_windows(missed, held)
+    assert coincident(m, stalls) == 1  # within the 1 ms margin: only the first
+    assert coincident(m, stalls, margin_s=2e-3) == 2
+    assert coincident(h, stalls) == 1
+    assert coincident(h, stalls, margin_s=3e-3) == 2
+    assert coincident(m, []) == 0
+
+
+def test_stall_probe_counts_its_wakeups_and_keeps_long_ones():
+    import time
+
+    from services.bench.loop import StallProbe
+
+    with StallProbe(period_s=2e-3, threshold_s=1e-3) as probe:
+        time.sleep(0.1)
+    s = probe.summary()
+    assert 20 <= s["wakeups"] <= 51
+    assert all(length > 1e-3 for _, length in probe.stalls)
+    assert s["over_1ms"] == len(probe.stalls) and s["over_2ms"] <= s["over_1ms"]

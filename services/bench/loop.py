@@ -30,7 +30,12 @@ rest
     → controller → back), µs, over a kept-alive HTTP connection, with the loop
     running in real time (speed 1).
 
-``--rt-priority N`` runs the plant and controller nodes under SCHED_FIFO.
+Each rung also runs a :class:`StallProbe` in this process and reports its stalls
+(``probe_stalls``) and how many of the kept missed and held samples overlap one
+(``with_probe_stall``).
+
+``--rt-priority N`` runs the plant and controller nodes under SCHED_FIFO;
+``--busy-poll`` runs the controller node with ``--busy-poll``.
 """
 
 from __future__ import annotations
@@ -154,11 +159,12 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
     try:
         _wait_running(s, unit)
         time.sleep(0.5)  # warm-up: caches, connections
-        _query(s, keys.cmd(unit, "reset_stats"), "reset_stats")
-        _query(s, keys.plant_cmd(unit, "reset_stats"), "reset_stats")
-        time.sleep(seconds)
-        cs = _query(s, keys.cmd(unit, "status"), "status")
-        ps = _query(s, keys.plant_cmd(unit, "status"), "status")
+        with StallProbe() as probe:
+            _query(s, keys.cmd(unit, "reset_stats"), "reset_stats")
+            _query(s, keys.plant_cmd(unit, "reset_stats"), "reset_stats")
+            time.sleep(seconds)
+            cs = _query(s, keys.cmd(unit, "status"), "status")
+            ps = _query(s, keys.plant_cmd(unit, "status"), "status")
     finally:
         s.close()
         nodes.close()
@@ -170,6 +176,7 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
     held_causes = {c: 0 for c in HELD_CAUSES}
     for h in held:
         held_causes[held_cause(h)] += 1
+    w_missed, w_held = _sample_windows(missed, held)
     return {"speed": speed, "samples": cs["samples"], "deadline_misses": cs["deadline_misses"],
             "held": ps["mv_held"], "plant_samples": ps["samples"],
             "sample_ms": cs.get("sample_ms"), "slowest_sample": cs.get("slowest_sample"),
@@ -179,7 +186,15 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
             "plant_advance_max_ms": ps.get("advance_max_ms"),
             "plant_publish_lag_us": ps.get("publish_lag"),
             "missed_samples": missed, "miss_causes": causes,
-            "held_samples": held, "held_causes": held_causes}
+            "held_samples": held, "held_causes": held_causes,
+            # a thread of a third process (this one) that only sleeps to 1 ms boundaries:
+            # its stalls during the rung, and how many of the kept missed and held
+            # samples overlap one (then the machine, not the loop, lost the time)
+            "probe_stalls": probe.summary(),
+            "with_probe_stall": {"missed": coincident(w_missed, probe.stalls),
+                                 "of_missed": len(w_missed),
+                                 "held": coincident(w_held, probe.stalls),
+                                 "of_held": len(w_held)}}
 
 
 def speed_case(args, state_dir: str) -> dict:
@@ -267,6 +282,74 @@ def rest_case_run(args, state_dir: str) -> dict:
         nodes.close()
     return latency_case("rest", times, "us", endpoint="GET status", plant_unit=args.unit,
                         loop="real time, speed 1")
+
+
+class StallProbe:
+    """A thread that sleeps to 1 ms boundaries beside a rung and keeps its stalls.
+
+    A stall is a wake-up later than ``threshold_s``; it is kept as ``(end, length)``
+    (wall clock, s). After a stall the probe re-anchors, so one long stall counts once.
+    It tells whether a rung's missed and held samples coincide with moments when a
+    plain sleeping thread in a third process could not run either
+    (:func:`coincident`).
+    """
+
+    def __init__(self, period_s: float = 1e-3, threshold_s: float = 1e-3) -> None:
+        import threading
+
+        self.period_s = float(period_s)
+        self.threshold_s = float(threshold_s)
+        self.stalls: list[tuple[float, float]] = []
+        self.wakeups = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ssmpc-stall-probe",
+                                        daemon=True)
+
+    def _run(self) -> None:
+        nxt = time.perf_counter()
+        while not self._stop.is_set():
+            nxt += self.period_s
+            delay = nxt - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+            late = time.perf_counter() - nxt
+            self.wakeups += 1
+            if late > self.threshold_s:
+                self.stalls.append((time.time(), late))
+                nxt = time.perf_counter()
+
+    def __enter__(self) -> StallProbe:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+    def summary(self) -> dict:
+        """Wake-ups, stalls over 1 and 2 ms, the longest one (ms)."""
+        lengths = [n for _, n in self.stalls]
+        return {"wakeups": self.wakeups, "over_1ms": sum(n > 1e-3 for n in lengths),
+                "over_2ms": sum(n > 2e-3 for n in lengths),
+                "max_ms": max(lengths) * 1e3 if lengths else 0.0}
+
+
+def coincident(windows, stalls, margin_s: float = 1e-3) -> int:
+    """How many of ``windows`` ((start, end) wall-clock s) overlap a stall
+    (``(end, length)`` of :class:`StallProbe`), each widened by ``margin_s``."""
+    spans = [(end - length, end) for end, length in stalls]
+    return sum(any(a - margin_s <= s_end and s_start <= b + margin_s
+                   for s_start, s_end in spans) for a, b in windows)
+
+
+def _sample_windows(missed: list[dict], held: list[dict]) -> tuple[list, list]:
+    """Wall-clock spans of the kept missed samples (start of processing to the move) and
+    held samples (the sample's period, ending when the plant noted the hold)."""
+    m = [(r["at_unix_s"], r["at_unix_s"] + r["total_ms"] * 1e-3) for r in missed
+         if "at_unix_s" in r]
+    h = [(r["at_unix_s"] - r["period_ms"] * 1e-3, r["at_unix_s"]) for r in held
+         if "at_unix_s" in r]
+    return m, h
 
 
 def scheduling_jitter(seconds: float, period_s: float = 1e-3, rt_priority: int | None = None
