@@ -10,7 +10,8 @@ from services.cli import main
 def test_bench_loop_jitter_and_speed_rungs(capsys):
     # a slow unit at a low speed: one rung, real nodes over Zenoh, jitter before and after
     assert main(["bench", "loop", "--json", "--unit", "cstr", "--cases", "jitter,speed",
-                 "--speeds", "2", "--rung-seconds", "1", "--jitter-seconds", "0.2"]) == 0
+                 "--speeds", "2", "--rung-seconds", "1", "--jitter-seconds", "0.2",
+                 "--stall-probe"]) == 0
     doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert doc["bench"] == "loop" and doc["machine"]
     cases = [c["case"] for c in doc["cases"]]

@@ -30,9 +30,10 @@ rest
     → controller → back), µs, over a kept-alive HTTP connection, with the loop
     running in real time (speed 1).
 
-Each rung also runs a :class:`StallProbe` in this process and reports its stalls
-(``probe_stalls``) and how many of the kept missed and held samples overlap one
-(``with_probe_stall``).
+With ``--stall-probe`` each rung also runs a :class:`StallProbe` in this process and
+reports its stalls (``probe_stalls``) and how many of the kept missed and held samples
+overlap one (``with_probe_stall``); off by default, as its ~1000 wake-ups a second
+disturb what they observe on a 2-CPU machine.
 
 ``--rt-priority N`` runs the plant and controller nodes under SCHED_FIFO;
 ``--busy-poll`` runs the controller node with ``--busy-poll``.
@@ -67,6 +68,9 @@ def add_arguments(parser) -> None:
                         help="JSON overrides of the unit config (e.g. {\"strategy\": \"pi\"})")
     parser.add_argument("--rt-priority", type=int, default=None,
                         help="run plant and controller under SCHED_FIFO with this priority")
+    parser.add_argument("--stall-probe", action="store_true",
+                        help="run a 1 ms sleeping probe thread beside every rung and match "
+                             "missed and held samples to its stalls (adds ~1000 wake-ups/s)")
     parser.add_argument("--busy-poll", action="store_true",
                         help="run the controller node with --busy-poll (one CPU polling)")
     parser.add_argument("--jitter-seconds", type=float, default=5.0,
@@ -150,7 +154,7 @@ def _wait_running(session, unit: str, samples: int = 50, timeout_s: float = 300.
 
 def _rung(unit: str, speed: float, seconds: float, state_dir: str,
           rt_priority: int | None = None, unit_config: str | None = None,
-          busy_poll: bool = False) -> dict:
+          busy_poll: bool = False, stall_probe: bool = False) -> dict:
     from services import keys
 
     nodes = _Nodes(unit, speed, lockstep=False, api=False, state_dir=state_dir,
@@ -159,7 +163,7 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
     try:
         _wait_running(s, unit)
         time.sleep(0.5)  # warm-up: caches, connections
-        with StallProbe() as probe:
+        with StallProbe(enabled=stall_probe) as probe:
             _query(s, keys.cmd(unit, "reset_stats"), "reset_stats")
             _query(s, keys.plant_cmd(unit, "reset_stats"), "reset_stats")
             time.sleep(seconds)
@@ -191,10 +195,9 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
             # its stalls during the rung, and how many of the kept missed and held
             # samples overlap one (then the machine, not the loop, lost the time)
             "probe_stalls": probe.summary(),
-            "with_probe_stall": {"missed": coincident(w_missed, probe.stalls),
-                                 "of_missed": len(w_missed),
-                                 "held": coincident(w_held, probe.stalls),
-                                 "of_held": len(w_held)}}
+            "with_probe_stall": None if not probe.enabled else {
+                "missed": coincident(w_missed, probe.stalls), "of_missed": len(w_missed),
+                "held": coincident(w_held, probe.stalls), "of_held": len(w_held)}}
 
 
 def speed_case(args, state_dir: str) -> dict:
@@ -210,7 +213,7 @@ def speed_case(args, state_dir: str) -> dict:
     rungs = []
     for speed in ladder:
         r = _rung(args.unit, speed, args.rung_seconds, state_dir, args.rt_priority,
-                  args.unit_config, busy_poll=args.busy_poll)
+                  args.unit_config, busy_poll=args.busy_poll, stall_probe=args.stall_probe)
         rungs.append(r)
         ok = r["deadline_misses"] == 0 and r["held"] == 0 and r["samples"] > 0
         if ok:
@@ -294,9 +297,11 @@ class StallProbe:
     (:func:`coincident`).
     """
 
-    def __init__(self, period_s: float = 1e-3, threshold_s: float = 1e-3) -> None:
+    def __init__(self, period_s: float = 1e-3, threshold_s: float = 1e-3,
+                 enabled: bool = True) -> None:
         import threading
 
+        self.enabled = bool(enabled)
         self.period_s = float(period_s)
         self.threshold_s = float(threshold_s)
         self.stalls: list[tuple[float, float]] = []
@@ -319,15 +324,19 @@ class StallProbe:
                 nxt = time.perf_counter()
 
     def __enter__(self) -> StallProbe:
-        self._thread.start()
+        if self.enabled:
+            self._thread.start()
         return self
 
     def __exit__(self, *exc) -> None:
-        self._stop.set()
-        self._thread.join(5)
+        if self.enabled:
+            self._stop.set()
+            self._thread.join(5)
 
-    def summary(self) -> dict:
-        """Wake-ups, stalls over 1 and 2 ms, the longest one (ms)."""
+    def summary(self) -> dict | None:
+        """Wake-ups, stalls over 1 and 2 ms, the longest one (ms); None when disabled."""
+        if not self.enabled:
+            return None
         lengths = [n for _, n in self.stalls]
         return {"wakeups": self.wakeups, "over_1ms": sum(n > 1e-3 for n in lengths),
                 "over_2ms": sum(n > 2e-3 for n in lengths),
