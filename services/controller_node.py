@@ -655,11 +655,12 @@ class ControllerNode:
             self._checkpoint_due = True
         if self._checkpoint_due:
             self._maybe_checkpoint(arrived, forced=bool(changes))
+        now = time.perf_counter()
         if (msg.seq % self.cfg.status_every == 0
-                and time.perf_counter() - self._last_status_wall >= self.STATUS_MIN_WALL_S):
+                and now - self._last_status_wall >= self.STATUS_MIN_WALL_S):
             # on this thread, after the move: Python that, run by the worker, would
             # contend with the next step for the interpreter lock
-            self._last_status_wall = time.perf_counter()
+            self._last_status_wall = now
             try:
                 self._publish_status()
             except Exception:
@@ -683,8 +684,9 @@ class ControllerNode:
         own between samples and the step starts from warmer caches (on a shared VM the TE
         step after a 2.6 ms sleep measured ~1.8x the one after a spin, see
         ``docs/realtime.md``).
-        It costs one CPU at 100 %; the interpreter lock is released at every poll, so
-        queries and the watchdog are not held up.
+        It costs one CPU at 100 %. ``try_recv`` does not release the interpreter lock,
+        so the other threads of the node (queries, liveliness, the watchdog) get it at
+        the switch interval, which a node sets to 0.5 ms: they may wait that long.
         """
         if not self.busy_poll:
             while not stop.wait(0.1):
