@@ -248,6 +248,7 @@ class NormalizedLeastSquares:
         self._c = 0.0
         self._V = np.zeros((p0.size, 0))
         self._pending: tuple | None = None  # a deferred covariance step (update(defer=True))
+        self._prepared: tuple | None = None  # P W' of the next update (prepare())
         self._check_finite = False
         self._set_identity(float(settings.kappa))
         self.n_updates = 0
@@ -258,6 +259,7 @@ class NormalizedLeastSquares:
 
     # -- covariance representation --------------------------------------------------------
     def _set_identity(self, value: float) -> None:
+        self._prepared = None
         if self._lowrank:
             self._Pd, self._c, self._V = None, value, np.zeros((self.p.size, 0))
         else:
@@ -272,12 +274,14 @@ class NormalizedLeastSquares:
         if self._Pd is None:
             self._Pd = self._c * np.eye(self.p.size) - self._V @ self._V.T
             self._V = np.zeros((self.p.size, 0))
+        self._prepared = None
         self._check_finite = True  # the caller may write into it
         return self._Pd
 
     @P.setter
     def P(self, value) -> None:
         self._pending = None
+        self._prepared = None
         self._Pd = np.array(value, dtype=float)
         self._check_finite = True  # checked (and reset if need be) at the next update
 
@@ -322,7 +326,73 @@ class NormalizedLeastSquares:
         commit is counted then and not reported in the returned step.
         """
         self.commit()
-        W = np.atleast_2d(np.asarray(W, dtype=float))
+        self._prepared = None
+        return self._step(np.atleast_2d(np.asarray(W, dtype=float)), y, None, freeze, defer)
+
+    def prepare(self, W_base, d=None) -> None:
+        """Compute the covariance products of the next update before its ``y`` is known.
+
+        The next update's measurement matrix is ``W = W_base + y d'`` (``d`` None:
+        ``W = W_base``), i.e. known now except for a part linear in the coming
+        output, as for the shared regressor with the first-order hold
+        (:meth:`controller.multimodel.OutputHoldCorrection.regressor_parts`). Then
+        ``P W' = P W_base' + (P d) y'``, and :meth:`update_prepared` needs only
+        products of size (N, m): the (N, N) covariance is not read between the
+        measurement and the move. A pending covariance step is committed first;
+        any later change of ``P`` discards the preparation.
+
+        Parameters
+        ----------
+        W_base : array_like, shape (m, N)
+        d : array_like, shape (N,), optional
+        """
+        self.commit()
+        W_base = np.atleast_2d(np.asarray(W_base, dtype=float))
+        if self._check_finite:  # a covariance set from outside: check it before using it
+            self._check_finite = False
+            if not np.isfinite(self._Pd if self._Pd is not None else self._V).all():
+                self.reset_covariance("nonfinite")
+        d = None if d is None else np.asarray(d, dtype=float).reshape(-1)
+        cols = W_base.T if d is None else np.column_stack((W_base.T, d))
+        if self._Pd is not None:
+            Pc = self._Pd @ cols
+        else:
+            Pc = self._c * cols - self._V @ (self._V.T @ cols)
+        m = W_base.shape[0]
+        self._prepared = (W_base, d, Pc[:, :m], None if d is None else Pc[:, m])
+
+    @property
+    def prepared(self) -> bool:
+        """True when :meth:`prepare`'s products are current for the next update."""
+        return self._prepared is not None
+
+    def update_prepared(self, y, *, freeze: bool = False, defer: bool = False) -> NLSStep:
+        """:meth:`update` with the measurement matrix given to :meth:`prepare`.
+
+        The same step as ``update(W_base + y d', y, ...)`` up to round-off (``P W'``
+        is summed in another order).
+
+        Raises
+        ------
+        RuntimeError
+            When nothing is prepared (or ``P`` changed since).
+        """
+        if self._prepared is None:
+            raise RuntimeError("update_prepared: call prepare() first (or P changed since)")
+        W_base, d, A0, v = self._prepared
+        self._prepared = None
+        y = np.asarray(y, dtype=float).reshape(-1)
+        if y.shape != (W_base.shape[0],):
+            self.n_skipped += 1
+            return NLSStep(np.full(y.size, np.nan), False, reason="invalid_data")
+        if d is None:
+            return self._step(W_base, y, A0, freeze, defer)
+        with np.errstate(invalid="ignore", over="ignore"):  # bad data: a skip, no warning
+            W, PWt = W_base + y[:, None] * d[None, :], A0 + v[:, None] * y[None, :]
+        return self._step(W, y, PWt, freeze, defer)
+
+    def _step(self, W, y, PWt, freeze: bool, defer: bool) -> NLSStep:
+        """The step of eq. 4.1 on ``W``; ``PWt`` = ``P W'`` when already computed."""
         y = np.asarray(y, dtype=float).reshape(-1)
         m = y.size
         e = None
@@ -337,17 +407,19 @@ class NormalizedLeastSquares:
             self._check_finite = False
             if not np.isfinite(self._Pd if self._Pd is not None else self._V).all():
                 self.reset_covariance("nonfinite")
+                PWt = None
         if freeze:
             self.n_skipped += 1
             return NLSStep(e, False, reason="frozen")
         if self.settings.dead_zone > 0 and np.abs(e).max() <= self.settings.dead_zone:
             self.n_dead_zone += 1
             return NLSStep(e, False, reason="dead_zone")
-        Wt = W.T
-        if self._Pd is not None:
-            PWt = self._Pd @ Wt  # (N, m)
-        else:
-            PWt = self._c * Wt - self._V @ (self._V.T @ Wt)
+        if PWt is None:
+            Wt = W.T
+            if self._Pd is not None:
+                PWt = self._Pd @ Wt  # (N, m)
+            else:
+                PWt = self._c * Wt - self._V @ (self._V.T @ Wt)
         S = np.eye(m) + self.settings.rate * (W @ PWt)
         S = 0.5 * (S + S.T)
         # S is SPD for a PSD P: S = L L', S^-1 = L^-T L^-1 (LAPACK directly: at m = 5
@@ -390,6 +462,7 @@ class NormalizedLeastSquares:
 
     def _covariance_step(self, K, PWt, L_inv, trace_dP) -> str | None:
         """``P -= g_d K (P W')'`` and the floor check; returns a reset reason or None."""
+        self._prepared = None
         if self._Pd is not None:
             dP = self.g_d * (K @ PWt.T)
             if not np.isfinite(dP).all():
@@ -470,6 +543,7 @@ class NormalizedLeastSquares:
         if p.shape != self.p.shape or not np.isfinite(p).all():
             raise ValueError(f"state: parameters must be {self.p.size} finite values")
         self._pending = None
+        self._prepared = None
         if state.get("P") is not None:
             P = unpack_array(state["P"])
             if P.shape != (p.size, p.size) or not np.isfinite(P).all():

@@ -247,6 +247,28 @@ class OutputHoldCorrection:
         W[:, start : start + self.n] += self.c
         return W
 
+    def regressor_parts(self) -> tuple[np.ndarray, np.ndarray]:
+        """The next sample's regressor before its output is known: ``(W_base, d)``.
+
+        After the shared state's advance with the last sample, the regressor that
+        :meth:`regressor` will give once ``y_k`` has come in (and :meth:`advance` has
+        run) is ``W_base + y_k d'``: c_k = c_(k-1) Fd' + (y_k - y_(k-1)) h is affine in
+        y_k, and ``d`` is h in the n2 columns (the same in every output row).
+
+        Returns
+        -------
+        W_base : ndarray, shape (p, N)
+        d : ndarray, shape (N,)
+        """
+        ssm = self.ssm
+        W = ssm.regressor()
+        start = self.n * ssm.m * ssm.p
+        cols = slice(start, start + self.n)
+        W[:, cols] += self.c @ self.Fbd_T - self.y_prev[:, None] * self.h[None, :]
+        d = np.zeros(W.shape[1])
+        d[cols] = self.h
+        return W, d
+
     def checkpoint(self) -> dict[str, Any]:
         return {"c": self.c.tolist(), "y_prev": self.y_prev.tolist()}
 
@@ -328,6 +350,7 @@ class MultiModelController:
         self.n_restarts = 0
         self.n_samples = 0
         self._deferred: tuple[np.ndarray, np.ndarray, int] | None = None
+        self._prepared = False  # the estimators hold products for the current shared state
 
     # -- helpers -------------------------------------------------------------------------
     @property
@@ -408,6 +431,7 @@ class MultiModelController:
                     if self.hold is not None:
                         self.hold.advance(y_sub)
                     self.ssm.update(self.u_last, y_sub)
+                    self._prepared = False
             return self._decision(self.u_last, "invalid_measurement", True, [alarm], t0)
         ref = np.atleast_2d(np.asarray(reference, dtype=float))
         if ref.shape[1] != ny or not np.isfinite(ref).all():
@@ -424,18 +448,21 @@ class MultiModelController:
                 self.law.reset(self.u_last, y)
             self.initialized = True
             self._aligned = False
+            self._prepared = False
         alarms: list[str] = []
+        if self.adaptive:
+            self._prepare_adaptation()  # a no-op when finish_sample did it
         if self.hold is None:
             errors = self.ssm.errors(y)
         else:
             errors = self.hold.errors(y)
             self.hold.advance(y)
-        # adaptation (eq. 4.1) on the shared regressor
+        # adaptation (eq. 4.1) on the shared regressor, prepared before y came in
         if self.adaptive:
-            W = self.ssm.regressor() if self.hold is None else self.hold.regressor()
+            self._prepared = False
             for j in self.adaptive:
                 est = self.estimators[j]
-                res = est.update(W, y, defer=True)
+                res = est.update_prepared(y, defer=True)
                 if res.updated or res.reset:
                     self.ssm.set_params(j, est.p)
         # index (eq. 4.6) and switching
@@ -491,9 +518,28 @@ class MultiModelController:
         self.ssm.update(u, y)
         for est in self.estimators.values():
             est.commit()
+        self._prepared = False
+        self._prepare_adaptation()
         finish = getattr(self.law, "finish_sample", None)
         if callable(finish):
             finish(self.ssm, active)
+
+    def _prepare_adaptation(self) -> None:
+        """The estimators' covariance products for the next sample's regressor
+        (:meth:`NormalizedLeastSquares.prepare`), so that the adaptation between the
+        measurement and the move reads no (N, N) covariance. The same arithmetic
+        whether it runs in :meth:`finish_sample` or at the start of the step."""
+        if not self.adaptive or not self.initialized:
+            return
+        if self._prepared and all(self.estimators[j].prepared for j in self.adaptive):
+            return
+        if self.hold is None:
+            W_base, d = self.ssm.regressor(), None
+        else:
+            W_base, d = self.hold.regressor_parts()
+        for j in self.adaptive:
+            self.estimators[j].prepare(W_base, d)
+        self._prepared = True
 
     def _best_fixed(self, J: np.ndarray) -> int | None:
         """Fixed model with the smallest finite J (None if there is none)."""
@@ -575,6 +621,7 @@ class MultiModelController:
 
     def restore(self, state: dict[str, Any]) -> None:
         self._deferred = None
+        self._prepared = False
         self.ssm.restore(state["ssm"])
         for j, e in self.estimators.items():
             e.restore(state["estimators"][str(j)])

@@ -83,3 +83,87 @@ def test_te_moves_do_not_depend_on_when_the_bookkeeping_runs():
     # 10 samples while it is active) are built there, not inside a step
     assert refreshes >= 10
     assert rebuilds_eager == 0
+
+
+PREPARED_RTOL = 1e-10  # P W' summed in another order: round-off only
+
+
+@pytest.mark.parametrize("n", [12, 213])  # dense covariance / implicit c I - V V'
+def test_prepared_update_equals_the_update_on_the_full_regressor(n):
+    """``prepare(W_base, d)`` then ``update_prepared(y)`` is ``update(W_base + y d', y)``."""
+    rng = np.random.default_rng(11)
+    a = NormalizedLeastSquares(NLSSettings(), np.zeros(n), 0.01)
+    b = NormalizedLeastSquares(NLSSettings(), np.zeros(n), 0.01)
+    theta = rng.standard_normal(n)
+    d = np.zeros(n)
+    d[3:7] = rng.standard_normal(4)  # the hold's columns
+    for k in range(120):
+        W_base = rng.standard_normal((5, n))
+        y = W_base @ theta + 0.01 * rng.standard_normal(5)
+        b.prepare(W_base, d if k % 2 else None)
+        W = W_base + np.outer(y, d) if k % 2 else W_base
+        ra = a.update(W, y, defer=True)
+        rb = b.update_prepared(y, defer=True)
+        np.testing.assert_allclose(rb.error, ra.error, rtol=PREPARED_RTOL, atol=1e-12)
+        np.testing.assert_allclose(b.p, a.p, rtol=PREPARED_RTOL, atol=1e-12)
+        assert (ra.updated, ra.reset, ra.reason) == (rb.updated, rb.reset, rb.reason)
+    assert a.n_resets >= 2 and a.reset_reasons == b.reset_reasons
+    np.testing.assert_allclose(b.P, a.P, rtol=1e-8, atol=1e-10)
+
+
+def test_a_covariance_change_discards_the_preparation():
+    rng = np.random.default_rng(2)
+    est = NormalizedLeastSquares(NLSSettings(), np.zeros(20), 0.01)
+    W = rng.standard_normal((3, 20))
+    with pytest.raises(RuntimeError, match="prepare"):
+        est.update_prepared(np.ones(3))
+    est.prepare(W)
+    assert est.prepared
+    est.reset_covariance()
+    assert not est.prepared
+    est.prepare(W)
+    est.P = 2.0 * np.eye(20)
+    assert not est.prepared
+    est.prepare(W)
+    est.update(W, np.ones(3))  # an update on another regressor uses it up
+    assert not est.prepared
+
+
+def test_prepared_update_skips_a_non_finite_output_and_keeps_p():
+    est = NormalizedLeastSquares(NLSSettings(), np.ones(8), 0.01)
+    d = np.zeros(8)
+    d[2] = 0.5
+    est.prepare(np.eye(2, 8), d)
+    step = est.update_prepared(np.array([np.inf, 1.0]))
+    assert not step.updated and step.reason == "invalid_data"
+    np.testing.assert_array_equal(est.p, np.ones(8))
+    assert est.n_skipped == 1
+
+
+def test_te_step_reads_no_covariance_when_the_bookkeeping_ran():
+    """After finish_sample the adaptive model's products are ready: the step between
+    the measurement and the move does not form P W' (the (213, 213) covariance)."""
+    from test_te_control_mpc import apply_decision
+
+    from plant_sim.tennessee_eastman import TESimulator
+    from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
+    from services.studies.te_control import make_te_controller
+    from services.studies.te_grades import TransitionPlan
+
+    ctl, spec = make_te_controller("ssmpc", TransitionPlan("mode0"))
+    sim = TESimulator()
+    reg = RegulatoryLayer(sim, loops=spec.loops)
+    core = ctl.core
+    (j,) = core.adaptive
+    est = core.estimators[j]
+    calls = []
+    original = est.prepare
+    est.prepare = lambda *a, **kw: (calls.append(1), original(*a, **kw))[1]
+    for k in range(20):
+        ctl.finish_sample()
+        assert est.prepared or k == 0
+        before = len(calls)
+        dec = ctl.step(k, sim.time, sim.xmeas, None)
+        assert len(calls) == before + (1 if k == 0 else 0)  # sample 0 initializes
+        apply_decision(spec, sim, reg, dec)
+    assert est.n_updates >= 19

@@ -221,3 +221,27 @@ def test_a_checkpoint_without_the_hold_restores_into_a_hold_controller():
     new.restore(state)
     np.testing.assert_array_equal(new.hold.c, 0.0)  # the slope starts afresh
     assert new.step(30, 1.5, [0.3], [[1.0]]).status == "solved"
+
+
+def test_regressor_parts_give_the_regressor_after_the_next_output():
+    """W_base + y d' (known before y) is the regressor once y is in and advanced."""
+    ssm = StateSharedModel((1.0, 2.0, 1.5), 2, 0.1, [ModelSpec("M1", _structured_theta())])
+    corr = OutputHoldCorrection(ssm)
+    rng = np.random.default_rng(4)
+    ssm.initialize([0.1, 0.2], [0.3, 0.4])
+    corr.reset([0.3, 0.4])
+    for _ in range(30):
+        W_base, d = corr.regressor_parts()
+        y = rng.standard_normal(2)
+        corr.advance(y)
+        np.testing.assert_allclose(W_base + np.outer(y, d), corr.regressor(), rtol=1e-12,
+                                   atol=1e-13)
+        ssm.update(rng.standard_normal(2), y)
+
+
+def _structured_theta():
+    """A Theta (2nm, m) = (12, 2) with the D = dI block structure (n = 3, m = 2)."""
+    th = np.zeros((12, 2))
+    th[:6] = np.arange(12).reshape(6, 2) * 0.1
+    th[6:9, 0] = th[9:12, 1] = (0.2, -0.1, 0.05)
+    return th
