@@ -39,9 +39,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.linalg.lapack import dpotrf as _potrf
-from scipy.linalg.lapack import dtrtri as _trtri
 
+from controller.nls_kernel import (
+    DEAD_ZONE,
+    DIVERGED,
+    FROZEN,
+    INVALID_DATA,
+    NONFINITE,
+    SINGULAR,
+    compile_nls_step,
+    nls_step,
+)
 from controller.packing import pack_array, unpack_array
 
 __all__ = ["AdaptiveKind", "NLSSettings", "NLSStep", "NormalizedLeastSquares"]
@@ -232,8 +240,8 @@ class NormalizedLeastSquares:
         p0 = np.asarray(p0, dtype=float).reshape(-1)
         if p0.size == 0 or not np.isfinite(p0).all():
             raise ValueError("p0: must be a non-empty finite vector")
-        self.lower = np.full(p0.size, -np.inf) if lower is None else np.asarray(lower, float)
-        self.upper = np.full(p0.size, np.inf) if upper is None else np.asarray(upper, float)
+        self.lower = np.full(p0.size, -np.inf) if lower is None else np.array(lower, float)
+        self.upper = np.full(p0.size, np.inf) if upper is None else np.array(upper, float)
         if self.lower.shape != p0.shape or self.upper.shape != p0.shape:
             raise ValueError(f"lower, upper: must have length {p0.size}")
         if np.isnan(self.lower).any() or np.isnan(self.upper).any() or np.any(
@@ -251,6 +259,7 @@ class NormalizedLeastSquares:
         self._prepared: tuple | None = None  # P W' of the next update (prepare())
         self._check_finite = False
         self._set_identity(float(settings.kappa))
+        compile_nls_step()  # not at the first sample
         self.n_updates = 0
         self.n_resets = 0
         self.n_skipped = 0
@@ -327,7 +336,7 @@ class NormalizedLeastSquares:
         """
         self.commit()
         self._prepared = None
-        return self._step(np.atleast_2d(np.asarray(W, dtype=float)), y, None, freeze, defer)
+        return self._step(np.atleast_2d(np.asarray(W, dtype=float)), y, freeze, defer)
 
     def prepare(self, W_base, d=None) -> None:
         """Compute the covariance products of the next update before its ``y`` is known.
@@ -352,14 +361,19 @@ class NormalizedLeastSquares:
             self._check_finite = False
             if not np.isfinite(self._Pd if self._Pd is not None else self._V).all():
                 self.reset_covariance("nonfinite")
-        d = None if d is None else np.asarray(d, dtype=float).reshape(-1)
-        cols = W_base.T if d is None else np.column_stack((W_base.T, d))
-        if self._Pd is not None:
-            Pc = self._Pd @ cols
-        else:
-            Pc = self._c * cols - self._V @ (self._V.T @ cols)
+        self._prepared = (W_base, *self._products(W_base, d))
+
+    def _products(self, W_base, d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(d, P W_base', P d)``, ``d`` = zeros when None (shapes (N,), (N, m), (N,))."""
+        d = np.zeros(self.p.size) if d is None else np.asarray(d, dtype=float).reshape(-1)
+        cols = np.column_stack((W_base.T, d))
+        with np.errstate(invalid="ignore", over="ignore"):  # bad data: a skip, no warning
+            if self._Pd is not None:
+                Pc = self._Pd @ cols
+            else:
+                Pc = self._c * cols - self._V @ (self._V.T @ cols)
         m = W_base.shape[0]
-        self._prepared = (W_base, d, Pc[:, :m], None if d is None else Pc[:, m])
+        return d, np.ascontiguousarray(Pc[:, :m]), np.ascontiguousarray(Pc[:, m])
 
     @property
     def prepared(self) -> bool:
@@ -381,69 +395,55 @@ class NormalizedLeastSquares:
             raise RuntimeError("update_prepared: call prepare() first (or P changed since)")
         W_base, d, A0, v = self._prepared
         self._prepared = None
-        y = np.asarray(y, dtype=float).reshape(-1)
-        if y.shape != (W_base.shape[0],):
-            self.n_skipped += 1
-            return NLSStep(np.full(y.size, np.nan), False, reason="invalid_data")
-        if d is None:
-            return self._step(W_base, y, A0, freeze, defer)
-        with np.errstate(invalid="ignore", over="ignore"):  # bad data: a skip, no warning
-            W, PWt = W_base + y[:, None] * d[None, :], A0 + v[:, None] * y[None, :]
-        return self._step(W, y, PWt, freeze, defer)
+        return self._step(W_base, y, freeze, defer, d, A0, v)
 
-    def _step(self, W, y, PWt, freeze: bool, defer: bool) -> NLSStep:
-        """The step of eq. 4.1 on ``W``; ``PWt`` = ``P W'`` when already computed."""
+    def _step(self, W, y, freeze: bool, defer: bool, d=None, A0=None, v=None) -> NLSStep:
+        """The step of eq. 4.1 on ``W + y d'``; ``A0``, ``v`` = ``P W'``, ``P d`` when
+        prepared (else computed here).
+
+        The arithmetic is :func:`controller.nls_kernel.nls_step` (one compiled call);
+        the covariance, the counters and the resets stay here.
+        """
         y = np.asarray(y, dtype=float).reshape(-1)
         m = y.size
-        e = None
-        if W.shape == (m, self.p.size):
-            with np.errstate(invalid="ignore", over="ignore"):  # bad data: a skip, no warning
-                e = y - W @ self.p
-        # p is finite, so a NaN/inf anywhere in W or y makes e non-finite (inf * 0 is NaN)
-        if e is None or not np.isfinite(e).all():
+        if W.shape != (m, self.p.size):
             self.n_skipped += 1
             return NLSStep(np.full(m, np.nan), False, reason="invalid_data")
         if self._check_finite:  # a covariance set from outside (the steps check their own)
-            self._check_finite = False
-            if not np.isfinite(self._Pd if self._Pd is not None else self._V).all():
-                self.reset_covariance("nonfinite")
-                PWt = None
-        if freeze:
+            with np.errstate(invalid="ignore", over="ignore"):
+                Wy = W if d is None else W + np.outer(y, d)  # the kernel's W
+                data_ok = bool(np.isfinite(y - Wy @ self.p).all())
+            if data_ok:  # invalid data skips first; the check waits for a valid sample
+                self._check_finite = False
+                if not np.isfinite(self._Pd if self._Pd is not None else self._V).all():
+                    self.reset_covariance("nonfinite")
+                    A0 = None
+        if A0 is None:
+            d, A0, v = self._products(W, d)
+        s = self.settings
+        code, e, p_new, projected, K, PWt, L_inv, trace_dP = nls_step(
+            W, d, A0, v, y, self.p, self.g_d, float(s.rate), self.lower, self.upper,
+            float(s.max_abs_param), float(s.dead_zone), bool(freeze))
+        if code == INVALID_DATA:
+            self.n_skipped += 1
+            return NLSStep(np.full(m, np.nan), False, reason="invalid_data")
+        if code == FROZEN:
             self.n_skipped += 1
             return NLSStep(e, False, reason="frozen")
-        if self.settings.dead_zone > 0 and np.abs(e).max() <= self.settings.dead_zone:
+        if code == DEAD_ZONE:
             self.n_dead_zone += 1
             return NLSStep(e, False, reason="dead_zone")
-        if PWt is None:
-            Wt = W.T
-            if self._Pd is not None:
-                PWt = self._Pd @ Wt  # (N, m)
-            else:
-                PWt = self._c * Wt - self._V @ (self._V.T @ Wt)
-        S = np.eye(m) + self.settings.rate * (W @ PWt)
-        S = 0.5 * (S + S.T)
-        # S is SPD for a PSD P: S = L L', S^-1 = L^-T L^-1 (LAPACK directly: at m = 5
-        # numpy.linalg's wrappers cost ~5x the factorization)
-        L, info = _potrf(S, lower=1)
-        if info == 0:
-            L_inv, info = _trtri(L, lower=1)
-        if info != 0:
+        if code == SINGULAR:
             self.reset_covariance("singular")
             return NLSStep(e, False, True, "singular")
-        S_inv = L_inv.T @ L_inv
-        K = PWt @ S_inv  # P W' S^-1, (N, m)
-        p_new = self.p + self.g_d * (K @ e)
-        if not np.abs(p_new).max() <= self.settings.max_abs_param:  # also NaN
+        if code == DIVERGED:
             self.reset_covariance("diverged")
             return NLSStep(e, False, True, "diverged")
-        clipped = np.minimum(np.maximum(p_new, self.lower), self.upper)
-        if (clipped != p_new).any():
+        if projected:
             self.n_projections += 1
-            p_new = clipped
-        trace_dP = self.g_d * float(np.vdot(K, PWt))  # trace(g_d K PWt')
         self.p = p_new
         self.n_updates += 1
-        if not math.isfinite(trace_dP):
+        if code == NONFINITE:
             self.reset_covariance("nonfinite")
             return NLSStep(e, True, True, "nonfinite")
         if defer:
