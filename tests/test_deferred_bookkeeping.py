@@ -167,3 +167,37 @@ def test_te_step_reads_no_covariance_when_the_bookkeeping_ran():
         assert len(calls) == before + (1 if k == 0 else 0)  # sample 0 initializes
         apply_decision(spec, sim, reg, dec)
     assert est.n_updates >= 19
+
+
+def test_te_plan_references_are_evaluated_after_the_move_on_the_sample_grid():
+    """finish_sample evaluates the next sample's plan references; a step at that time
+    (up to the round-off of another clock) uses them, one off the grid evaluates its
+    own, and the values are those of the plan at the grid time."""
+    from plant_sim.tennessee_eastman import TESimulator
+    from services.studies.te_control import SAMPLE_H, make_te_controller
+    from services.studies.te_grades import Leg, TransitionPlan
+
+    plan = TransitionPlan("mode0", (Leg(0.05, "mode2"),))
+    ctl, _ = make_te_controller("ssmpc", plan)
+    y = TESimulator().xmeas
+    seen = []
+    original = ctl._plan_refs
+    ctl._plan_refs = lambda t: (seen.append(t), original(t))[1]
+    used = []
+    original_ratio = ctl._ratio_step
+    ctl._ratio_step = lambda ff, ym, x: (used.append((ff, ym.copy())), original_ratio(ff, ym, x))[1]
+    t = 0.0
+    for k in range(12):
+        ctl.step(k, t, y, None)
+        ctl.finish_sample()
+        t = (k + 1) * SAMPLE_H * (1.0 + 3e-16 * (-1) ** k)  # another clock's round-off
+    # one evaluation per sample: the first at t = 0, then each ahead of its sample
+    assert len(seen) == 13
+    for k, (ff, ym) in enumerate(used):
+        t_grid = seen[k]
+        assert abs(t_grid - k * SAMPLE_H) < 1e-12
+        np.testing.assert_array_equal(ym, plan.xmeas_ref(t_grid))
+        assert ff == plan.d_fraction_ref(t_grid)
+    n = len(seen)
+    ctl.step(99, t + 5 * SAMPLE_H, y, None)  # off the grid (a gap): evaluated at its time
+    assert len(seen) == n + 1 and seen[-1] == t + 5 * SAMPLE_H

@@ -238,10 +238,38 @@ class TEController:
         self.e_p_prev: float | None = None
         self.production_loop = PRODUCTION_LOOP if production_loop else None
         self.e_a_prev: float | None = None
+        self._t_last: float | None = None
+        # the plan's references of the next sample, evaluated after the move
+        # (finish_sample): (t, plan, refs) or None
+        self._refs_ahead: tuple | None = None
 
     def retarget(self, plan: TransitionPlan) -> None:
         """Follow a new plan from now on (times are absolute, h)."""
         self.plan = plan
+
+    #: A sample within this of the previous one + ``sample_h`` is on the grid (h; 3.6 us)
+    GRID_TOL_H = 1e-9
+
+    def _grid_time(self, t: float) -> float:
+        """The time the plan is evaluated at for a sample at ``t``: the previous sample's
+        time + ``sample_h`` when ``t`` is that up to round-off (the clocks of the plant
+        and of the simulator sum their steps in other orders), else ``t``. So the
+        references evaluated ahead (:meth:`finish_sample`) are the very ones the step
+        would evaluate."""
+        if self._t_last is not None:
+            t_next = self._t_last + self.sample_h
+            if abs(t - t_next) <= self.GRID_TOL_H:
+                return t_next
+        return t
+
+    def _plan_refs(self, t: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """The plan at one sample: XMEAS references at ``t`` and over the horizon
+        ((horizon + 1, 41); one row for the PI strategy), valve references at ``t`` and
+        at the horizon's end ((2, 12)) and the D share of the D+E feed at ``t``."""
+        n_ahead = self.horizon if self.strategy != "pi" else 0
+        ym_all = self.plan.xmeas_ref(t + self.sample_h * np.arange(n_ahead + 1))
+        xv_all = self.plan.xmv_ref(np.array([t, t + n_ahead * self.sample_h]))
+        return ym_all, xv_all, self.plan.d_fraction_ref(t)
 
     # -- pieces ---------------------------------------------------------------------------
     def _production_step(self, ym: np.ndarray, xmeas: np.ndarray) -> float:
@@ -283,8 +311,7 @@ class TEController:
             self.override = min(max(self.override, 0.0), OVERRIDE_MAX)
         return self.override
 
-    def _ratio_step(self, t: float, ym: np.ndarray, xmeas: np.ndarray) -> float:
-        ff = self.plan.d_fraction_ref(t)
+    def _ratio_step(self, ff: float, ym: np.ndarray, xmeas: np.ndarray) -> float:
         if self.s is None:
             self.s, self.s_ff_prev = ff, ff
         s = self.s + (ff - self.s_ff_prev)
@@ -326,13 +353,17 @@ class TEController:
                 side, lim = ("above", hi) if v > hi else ("below", lo)
                 alarms.append(f"XMEAS{cv} = {v:.1f} {side} its alarm limit {lim:g} "
                               f"(interlock ahead)")
-        # every plan reference of the sample in one evaluation: now and the horizon
-        mpc = self.strategy != "pi"
-        n_ahead = self.horizon if mpc else 0
-        ym_all = self.plan.xmeas_ref(t + self.sample_h * np.arange(n_ahead + 1))
-        xv_all = self.plan.xmv_ref(np.array([t, t + n_ahead * self.sample_h]))
+        # every plan reference of the sample in one evaluation: now and the horizon, on
+        # the sample grid (see _grid_time); usually evaluated after the previous move
+        t_ref = self._grid_time(t)
+        ahead, self._refs_ahead = self._refs_ahead, None
+        if ahead is not None and ahead[0] == t_ref and ahead[1] is self.plan:
+            ym_all, xv_all, ff = ahead[2]
+        else:
+            ym_all, xv_all, ff = self._plan_refs(t_ref)
+        self._t_last = t
         xv, ym = xv_all[0], ym_all[0]
-        s = self._ratio_step(t, ym, xmeas)
+        s = self._ratio_step(ff, ym, xmeas)
         u = np.full(12, np.nan)
         d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
         u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0)
@@ -376,22 +407,31 @@ class TEController:
                                status=status, alarms=tuple(alarms), extra=extra)
 
     def finish_sample(self) -> None:
-        """The core's bookkeeping after the move (see
-        :meth:`controller.multimodel.MultiModelController.finish_sample`)."""
+        """The bookkeeping after the move: the core's (see
+        :meth:`controller.multimodel.MultiModelController.finish_sample`) and the plan's
+        references of the next sample (at the last sample's time + ``sample_h``; used
+        when the next step comes at exactly that time)."""
         finish = getattr(self.core, "finish_sample", None)
         if callable(finish):
             finish()
+        if self._t_last is not None and self._refs_ahead is None:
+            t_next = self._t_last + self.sample_h
+            self._refs_ahead = (t_next, self.plan, self._plan_refs(t_next))
 
     def checkpoint(self) -> dict[str, Any]:
         return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,
                 "override": self.override, "a_trim": self.a_trim, "e_a_prev": self.e_a_prev,
                 "p_trim": self.p_trim, "e_p_prev": self.e_p_prev,
-                "core": self.core.checkpoint(), "n_samples": self.n_samples}
+                "core": self.core.checkpoint(), "n_samples": self.n_samples,
+                "t_last": self._t_last}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
         self.core.restore(state["core"])
         self.n_samples = int(state.get("n_samples", 0))
+        t_last = state.get("t_last")
+        self._t_last = None if t_last is None else float(t_last)
+        self._refs_ahead = None
         self.override = float(state.get("override", 0.0))
         self.a_trim = float(state.get("a_trim", 0.0))
         self.e_a_prev = state.get("e_a_prev")
