@@ -366,8 +366,17 @@ class PredictionForm(tuple):
 
 @dataclass
 class _Slot:
-    spec: ModelSpec
+    """One model: its spec (None after :meth:`StateSharedModel.set_params`, built again
+    from the stacked parameters when read), name, kind and cached prediction form."""
+
+    spec: ModelSpec | None
+    name: str
+    kind: str
     prediction: PredictionForm | None = field(default=None)
+
+    @classmethod
+    def of(cls, spec: ModelSpec) -> _Slot:
+        return cls(spec, spec.name, spec.kind)
 
 
 class StateSharedModel:
@@ -470,14 +479,20 @@ class StateSharedModel:
 
     @property
     def names(self) -> list[str]:
-        return [s.spec.name for s in self._slots]
+        return [s.name for s in self._slots]
 
     @property
     def kinds(self) -> list[str]:
-        return [s.spec.kind for s in self._slots]
+        return [s.kind for s in self._slots]
 
     def model(self, j: int) -> ModelSpec:
-        return self._slots[self._index(j)].spec
+        j = self._index(j)
+        slot = self._slots[j]
+        if slot.spec is None:  # set by set_params: the stacked rows hold it
+            rows = slice(j * self.p, (j + 1) * self.p)
+            slot.spec = ModelSpec(slot.name, self._T[rows].T.copy(), self._B[j].copy(),
+                                  slot.kind)
+        return slot.spec
 
     def theta(self, j: int) -> np.ndarray:
         return self.model(j).theta
@@ -514,15 +529,15 @@ class StateSharedModel:
         self._check_spec(spec)
         if spec.name in self.names:
             raise ValueError(f"name: a model named {spec.name!r} already exists")
-        self._slots.append(_Slot(spec))
+        self._slots.append(_Slot.of(spec))
         self._restack()
         return self.k - 1
 
     def _restack(self) -> None:
         if self._slots:
             self._T = np.ascontiguousarray(
-                np.concatenate([s.spec.theta.T for s in self._slots], axis=0))
-            self._B = np.stack([s.spec.bias for s in self._slots])
+                np.concatenate([self.model(j).theta.T for j in range(self.k)], axis=0))
+            self._B = np.stack([self.model(j).bias for j in range(self.k)])
         else:
             self._T = np.zeros((0, self.order))
             self._B = np.zeros((0, self.p))
@@ -534,10 +549,10 @@ class StateSharedModel:
     def set_theta(self, j: int, theta: ArrayLike, bias: ArrayLike | None = None) -> None:
         """Replace model j's Theta (and bias; kept when None). The shared state is untouched."""
         j = self._index(j)
-        old = self._slots[j].spec
+        old = self.model(j)
         spec = ModelSpec(old.name, theta, old.bias if bias is None else bias, old.kind)
         self._check_spec(spec)
-        self._slots[j] = _Slot(spec)
+        self._slots[j] = _Slot.of(spec)
         q = self.m + self.p
         rows = slice(j * self.p, (j + 1) * self.p)
         self._T[rows] = spec.theta.T
@@ -546,9 +561,31 @@ class StateSharedModel:
         self._B[j] = spec.bias
 
     def set_params(self, j: int, p: ArrayLike) -> None:
-        """Set model j from a structured parameter vector (see :meth:`params_from_theta`)."""
-        theta, bias = self.theta_from_params(p)
-        self.set_theta(j, theta, bias)
+        """Set model j from a structured parameter vector (see :meth:`params_from_theta`).
+
+        The adaptive models' per-sample path: the parameters go straight into the
+        stacked matrices the estimates read (the same values :meth:`set_theta` would
+        write); the model's :class:`ModelSpec` is built again only when read.
+        """
+        j = self._index(j)
+        n, m, q = self.n_deg, self.m, self.p
+        nm = n * m
+        p = np.asarray(p, dtype=float).reshape(-1)
+        if p.shape != (self.n_params + q,) or not np.isfinite(p).all():
+            theta, bias = self.theta_from_params(p)  # raises naming the field
+            self.set_theta(j, theta, bias)
+            return
+        rows = self._T[j * q : (j + 1) * q]  # Theta_j^T, (q, n(m+q))
+        rows[:, :nm] = p[: nm * q].reshape(q, nm)
+        rows[:, nm:] = 0.0
+        t2 = p[nm * q : nm * q + n]
+        for i in range(q):
+            rows[i, nm + i * n : nm + (i + 1) * n] = t2
+        self._Taug.reshape(-1, m + q, n + 1)[j * q : (j + 1) * q, :, :n] = (
+            rows.reshape(q, m + q, n))
+        self._B[j] = p[nm * q + n :]
+        old = self._slots[j]
+        self._slots[j] = _Slot(None, old.name, old.kind)
 
     @staticmethod
     def model_from_linear(name: str, A, B, C, u_op: ArrayLike, y_op: ArrayLike, a: ArrayLike,
@@ -728,9 +765,9 @@ class StateSharedModel:
             "dt": self.dt,
             "n": self._N.reshape(-1).tolist(),
             "models": [
-                {"name": s.spec.name, "kind": s.spec.kind, "theta": pack_array(s.spec.theta),
-                 "bias": s.spec.bias.tolist()}
-                for s in self._slots
+                {"name": spec.name, "kind": spec.kind, "theta": pack_array(spec.theta),
+                 "bias": spec.bias.tolist()}
+                for spec in (self.model(j) for j in range(self.k))
             ],
         }
 
@@ -756,7 +793,7 @@ class StateSharedModel:
         for s in specs:
             self._check_spec(s)
         self._Z[:, : self.n_deg] = n.reshape(self.m + self.p, self.n_deg)
-        self._slots = [_Slot(s) for s in specs]
+        self._slots = [_Slot.of(s) for s in specs]
         self._restack()
 
     @classmethod

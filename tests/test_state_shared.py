@@ -271,6 +271,48 @@ def test_parameter_vector_round_trip_and_regressor():
     np.testing.assert_allclose(ssm.estimates()[0], W @ (p * 0.5), rtol=1e-12)
 
 
+@pytest.mark.parametrize("p_out", [None, 3])  # square, and p = 3 outputs for m = 2 inputs
+def test_set_params_writes_what_set_theta_writes(p_out):
+    """The per-sample path (stacked rows written directly, spec built when read) gives
+    bit for bit the estimates, Theta, bias, prediction form and checkpoint of set_theta."""
+    rng = np.random.default_rng(21)
+    a, m = hurwitz(3, rng), 2
+    q = m if p_out is None else p_out
+    order = 3 * (m + q)
+
+    def structured():
+        th = np.zeros((order, q))
+        th[: 3 * m] = rng.standard_normal((3 * m, q))
+        t2 = rng.standard_normal(3) * 0.1
+        for i in range(q):
+            th[3 * m + 3 * i : 3 * m + 3 * (i + 1), i] = t2
+        return th
+
+    specs = [ModelSpec("F", structured(), rng.standard_normal(q)),
+             ModelSpec("A", structured(), rng.standard_normal(q), "adaptive")]
+    fast = StateSharedModel(a, m, 0.1, specs, p=p_out)
+    slow = StateSharedModel(a, m, 0.1, specs, p=p_out)
+    for _ in range(5):
+        uy = (rng.standard_normal(m), rng.standard_normal(q))
+        fast.update(*uy)
+        slow.update(*uy)
+    for _ in range(3):
+        theta, bias = structured(), rng.standard_normal(q)
+        params = slow.params_from_theta(theta, bias)
+        fast.set_params(1, params)
+        slow.set_theta(1, theta, bias)
+        np.testing.assert_array_equal(fast.estimates(), slow.estimates())
+        np.testing.assert_array_equal(fast.theta2_all(), slow.theta2_all())
+    np.testing.assert_array_equal(fast.theta(1), slow.theta(1))
+    np.testing.assert_array_equal(fast.bias(1), slow.bias(1))
+    assert fast.model(1).kind == "adaptive" and fast.names == ["F", "A"]
+    for x, y in zip(fast.prediction_form(1), slow.prediction_form(1)):
+        np.testing.assert_array_equal(x, y)
+    assert fast.checkpoint() == slow.checkpoint()
+    with pytest.raises(ValueError, match="p"):
+        fast.set_params(1, np.full(params.size, np.nan))
+
+
 def test_mfd_round_trip_through_theta():
     rng = np.random.default_rng(13)
     a = hurwitz(3, rng)
