@@ -36,7 +36,10 @@ overlap one (``with_probe_stall``); off by default, as its ~1000 wake-ups a seco
 disturb what they observe on a 2-CPU machine.
 
 ``--rt-priority N`` runs the plant and controller nodes under SCHED_FIFO;
-``--busy-poll`` runs the controller node with ``--busy-poll``.
+``--busy-poll`` runs the controller node with ``--busy-poll``. The controller node
+runs without Rerun telemetry unless ``--telemetry`` is given (then it records to an
+``.rrd`` file in the run's temporary state directory, as ``ssmpc up`` does); every
+case reports which (``telemetry``).
 """
 
 from __future__ import annotations
@@ -73,6 +76,9 @@ def add_arguments(parser) -> None:
                              "missed and held samples to its stalls (adds ~1000 wake-ups/s)")
     parser.add_argument("--busy-poll", action="store_true",
                         help="run the controller node with --busy-poll (one CPU polling)")
+    parser.add_argument("--telemetry", action="store_true",
+                        help="record Rerun telemetry in the controller node (to an .rrd file), "
+                             "as ssmpc up does; default: off")
     parser.add_argument("--jitter-seconds", type=float, default=5.0,
                         help="wall seconds of each scheduling-jitter probe")
     parser.add_argument("--cases", default="jitter,speed,latency,rest",
@@ -84,7 +90,7 @@ class _Nodes:
 
     def __init__(self, unit: str, speed: float, lockstep: bool, api: bool, state_dir: str,
                  rt_priority: int | None = None, unit_config: str | None = None,
-                 busy_poll: bool = False):
+                 busy_poll: bool = False, telemetry: bool = False):
         from services.commands.up import _spawn, _wait_ready
         from services.zenoh_session import free_port
 
@@ -100,8 +106,9 @@ class _Nodes:
             common += ["--unit-config", unit_config]
         deadline = time.monotonic() + 120
         try:
-            c = _spawn(["controller", *common, "--listen", ep_c, "--state-dir", state_dir,
-                        "--no-telemetry"] + (["--busy-poll"] if busy_poll else []))
+            c = _spawn(["controller", *common, "--listen", ep_c, "--state-dir", state_dir]
+                       + ([] if telemetry else ["--no-telemetry"])
+                       + (["--busy-poll"] if busy_poll else []))
             self.procs.append(c)
             _wait_ready(c, "controller", deadline)
             p = _spawn(["plant", *common, "--listen", ep_p, "--connect", ep_c]
@@ -154,11 +161,12 @@ def _wait_running(session, unit: str, samples: int = 50, timeout_s: float = 300.
 
 def _rung(unit: str, speed: float, seconds: float, state_dir: str,
           rt_priority: int | None = None, unit_config: str | None = None,
-          busy_poll: bool = False, stall_probe: bool = False) -> dict:
+          busy_poll: bool = False, stall_probe: bool = False, telemetry: bool = False) -> dict:
     from services import keys
 
     nodes = _Nodes(unit, speed, lockstep=False, api=False, state_dir=state_dir,
-                   rt_priority=rt_priority, unit_config=unit_config, busy_poll=busy_poll)
+                   rt_priority=rt_priority, unit_config=unit_config, busy_poll=busy_poll,
+                   telemetry=telemetry)
     s = _client_session(nodes)
     try:
         _wait_running(s, unit)
@@ -189,6 +197,7 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
             "plant_gc_pauses": ps.get("gc_pauses"),
             "plant_advance_max_ms": ps.get("advance_max_ms"),
             "plant_publish_lag_us": ps.get("publish_lag"),
+            "telemetry_samples": cs.get("telemetry_samples"),
             "missed_samples": missed, "miss_causes": causes,
             "held_samples": held, "held_causes": held_causes,
             # a thread of a third process (this one) that only sleeps to 1 ms boundaries:
@@ -213,7 +222,8 @@ def speed_case(args, state_dir: str) -> dict:
     rungs = []
     for speed in ladder:
         r = _rung(args.unit, speed, args.rung_seconds, state_dir, args.rt_priority,
-                  args.unit_config, busy_poll=args.busy_poll, stall_probe=args.stall_probe)
+                  args.unit_config, busy_poll=args.busy_poll, stall_probe=args.stall_probe,
+                  telemetry=args.telemetry)
         rungs.append(r)
         ok = r["deadline_misses"] == 0 and r["held"] == 0 and r["samples"] > 0
         if ok:
@@ -222,7 +232,7 @@ def speed_case(args, state_dir: str) -> dict:
             break
     common = {"case": "speed", "unit": "x real time", "plant_unit": args.unit, "rungs": rungs,
               "rt_priority": args.rt_priority, "busy_poll": args.busy_poll,
-              "cpu_idle": cpu_idle_settings(),
+              "telemetry": args.telemetry, "cpu_idle": cpu_idle_settings(),
               "controller": cfg.controller,
               "strategy": cfg.strategy if cfg.plant == "te" else None}
     if best is None:  # a result, not an error: every rung missed
@@ -242,7 +252,7 @@ def latency_case_run(args, state_dir: str) -> dict:
     cfg = load_unit_config(args.unit, args.unit_config)
     nodes = _Nodes(args.unit, 1.0, lockstep=True, api=False, state_dir=state_dir,
                    rt_priority=args.rt_priority, unit_config=args.unit_config,
-                   busy_poll=args.busy_poll)
+                   busy_poll=args.busy_poll, telemetry=args.telemetry)
     s = _client_session(nodes)
     try:
         _wait_running(s, args.unit)
@@ -259,7 +269,7 @@ def latency_case_run(args, state_dir: str) -> dict:
             "samples_per_wall_s": rate, "lockstep_speed": rate * cfg.sample_period_s,
             "te_equivalent_speed": rate * TE_SAMPLE_PERIOD_S,
             "sample_period_s": cfg.sample_period_s, "rt_priority": args.rt_priority,
-            "busy_poll": args.busy_poll}
+            "busy_poll": args.busy_poll, "telemetry": args.telemetry}
 
 
 def rest_case_run(args, state_dir: str) -> dict:
