@@ -77,11 +77,8 @@ log = logging.getLogger("ssmpc.controller")
 
 
 class _Worker:
-    """One background thread for the slow chores of a sample that release the
-    interpreter lock (SQLite writes; Rerun at close), in submission order, so that they
-    never delay the next move. Python-heavy chores (status, telemetry batches) run on
-    the sample thread after the move instead: here they would hold the lock while the
-    next sample waits for it."""
+    """One background thread for the slow chores of a sample (SQLite, Rerun),
+    in submission order, so that they never delay the next move."""
 
     def __init__(self) -> None:
         self._q: queue.SimpleQueue = queue.SimpleQueue()
@@ -269,12 +266,8 @@ class ControllerNode:
         if wait:
             self._worker.wait()
 
-    #: Longest wall time telemetry stays buffered, s; a batch still being sent after
-    #: this long is finished at once.
+    #: Longest wall time telemetry stays buffered, s.
     TELEMETRY_MAX_WALL_S = 1.0
-    #: A telemetry batch is sent in slices after each move, until this fraction of the
-    #: wall period after the measurement arrived (see :meth:`_send_telemetry`).
-    TELEMETRY_UNTIL_FRACTION = 0.7
     #: Shortest wall time between two published status messages, s.
     STATUS_MIN_WALL_S = 0.2
     #: A checkpoint is also due after this wall time (slow speeds: samples are far apart), s.
@@ -656,8 +649,11 @@ class ControllerNode:
                                       decision.active_model, decision.model_names, decision.J,
                                       decision.solve_ms, self.stats.slack_ms(elapsed),
                                       auto_flush=False)
-        else:
-            full = False
+            now = time.perf_counter()
+            if full or now - self._last_flush > self.TELEMETRY_MAX_WALL_S:
+                # in batches, but never more than a second behind (a live viewer)
+                self._last_flush = now
+                self._worker.submit(self.telemetry.flush)
         if (changes or msg.seq % self.cfg.checkpoint_every == 0
                 or time.perf_counter() - self._last_checkpoint_wall > self.CHECKPOINT_WALL_S):
             self._checkpoint_due = True
@@ -673,36 +669,6 @@ class ControllerNode:
                 self._publish_status()
             except Exception:
                 log.exception("status not published")
-        if self.telemetry is not None:
-            self._send_telemetry(arrived, full)
-
-    def _send_telemetry(self, arrived: float, full: bool) -> None:
-        """Send telemetry in the slack after the move, on this thread.
-
-        A batch starts when ``telemetry_every`` samples are buffered or
-        :attr:`TELEMETRY_MAX_WALL_S` has passed, and is sent entity by entity until
-        :attr:`TELEMETRY_UNTIL_FRACTION` of the wall period after this sample's
-        measurement arrived; the rest goes after the next samples (TE at 10,000x:
-        ~60 entities, ~6 per sample). At low speeds a batch goes at once. Without
-        slack a due batch starts anyway after :attr:`TELEMETRY_MAX_WALL_S`, and one
-        still being sent that long after its start is finished at once: a live viewer
-        is never more than about two seconds behind.
-        """
-        tel = self.telemetry
-        now = time.perf_counter()
-        deadline = arrived + self.TELEMETRY_UNTIL_FRACTION * self.budget.wall_period_s
-        stale = now - self._last_flush > self.TELEMETRY_MAX_WALL_S  # since the last start
-        try:
-            if not tel.flushing:
-                if not (full or stale) or (now > deadline and not stale):
-                    return  # nothing due, or no slack in this sample: try after the next
-                self._last_flush = now
-                tel.start_flush()
-            elif stale:
-                deadline = math.inf  # in flight for too long: finish it now
-            tel.flush_until(deadline)
-        except Exception:  # a sink error never stops the loop
-            log.exception("telemetry not sent")
 
     def _publish_status(self) -> None:
         from services.messages import encode

@@ -15,19 +15,12 @@ buffered and sent every N samples with one ``rr.send_columns`` call per entity
 (one ``rr.log`` per scalar costs tens of µs). The sink is an ``.rrd`` file by
 default, or a viewer's gRPC address (``rerun+http://host:9876/proxy``).
 
-Sending a batch is Python work that holds the interpreter lock: for TE (~60
-entities) about 9 ms. A real-time caller therefore sends a batch in slices on its
-own sample thread, in the slack after each move (:meth:`TelemetryLogger.start_flush`,
-:meth:`TelemetryLogger.flush_until`), instead of in another thread of the same
-process, where it would hold up the next sample for the lock.
-
 The blueprint lays out the panels as the seed's Figs. 7.14–7.16: outputs with
 their references, the moves, the active model and the J values, and timing.
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -115,10 +108,7 @@ class TelemetryLogger:
         self.rec = None
         self.recording_id: str | None = None
         self.samples_logged = 0
-        self.clock = time.perf_counter  # the clock flush_until's deadline is on
         self._rows: list[tuple] = []
-        self._jobs: list[tuple[list, str, np.ndarray]] = []  # a batch being sent in slices
-        self._jobs_rows = 0
         if sink is None:
             return
         import rerun as rr
@@ -145,8 +135,7 @@ class TelemetryLogger:
         """Buffer one sample; return True when ``batch`` samples are buffered.
 
         With ``auto_flush`` the batch is sent right away; otherwise the caller
-        sends it with :meth:`flush`, or in slices with :meth:`start_flush` and
-        :meth:`flush_until`.
+        sends it with :meth:`flush` (e.g. from a worker thread, off the sample loop).
         """
         if self.rec is None:
             return False
@@ -162,73 +151,40 @@ class TelemetryLogger:
             self.flush()
         return full
 
-    @property
-    def flushing(self) -> bool:
-        """True while a batch started by :meth:`start_flush` has entities left to send."""
-        return bool(self._jobs)
-
     def flush(self) -> None:
-        """Send everything buffered now: a batch being sent and the samples after it."""
-        self.flush_until(float("inf"))
-        if self._rows:
-            self.start_flush()
-            self.flush_until(float("inf"))
-
-    def start_flush(self) -> None:
-        """Take the buffered samples as one batch to send (one ``send_columns`` per
-        entity) with :meth:`flush_until`; a batch still being sent is finished first.
-        Samples added from now on go into the next batch."""
-        if self._jobs:
-            self.flush_until(float("inf"))
+        """Send the buffered samples (one ``send_columns`` per entity)."""
         if self.rec is None or not self._rows:
             return
         rr = self._rr
-        rows, self._rows = self._rows, []
+        rows, self._rows = self._rows, []  # one swap: add() may run in another thread
         seq = np.array([r[0] for r in rows], dtype=np.int64)
         tp = np.array([r[1] for r in rows], dtype=float)
         idx = [rr.TimeColumn("sample", sequence=seq),
                rr.TimeColumn("process_time", duration=tp)]
-        jobs = []
 
-        def add(path: str, values) -> None:
-            jobs.append((idx, path, np.asarray(values, float)))
+        def send(path: str, values) -> None:
+            rr.send_columns(path, indexes=idx,
+                            columns=rr.Scalars.columns(scalars=np.asarray(values, float)),
+                            recording=self.rec)
 
         Y = np.vstack([r[2] for r in rows])
         R = np.vstack([r[3] for r in rows])
         U = np.vstack([r[4] for r in rows])
         for i, n in enumerate(self.cv_names):
-            add(f"{self.unit}/cv/{_safe(n)}", Y[:, i])
+            send(f"{self.unit}/cv/{_safe(n)}", Y[:, i])
         for i, n in enumerate(self.ref_names):
-            add(f"{self.unit}/ref/{_safe(n)}", R[:, i])
+            send(f"{self.unit}/ref/{_safe(n)}", R[:, i])
         for i, n in enumerate(self.mv_names):
-            add(f"{self.unit}/mv/{_safe(n)}", U[:, i])
-        add(f"{self.unit}/model/active", [r[5] for r in rows])
+            send(f"{self.unit}/mv/{_safe(n)}", U[:, i])
+        send(f"{self.unit}/model/active", [r[5] for r in rows])
         J = [r[6] for r in rows]
         if self.model_names and all(j.shape == (len(self.model_names),) for j in J):
             Jm = np.vstack(J)
             for i, n in enumerate(self.model_names):
-                add(f"{self.unit}/model/J/{_safe(n)}", Jm[:, i])
-        add(f"{self.unit}/timing/solve_ms", [r[7] for r in rows])
-        add(f"{self.unit}/timing/slack_ms", [r[8] for r in rows])
-        jobs.reverse()  # popped from the end, sent in the order above
-        self._jobs, self._jobs_rows = jobs, len(rows)
-
-    def flush_until(self, deadline: float) -> bool:
-        """Send entities of the batch being sent until :attr:`clock` (default
-        ``time.perf_counter``) passes ``deadline``, checked before each entity (one
-        entity's ``send_columns`` is ~0.15 ms for a batch of 100 samples). Returns True
-        when the batch is out."""
-        rr = self._rr if self.rec is not None else None
-        while self._jobs:
-            if self.clock() > deadline:
-                return False
-            idx, path, values = self._jobs.pop()
-            rr.send_columns(path, indexes=idx, columns=rr.Scalars.columns(scalars=values),
-                            recording=self.rec)
-            if not self._jobs:
-                self.samples_logged += self._jobs_rows
-                self._jobs_rows = 0
-        return True
+                send(f"{self.unit}/model/J/{_safe(n)}", Jm[:, i])
+        send(f"{self.unit}/timing/solve_ms", [r[7] for r in rows])
+        send(f"{self.unit}/timing/slack_ms", [r[8] for r in rows])
+        self.samples_logged += len(rows)
 
     def close(self) -> None:
         """Flush what is buffered and close the sink (the file is complete afterwards)."""

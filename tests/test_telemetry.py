@@ -1,7 +1,5 @@
 """Rerun telemetry: a real .rrd file read back has the documented paths, timelines and values."""
 
-import itertools
-
 import numpy as np
 import pytest
 
@@ -57,37 +55,3 @@ def test_disabled_sink_is_a_no_op(tmp_path):
     tel.add(0, 0.0, [1.0], [1.0], [0.0], 0, ("m",), [0.0], 0.1, 0.2)
     tel.close()
     assert not tel.enabled and list(tmp_path.iterdir()) == []
-
-
-def test_a_batch_sent_in_slices_reads_back_like_one_sent_at_once(tmp_path):
-    """start_flush/flush_until send a batch entity by entity up to a deadline; samples
-    added meanwhile go into the next batch; the file holds every sample once."""
-    path = tmp_path / "s.rrd"
-    cvs, mvs, names = ["A", "B", "C"], ["U"], ("m1", "m2")
-    tel = TelemetryLogger("x", cvs, mvs, path, batch=5)
-    for k in range(5):
-        tel.add(k, float(k), [k, 2 * k, 3 * k], [0.0, 0.0, 0.0], [k], 0, names,
-                [1.0, 2.0], 0.1, 1.0, auto_flush=False)
-    tel.start_flush()
-    n_entities = len(entity_paths("x", cvs, mvs, names))
-    now = [0.0]
-    tel.clock = lambda: now[0]
-    assert tel.flushing
-    assert not tel.flush_until(-1.0)  # past its deadline: nothing sent
-    assert tel.samples_logged == 0
-    slices = 0
-    while tel.flushing:
-        # the clock passes the deadline after one entity: one entity per slice
-        tel.clock = itertools.chain([0.0], itertools.repeat(2.0)).__next__
-        done = tel.flush_until(1.0)
-        slices += 1
-        assert done == (not tel.flushing)
-        if slices == 2:  # a sample added while the batch is out: the next batch
-            tel.add(5, 5.0, [5, 10, 15], [0.0, 0.0, 0.0], [5], 1, names, [1.0, 2.0], 0.1,
-                    1.0, auto_flush=False)
-    assert slices == n_entities and tel.samples_logged == 5
-    tel.close()
-    assert tel.samples_logged == 6
-    _, data, _ = _read(path)
-    assert sorted(data["/x/cv/B"]) == [(k, 2.0 * k) for k in range(6)]
-    assert sorted(data["/x/model/active"]) == [(k, 0.0) for k in range(5)] + [(5, 1.0)]
