@@ -129,12 +129,15 @@ def _str(obj: dict, name: str) -> str:
     return v
 
 
+_FLOAT = {float}
+
+
 def _vector(obj: dict, name: str, length: int | None) -> tuple[float, ...]:
     v = obj[name]
     if not isinstance(v, list):
         raise MessageError(f"{name}: expected a list of numbers, got {type(v).__name__}")
-    if all(type(x) is float for x in v) and all(map(math.isfinite, v)):
-        out = tuple(v)  # the usual message: one pass per check
+    if set(map(type, v)) == _FLOAT and all(map(math.isfinite, v)):
+        out = tuple(v)  # the usual message: one C-level pass per check
     else:  # element by element, to name the bad one
         out = tuple(_number(x, f"{name}[{i}]") for i, x in enumerate(v))
     if length is not None and len(out) != length:
@@ -143,6 +146,9 @@ def _vector(obj: dict, name: str, length: int | None) -> tuple[float, ...]:
 
 
 def _finite_tuple(values, name: str) -> tuple[float, ...]:
+    if type(values) is tuple and set(map(type, values)) <= _FLOAT and all(
+            map(math.isfinite, values)):
+        return values  # already checked (a decoded message): no second conversion
     out = tuple(map(float, values))
     if not all(map(math.isfinite, out)):
         i = next(i for i, x in enumerate(out) if not math.isfinite(x))
