@@ -54,7 +54,7 @@ from services import keys
 from services.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.store import UnitStore
 from services.telemetry import TelemetryLogger
-from services.timing import GC_PAUSES, DeadlineStats, TimingBudget, Watchdog
+from services.timing import GC_PAUSES, DeadlineStats, SampleTimes, TimingBudget, Watchdog
 from services.transitions import (
     ConflictError,
     TransitionError,
@@ -178,6 +178,7 @@ class ControllerNode:
             cfg.initial_grade, cfg.sample_period_s, cfg.transition_duration_s,
             cfg.settle_tolerance, cfg.settle_samples)
         self.stats = DeadlineStats(self.budget.budget_s)
+        self.sample_times = SampleTimes()  # arrival and move of the latest samples
         self.mv_seq = 0
         self.k = -1
         self.t = 0.0
@@ -397,6 +398,13 @@ class ControllerNode:
             return Reply(200, self.grades())
         if req.action == "transition":
             return self._transition(req.args)
+        if req.action == "sample_times":  # diagnostics: where a late move's time went
+            try:
+                found = self.sample_times.lookup(req.args.get("seqs"))
+            except ValueError as exc:
+                return Reply(422, error=str(exc))
+            return Reply(200, {"clock": "perf_counter", "samples": {
+                str(k): v for k, v in found.items()}})
         if req.action == "reset_stats":  # benchmarks: count from a warm loop on
             with self._lock:
                 self.stats = DeadlineStats(self.budget.budget_s)
@@ -614,6 +622,7 @@ class ControllerNode:
             u = hold
         # the budget covers the move going out, not only its computation
         elapsed = time.perf_counter() - arrived
+        self.sample_times.note(msg.seq, arrived, arrived + elapsed)
         cpu_ms = (time.thread_time() - cpu_begin) * 1e3
         with self._lock:
             self.stats.record(elapsed, fallback=fired or decision.fallback)

@@ -314,7 +314,9 @@ class PlantNode:
                 self.loop_latency_s.append(time.perf_counter() - self._published_at)
             elif msg.meas_seq in self._held_open:  # the answer to a held sample, late
                 record, published_at = self._held_open.pop(msg.meas_seq)
-                record["answered_after_ms"] = (time.perf_counter() - published_at) * 1e3
+                now = time.perf_counter()
+                record["answered_after_ms"] = (now - published_at) * 1e3
+                record["answered_s"] = now
             self._pending = msg
             self._cond.notify_all()
 
@@ -436,7 +438,10 @@ class PlantNode:
         """
         record = {"sample": self.k, "at_unix_s": time.time(),
                   "period_ms": self.budget.wall_period_s * 1e3,
-                  "publish_lag_ms": self._lag_now * 1e3, "answered_after_ms": None}
+                  "publish_lag_ms": self._lag_now * 1e3, "answered_after_ms": None,
+                  # time.perf_counter (CLOCK_MONOTONIC: comparable with the controller's
+                  # sample_times on the same host)
+                  "published_s": self._published_at, "answered_s": None}
         self.held_samples.append(record)
         self._held_open = {k: v for k, v in self._held_open.items() if k >= self.k - 4}
         self._held_open[self.k] = (record, self._published_at)

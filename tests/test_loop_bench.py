@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from services.cli import main
 
 
@@ -31,6 +33,8 @@ def test_bench_loop_jitter_and_speed_rungs(capsys):
     assert len(rung["missed_samples"]) <= rung["deadline_misses"]
     assert set(rung["held_causes"]) == {"published_late", "answered_late", "no_answer"}
     assert sum(rung["held_causes"].values()) == len(rung["held_samples"]) <= rung["held"]
+    assert set(rung["held_split"]) == {"to_controller", "controller", "back"}
+    assert sum(rung["held_split"].values()) <= len(rung["held_samples"])
     assert rung["slowest_sample"]["controller_ms"] > 0
     probe, w = rung["probe_stalls"], rung["with_probe_stall"]
     assert probe["wakeups"] >= 300 and probe["over_2ms"] <= probe["over_1ms"]
@@ -123,3 +127,30 @@ def test_stall_probe_counts_its_wakeups_and_keeps_long_ones():
     assert 20 <= s["wakeups"] <= 51
     assert all(length > 1e-3 for _, length in probe.stalls)
     assert s["over_1ms"] == len(probe.stalls) and s["over_2ms"] <= s["over_1ms"]
+
+
+def test_held_split_sets_the_plant_record_beside_the_controllers():
+    from services.bench.loop import held_split
+
+    held = {"sample": 7, "published_s": 100.0, "answered_s": 100.0046}
+    ctrl = {"arrived_s": 100.0002, "published_s": 100.0013}
+    split = held_split(held, ctrl)
+    assert split["to_controller"] == pytest.approx(0.2)
+    assert split["controller"] == pytest.approx(1.1)
+    assert split["back"] == pytest.approx(3.3)
+    assert split["largest"] == "back"
+    assert held_split({**held, "answered_s": None}, ctrl) is None  # never answered
+    assert held_split(held, None) is None  # the controller no longer has it
+
+
+def test_sample_times_ring_keeps_the_latest_and_checks_its_query():
+    from services.timing import SampleTimes
+
+    st = SampleTimes(capacity=4)
+    for k in range(6):
+        st.note(k, 10.0 + k, 10.5 + k)
+    assert st.lookup([0, 1, 2, 5, 99]) == {2: {"arrived_s": 12.0, "published_s": 12.5},
+                                          5: {"arrived_s": 15.0, "published_s": 15.5}}
+    for bad in ("3", [1.5], [-1], [True], list(range(SampleTimes.MAX_LOOKUP + 1))):
+        with pytest.raises(ValueError, match="seqs"):
+            st.lookup(bad)

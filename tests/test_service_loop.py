@@ -503,3 +503,18 @@ def test_telemetry_recording_holds_every_sample_the_node_logged(harness):
         if ch.entity_path == f"/{h.cfg.unit}/model/active":
             seen.extend(ch.to_record_batch().column("sample").to_pylist())
     assert len(seen) == len(set(seen)) == h.ctrl.telemetry.samples_logged >= 60
+
+
+def test_sample_times_query_gives_arrival_and_move_of_recent_samples(harness):
+    h = harness()
+    h.wait_samples(10)
+    k = h.ctrl.k
+    rep = h.query("sample_times", {"seqs": [k - 2, k - 1, 10**9]})
+    assert rep.code == 200 and rep.data["clock"] == "perf_counter"
+    got = rep.data["samples"]
+    assert set(got) == {str(k - 2), str(k - 1)}  # an unknown sample is left out
+    now = time.perf_counter()
+    for rec in got.values():
+        assert rec["arrived_s"] <= rec["published_s"] <= now
+    assert got[str(k - 2)]["arrived_s"] < got[str(k - 1)]["arrived_s"]
+    assert h.query("sample_times", {"seqs": "all"}).code == 422

@@ -15,7 +15,10 @@ speed
     vCPU away, which a VM without steal time counts as CPU time), "waiting" (for the
     interpreter lock or a CPU). Likewise the plant's latest held samples and
     ``held_causes`` (:func:`services.plant_node.held_cause`): "published_late" (the
-    plant's own wake-up at the boundary), "answered_late", "no_answer".
+    plant's own wake-up at the boundary), "answered_late", "no_answer". Each kept
+    held sample is set beside the controller's record of it (the ``sample_times``
+    query): ``split`` gives the round trip's parts, ms (:func:`held_split`), and
+    ``held_split`` counts which part was the longest.
 latency
     Lock-step loop: wall time from the plant publishing measurement k to it
     receiving the MV answering k (Zenoh both ways + decode + controller step +
@@ -130,10 +133,29 @@ class _Nodes:
         stop_children(self.procs)
 
 
-def _query(session, key, action):
+#: The parts of a held sample's round trip (:func:`held_split`).
+HELD_PARTS = ("to_controller", "controller", "back")
+
+
+def held_split(held: dict, ctrl: dict | None) -> dict | None:
+    """Where a held sample's round trip went, from the plant's record of it and the
+    controller's (``sample_times``), ms: ``to_controller`` (the plant's publication
+    to the controller taking the measurement in), ``controller`` (to its move going
+    out), ``back`` (to the plant receiving it), and the ``largest`` part. Both records
+    are on CLOCK_MONOTONIC, so this holds for nodes on one host. None when either
+    record or the answer is missing."""
+    if ctrl is None or held.get("published_s") is None or held.get("answered_s") is None:
+        return None
+    parts = {"to_controller": (ctrl["arrived_s"] - held["published_s"]) * 1e3,
+             "controller": (ctrl["published_s"] - ctrl["arrived_s"]) * 1e3,
+             "back": (held["answered_s"] - ctrl["published_s"]) * 1e3}
+    return {**parts, "largest": max(parts, key=parts.get)}
+
+
+def _query(session, key, action, args=None):
     from services.messages import Reply, Request
 
-    for r in session.get(key, payload=Request(action).to_bytes(), timeout=5.0):
+    for r in session.get(key, payload=Request(action, args or {}).to_bytes(), timeout=5.0):
         if r.ok is not None:
             return Reply.from_bytes(r.ok.payload.to_bytes()).data
     raise RuntimeError(f"no answer from {key}")
@@ -177,14 +199,21 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
             time.sleep(seconds)
             cs = _query(s, keys.cmd(unit, "status"), "status")
             ps = _query(s, keys.plant_cmd(unit, "status"), "status")
+        held = ps.get("held_samples") or []
+        times = _query(s, keys.cmd(unit, "sample_times"), "sample_times",
+                       {"seqs": [h["sample"] for h in held]})["samples"] if held else {}
     finally:
         s.close()
         nodes.close()
+    split_counts = {p: 0 for p in HELD_PARTS}
+    for h in held:
+        h["split"] = held_split(h, times.get(str(h["sample"])))
+        if h["split"] is not None:
+            split_counts[h["split"]["largest"]] += 1
     missed = cs.get("missed_samples") or []
     causes = {c: 0 for c in MISS_CAUSES}
     for m in missed:  # the latest ones the controller kept (a bounded number)
         causes[miss_cause(m)] += 1
-    held = ps.get("held_samples") or []
     held_causes = {c: 0 for c in HELD_CAUSES}
     for h in held:
         held_causes[held_cause(h)] += 1
@@ -200,6 +229,9 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
             "telemetry_samples": cs.get("telemetry_samples"),
             "missed_samples": missed, "miss_causes": causes,
             "held_samples": held, "held_causes": held_causes,
+            # of the held samples with both nodes' records: which part of the round trip
+            # was the longest (see held_split)
+            "held_split": split_counts,
             # a thread of a third process (this one) that only sleeps to 1 ms boundaries:
             # its stalls during the rung, and how many of the kept missed and held
             # samples overlap one (then the machine, not the loop, lost the time)
