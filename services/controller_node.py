@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import queue
 import threading
 import time
@@ -698,14 +699,19 @@ class ControllerNode:
         step after a 2.6 ms sleep measured ~1.8x the one after a spin, see
         ``docs/realtime.md``).
         It costs one CPU at 100 %. ``try_recv`` does not release the interpreter lock,
-        so the other threads of the node (queries, liveliness, the watchdog) get it at
-        the switch interval, which a node sets to 0.5 ms: they may wait that long.
+        so between polls the thread calls ``os.sched_yield``, which does: the other
+        threads of the node (queries, liveliness, the watchdog) get the lock at once
+        instead of after the switch interval, and a thread woken on this CPU runs at
+        once. Measured, 3 alternated pairs of 20 s at 10,000x: misses 1/0/6 against
+        12/27/3 without the yield, sample p99 1.18-1.35 against 1.26-1.65 ms, held
+        moves unchanged (8/9/14 against 14/11/6).
         """
         if not self.busy_poll:
             while not stop.wait(0.1):
                 self._drain()
             return
         try_recv, accept, now = self._sub.try_recv, self._accept, time.perf_counter
+        yield_cpu = os.sched_yield
         while not stop.is_set() and not self._closing:
             try:
                 sample = try_recv()
@@ -714,6 +720,7 @@ class ControllerNode:
                     return
                 raise
             if sample is None:
+                yield_cpu()
                 continue
             got = accept(sample, now())
             while (sample := try_recv()) is not None:  # newest wins

@@ -462,6 +462,22 @@ def test_busy_poll_processes_samples_on_the_run_thread(harness):
     assert not h.ctrl_thread.is_alive()  # the poll loop ends when asked
 
 
+def test_busy_poll_yields_the_cpu_and_the_interpreter_lock_between_polls(harness, monkeypatch):
+    """Between polls the poll thread calls os.sched_yield (which releases the lock):
+    the node's other threads are not held up for a switch interval."""
+    import os
+
+    import services.controller_node as cn
+
+    calls = []
+    real = os.sched_yield
+    monkeypatch.setattr(cn.os, "sched_yield", lambda: (calls.append(1), real())[1])
+    h = harness(busy_poll=True)
+    h.wait_samples(5)
+    assert len(calls) > 100  # idle polls between samples yield
+    assert h.query("status").code == 200  # a query thread gets the lock
+
+
 def test_busy_poll_acts_on_the_newest_of_queued_measurements(harness):
     """Measurements that queued while the loop was busy: only the newest is processed,
     the others are counted as dropped (the same rule as the default mode)."""
