@@ -207,6 +207,11 @@ class ControllerNode:
         self._last_status_wall = -math.inf
         self._checkpoint_cost_s = 0.0
         self._last_checkpoint_wall = time.perf_counter()
+        # Bumpless (re)start: the first measurement from a plant that already runs on a
+        # controller's moves (mv_seq >= 0) tells which move it holds; the first move is
+        # computed from there (see _align). Set before the subscriber is declared: on a
+        # running plant a measurement can be processed before __init__ returns.
+        self._align_pending = True
         self._restore()
         self._watchdog = Watchdog(period_hint_s=self.budget.wall_period_s)
         self._mv_pub = declare_loop_publisher(session, keys.mv(cfg.unit))
@@ -223,10 +228,6 @@ class ControllerNode:
         self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "controller"))
         self._plant_live = session.liveliness().declare_subscriber(
             keys.alive(cfg.unit, "plant"), self._on_plant_liveliness, history=True)
-        # Bumpless (re)start: the first measurement from a plant that already runs on a
-        # controller's moves (mv_seq >= 0) tells which move it holds; the first move is
-        # computed from there (see _align).
-        self._align_pending = True
 
     # -- persistence -------------------------------------------------------------------
     def _restore(self) -> None:
