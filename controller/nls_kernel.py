@@ -90,12 +90,11 @@ def nls_step(W_base, d, A0, v, y, p, g_d, rate, lower, upper, max_abs, dead_zone
             finite = False
     K = np.zeros((n, m))
     L_inv = np.zeros((m, m))
-    if finite:
-        for j in range(n):
-            for k in range(m):
-                PWt[j, k] = A0[j, k] + v[j] * y[k]
     if not finite:
         return INVALID_DATA, e, p, False, K, PWt, L_inv, 0.0
+    for j in range(n):
+        for k in range(m):
+            PWt[j, k] = A0[j, k] + v[j] * y[k]
     if freeze:
         return FROZEN, e, p, False, K, PWt, L_inv, 0.0
     if dead_zone > 0.0:
@@ -121,12 +120,12 @@ def nls_step(W_base, d, A0, v, y, p, g_d, rate, lower, upper, max_abs, dead_zone
     # Cholesky S = L L' (lower), then L^-1 by forward substitution
     L = np.zeros((m, m))
     for j in range(m):
-        d = S[j, j]
+        pivot = S[j, j]
         for k in range(j):
-            d -= L[j, k] * L[j, k]
-        if not d > 0.0:  # also NaN
+            pivot -= L[j, k] * L[j, k]
+        if not pivot > 0.0:  # also NaN
             return SINGULAR, e, p, False, K, PWt, L_inv, 0.0
-        L[j, j] = math.sqrt(d)
+        L[j, j] = math.sqrt(pivot)
         for i in range(j + 1, m):
             s = S[i, j]
             for k in range(j):
@@ -166,17 +165,14 @@ def nls_step(W_base, d, A0, v, y, p, g_d, rate, lower, upper, max_abs, dead_zone
         return DIVERGED, e, p, False, K, PWt, L_inv, 0.0
     projected = False
     for j in range(n):
-        v = min(max(p_new[j], lower[j]), upper[j])
-        if v != p_new[j]:
+        clipped = min(max(p_new[j], lower[j]), upper[j])
+        if clipped != p_new[j]:
             projected = True
-            p_new[j] = v
+            p_new[j] = clipped
     trace_dP = g_d * trace
     if not math.isfinite(trace_dP):
         return NONFINITE, e, p_new, projected, K, PWt, L_inv, trace_dP
     return OK, e, p_new, projected, K, PWt, L_inv, trace_dP
-
-
-_compiled = False
 
 
 def compile_nls_step() -> None:
@@ -184,10 +180,8 @@ def compile_nls_step() -> None:
     argument types every estimator passes, so that no sample pays for it: the first
     compilation on a machine takes about a second. Idempotent and cheap after the
     first call in a process."""
-    global _compiled
-    if _compiled:
+    if nls_step.signatures:
         return
     z1, z2 = np.zeros(2), np.zeros((1, 2))
     nls_step(z2, z1, np.zeros((2, 1)), z1, np.zeros(1), z1, 0.0, 1.0, z1, z1, 1.0, 0.0,
              False)
-    _compiled = True
