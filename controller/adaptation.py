@@ -358,10 +358,17 @@ class NormalizedLeastSquares:
         self.commit()
         W_base = np.atleast_2d(np.asarray(W_base, dtype=float))
         if self._check_finite:  # a covariance set from outside: check it before using it
-            self._check_finite = False
-            if not np.isfinite(self._Pd if self._Pd is not None else self._V).all():
-                self.reset_covariance("nonfinite")
+            self._check_outside_covariance()
         self._prepared = (W_base, *self._products(W_base, d))
+
+    def _check_outside_covariance(self) -> bool:
+        """Check a covariance set from outside (``P`` read or assigned) once: reset it
+        when it is not finite. Returns True when it was reset."""
+        self._check_finite = False
+        if np.isfinite(self._Pd if self._Pd is not None else self._V).all():
+            return False
+        self.reset_covariance("nonfinite")
+        return True
 
     def _products(self, W_base, d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(d, P W_base', P d)``, ``d`` = zeros when None (shapes (N,), (N, m), (N,))."""
@@ -413,11 +420,8 @@ class NormalizedLeastSquares:
             with np.errstate(invalid="ignore", over="ignore"):
                 Wy = W if d is None else W + np.outer(y, d)  # the kernel's W
                 data_ok = bool(np.isfinite(y - Wy @ self.p).all())
-            if data_ok:  # invalid data skips first; the check waits for a valid sample
-                self._check_finite = False
-                if not np.isfinite(self._Pd if self._Pd is not None else self._V).all():
-                    self.reset_covariance("nonfinite")
-                    A0 = None
+            if data_ok and self._check_outside_covariance():  # invalid data skips first
+                A0 = None
         if A0 is None:
             d, A0, v = self._products(W, d)
         s = self.settings
