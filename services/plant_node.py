@@ -283,7 +283,7 @@ class PlantNode:
         self._lag_now = 0.0  # publish lag of the current sample, s
         #: real-time mode: the latest held samples, where their time went (ms)
         self.held_samples: deque[dict] = deque(maxlen=self.KEEP_HELD)
-        self._held_open: dict[int, tuple[dict, float]] = {}  # sample -> (record, published at)
+        self._held_open: dict[int, dict] = {}  # sample -> its record, awaiting the answer
         self._pub = declare_loop_publisher(session, keys.meas(cfg.unit))
         self._sub = session.declare_subscriber(keys.mv(cfg.unit), self._on_mv)
         self._qry = session.declare_queryable(keys.plant_cmd_all(cfg.unit), self._on_query)
@@ -313,9 +313,9 @@ class PlantNode:
             if msg.meas_seq == self.k and not msg.fallback:
                 self.loop_latency_s.append(time.perf_counter() - self._published_at)
             elif msg.meas_seq in self._held_open:  # the answer to a held sample, late
-                record, published_at = self._held_open.pop(msg.meas_seq)
+                record = self._held_open.pop(msg.meas_seq)
                 now = time.perf_counter()
-                record["answered_after_ms"] = (now - published_at) * 1e3
+                record["answered_after_ms"] = (now - record["published_s"]) * 1e3
                 record["answered_s"] = now
             self._pending = msg
             self._cond.notify_all()
@@ -444,7 +444,7 @@ class PlantNode:
                   "published_s": self._published_at, "answered_s": None}
         self.held_samples.append(record)
         self._held_open = {k: v for k, v in self._held_open.items() if k >= self.k - 4}
-        self._held_open[self.k] = (record, self._published_at)
+        self._held_open[self.k] = record
 
     def run(self, stop: threading.Event, max_samples: int | None = None) -> None:
         """Run until ``stop`` is set (or ``max_samples`` samples have been integrated).

@@ -20,8 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["TimingBudget", "SampleClock", "DeadlineStats", "SampleTimes", "Watchdog",
-           "GC_PAUSES",
-           "percentile_summary", "miss_cause", "MISS_CAUSES"]
+           "GC_PAUSES", "percentile_summary", "miss_cause", "MISS_CAUSES"]
 
 #: Where a missed sample's time went, by its largest part (see :func:`miss_cause`).
 MISS_CAUSES = ("queued", "computing", "waiting")

@@ -205,18 +205,17 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
     finally:
         s.close()
         nodes.close()
-    split_counts = {p: 0 for p in HELD_PARTS}
-    for h in held:
-        h["split"] = held_split(h, times.get(str(h["sample"])))
-        if h["split"] is not None:
-            split_counts[h["split"]["largest"]] += 1
     missed = cs.get("missed_samples") or []
     causes = {c: 0 for c in MISS_CAUSES}
     for m in missed:  # the latest ones the controller kept (a bounded number)
         causes[miss_cause(m)] += 1
     held_causes = {c: 0 for c in HELD_CAUSES}
+    split_counts = {p: 0 for p in HELD_PARTS}
     for h in held:
         held_causes[held_cause(h)] += 1
+        h["split"] = held_split(h, times.get(str(h["sample"])))
+        if h["split"] is not None:
+            split_counts[h["split"]["largest"]] += 1
     w_missed, w_held = _sample_windows(missed, held)
     return {"speed": speed, "samples": cs["samples"], "deadline_misses": cs["deadline_misses"],
             "held": ps["mv_held"], "plant_samples": ps["samples"],
