@@ -21,6 +21,13 @@ instead of the wall clock, so a run is deterministic and as fast as the loop
 allows. The controller still measures its compute time against the budget of
 the configured speed.
 
+**Busy polling** (``busy_poll=True``, ``ssmpc plant --busy-poll``): the loop thread
+never sleeps. It polls a channel for MV messages (Zenoh's thread only queues them)
+and the clock for the boundary, calling ``os.sched_yield`` between polls, so that a
+sample boundary is kept to a few microseconds instead of a wake-up: on a virtual
+machine a sleeping thread's wake-up came 2-4 ms late several times a minute, a whole
+sample at 10,000x for TE (``docs/realtime.md``). It costs one CPU at 100 %.
+
 The node holds the liveliness token ``ssmpc/<unit>/alive/plant`` and answers
 queries on ``ssmpc/<unit>/plant/cmd/**``: ``status``, ``disturbance``
 (``{"name": ..., "value": ...}``: a disturbance variable of an ODE plant, or
@@ -30,6 +37,7 @@ queries on ``ssmpc/<unit>/plant/cmd/**``: ``status``, ``disturbance``
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections import deque
@@ -255,9 +263,14 @@ class PlantNode:
     #: How many of the latest held samples keep their record (see ``_note_held``).
     KEEP_HELD = 32
 
+    #: MV messages the busy-poll channel holds (more than one only when the loop is
+    #: behind; all are taken in order, the newest acts).
+    POLL_QUEUE = 16
+
     def __init__(self, cfg: UnitConfig, session, *, speed: float = 1.0,
                  expected_sender: str | None = None, lockstep: bool = False,
-                 lockstep_timeout_s: float = 2.0, runner=None) -> None:
+                 lockstep_timeout_s: float = 2.0, runner=None,
+                 busy_poll: bool = False) -> None:
         self.cfg = cfg
         self.session = session
         self.budget = TimingBudget(cfg.sample_period_s, speed, cfg.budget_fraction)
@@ -285,7 +298,14 @@ class PlantNode:
         self.held_samples: deque[dict] = deque(maxlen=self.KEEP_HELD)
         self._held_open: dict[int, dict] = {}  # sample -> its record, awaiting the answer
         self._pub = declare_loop_publisher(session, keys.meas(cfg.unit))
-        self._sub = session.declare_subscriber(keys.mv(cfg.unit), self._on_mv)
+        self.busy_poll = bool(busy_poll)
+        if self.busy_poll:  # run() polls the channel; Zenoh's thread only queues
+            import zenoh
+
+            self._sub = session.declare_subscriber(
+                keys.mv(cfg.unit), handler=zenoh.handlers.FifoChannel(self.POLL_QUEUE))
+        else:
+            self._sub = session.declare_subscriber(keys.mv(cfg.unit), self._on_mv)
         self._qry = session.declare_queryable(keys.plant_cmd_all(cfg.unit), self._on_query)
         self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "plant"))
         self.controller_alive = False
@@ -397,6 +417,7 @@ class PlantNode:
                     "samples": c.samples, "mv_accepted": c.mv_accepted, "mv_held": c.mv_held,
                     "mv_rejected": dict(c.rejected), "lockstep": self.lockstep,
                     "lockstep_timeouts": c.lockstep_timeouts, "speed": self.budget.speed,
+                    "busy_poll": self.busy_poll,
                     "shutdown": bool(self.runner.shutdown),
                     "controller_alive": self.controller_alive}
 
@@ -411,12 +432,31 @@ class PlantNode:
         self._pub.put(msg.to_bytes())
         self.counters.samples += 1
 
-    def _take_mv(self, timeout_s: float) -> MVMessage | None:
-        """The newest accepted MV; waits up to ``timeout_s`` for the one answering sample k."""
+    def _poll_mv(self) -> None:
+        """Busy polling: take the queued MV messages in, then yield the CPU (and with
+        it the interpreter lock) to any thread that is ready to run."""
+        try_recv = self._sub.try_recv
+        while (sample := try_recv()) is not None:
+            self._on_mv(sample)
+        os.sched_yield()
+
+    def _answered(self) -> bool:
+        return self._pending is not None and self._pending.meas_seq >= self.k
+
+    def _take_mv(self, timeout_s: float,
+                 stop: threading.Event | None = None) -> MVMessage | None:
+        """The newest accepted MV; waits up to ``timeout_s`` for the one answering sample k
+        (busy polling: also until ``stop`` is set)."""
+        if self.busy_poll:
+            end = time.perf_counter() + max(0.0, timeout_s)
+            while True:
+                self._poll_mv()
+                if (self._answered() or time.perf_counter() >= end
+                        or (stop is not None and stop.is_set())):
+                    break
         with self._cond:
-            ok = self._cond.wait_for(
-                lambda: self._pending is not None and self._pending.meas_seq >= self.k,
-                timeout=max(0.0, timeout_s))
+            ok = self._cond.wait_for(self._answered,
+                                     timeout=0.0 if self.busy_poll else max(0.0, timeout_s))
             if not ok and self.lockstep:
                 self.counters.lockstep_timeouts += 1
             msg, self._pending = self._pending, None
@@ -459,9 +499,9 @@ class PlantNode:
         n = 0
         while not stop.is_set() and (max_samples is None or n < max_samples):
             if self.lockstep:
-                msg = self._take_mv(self.lockstep_timeout_s)
+                msg = self._take_mv(self.lockstep_timeout_s, stop)
             else:
-                msg = self._take_mv(clock.deadline(clock.k + 1) - time.perf_counter())
+                msg = self._take_mv(clock.deadline(clock.k + 1) - time.perf_counter(), stop)
             u = self.runner.u if msg is None else np.asarray(msg.u)
             if msg is not None:
                 self._applied_mv_seq = msg.seq
@@ -470,7 +510,7 @@ class PlantNode:
                 self.runner.advance(u, self.cfg.sample_period_s)
             self.advance_max_s = max(self.advance_max_s, time.perf_counter() - t_adv)
             if not self.lockstep:
-                clock.wait_next(stop)
+                clock.wait_next(stop, poll=self._poll_mv if self.busy_poll else None)
                 if stop.is_set():
                     break
                 lag = time.perf_counter() - clock.deadline()

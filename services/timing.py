@@ -117,8 +117,14 @@ class SampleClock:
     def deadline(self, k: int | None = None) -> float:
         return self.start + (self.k if k is None else k) * self.period
 
-    def wait_next(self, stop: threading.Event | None = None) -> int:
-        """Advance to the next boundary and sleep until it; return its index k."""
+    def wait_next(self, stop: threading.Event | None = None,
+                  poll: Callable[[], object] | None = None) -> int:
+        """Advance to the next boundary and wait until it; return its index k.
+
+        Sleeps, or with ``poll`` calls ``poll()`` over and over until the boundary
+        (or until ``stop`` is set) instead of sleeping: a sleeping thread's wake-up
+        can come milliseconds late on a virtual machine (``docs/realtime.md``).
+        """
         self.k += 1
         target = self.deadline()
         now = self._now()
@@ -126,6 +132,10 @@ class SampleClock:
             skipped = int((now - target) // self.period)
             self.overruns += skipped
             self.start = now - self.k * self.period
+            return self.k
+        if poll is not None:
+            while self._now() < target and not (stop is not None and stop.is_set()):
+                poll()
             return self.k
         delay = target - now
         if delay > 0:

@@ -42,18 +42,22 @@ def test_bench_loop_jitter_and_speed_rungs(capsys):
     assert w["of_held"] == len(rung["held_samples"]) and 0 <= w["held"] <= w["of_held"]
     # how the CPUs idle is part of the result (it moves loop latencies by ~30 % in a VM)
     assert speed["busy_poll"] is False  # how the controller waited is part of the result
+    assert speed["plant_busy_poll"] is False and rung["plant_busy_poll"] is False
     assert speed["telemetry"] is False and rung["telemetry_samples"] is None
     for c in (before, speed, after):
         assert set(c["cpu_idle"]) == {"governor", "driver", "guest_halt_poll_ns"}
 
 
-def test_bench_loop_with_telemetry_records_in_the_controller(capsys):
+def test_bench_loop_with_telemetry_and_both_nodes_polling(capsys):
     assert main(["bench", "loop", "--json", "--unit", "cstr", "--cases", "speed",
-                 "--speeds", "2", "--rung-seconds", "1.5", "--telemetry"]) == 0
+                 "--speeds", "2", "--rung-seconds", "1.5", "--telemetry", "--busy-poll",
+                 "--plant-busy-poll"]) == 0
     doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     (speed,) = doc["cases"]
     rung = speed["rungs"][0]
     assert speed["telemetry"] is True
+    assert speed["busy_poll"] is True and speed["plant_busy_poll"] is True
+    assert rung["plant_busy_poll"] is True  # the plant node says it polled
     # cstr: 0.05 s samples at 2x = 40 per wall second, batches of 50 or 1 s of wall time
     assert rung["telemetry_samples"] >= 20
 

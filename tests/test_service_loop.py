@@ -29,7 +29,8 @@ class Harness:
     """A controller node and a plant node of one unit, each on its own session."""
 
     def __init__(self, tmp_path, unit="cstr", speed=100.0, lockstep=True, telemetry=True,
-                 start_plant=True, controller_factory=None, busy_poll=False, **cfg_over):
+                 start_plant=True, controller_factory=None, busy_poll=False,
+                 plant_busy_poll=False, **cfg_over):
         from dataclasses import replace
 
         self.cfg = replace(get_unit(unit), **cfg_over)
@@ -40,6 +41,7 @@ class Harness:
         self.telemetry = telemetry
         self.controller_factory = controller_factory
         self.busy_poll = busy_poll
+        self.plant_busy_poll = plant_busy_poll
         self.s_ctrl = open_session(SessionSettings(listen=(self.ep,), lease_ms=LEASE_MS))
         self.s_plant = open_session(SessionSettings(connect=(self.ep,), lease_ms=LEASE_MS))
         self.s_client = open_session(SessionSettings(connect=(self.ep,), lease_ms=LEASE_MS))
@@ -82,6 +84,7 @@ class Harness:
 
     def start_plant(self, **kw):
         time.sleep(0.3)  # let the sessions see each other's declarations
+        kw.setdefault("busy_poll", self.plant_busy_poll)
         self.plant = PlantNode(self.cfg, self.s_plant, speed=self.speed, lockstep=self.lockstep,
                                lockstep_timeout_s=kw.pop("lockstep_timeout_s", 1.0), **kw)
         th = threading.Thread(target=self.plant.run, args=(self.stop_plant,), daemon=True)
@@ -184,8 +187,9 @@ def test_conflict_and_unknown_grade(harness):
     assert h.query("bogus").code == 404
 
 
-def test_plant_ignores_mv_from_wrong_sender_stale_and_malformed(harness):
-    h = harness(start_plant=False)
+@pytest.mark.parametrize("plant_busy_poll", [False, True])
+def test_plant_ignores_mv_from_wrong_sender_stale_and_malformed(harness, plant_busy_poll):
+    h = harness(start_plant=False, plant_busy_poll=plant_busy_poll)
     h.stop_controller()  # only the plant and our own publisher talk
     h.start_plant(expected_sender="cstr-controller")
     time.sleep(0.3)
@@ -262,8 +266,9 @@ def test_restart_is_bumpless_and_history_complete(harness):
     assert events == ["pending", "running", "settled"]
 
 
-def test_controller_gone_plant_holds_last_move(harness):
-    h = harness(lockstep=False, speed=20.0)
+@pytest.mark.parametrize("plant_busy_poll", [False, True])
+def test_controller_gone_plant_holds_last_move(harness, plant_busy_poll):
+    h = harness(lockstep=False, speed=20.0, plant_busy_poll=plant_busy_poll)
     h.wait_samples(5)
     u_before = h.plant.runner.u.copy()
     h.stop_controller()
@@ -502,6 +507,49 @@ def test_busy_poll_acts_on_the_newest_of_queued_measurements(harness):
     pub.undeclare()
     assert h.ctrl.k == 2 and h.ctrl.stats.samples == 1
     assert h.ctrl.status()["dropped_measurements"] == 2
+
+
+def test_plant_busy_poll_takes_the_moves_in_on_its_own_thread(harness):
+    """A plant node with busy polling: its loop thread takes the MV messages in (Zenoh's
+    thread only queues them) and the loop runs a transition as the default does; the
+    polling ends when asked."""
+    h = harness(start_plant=False, plant_busy_poll=True)
+    h.start_plant()
+    threads = set()
+    on_mv = h.plant._on_mv
+
+    def spy(sample):
+        threads.add(threading.current_thread().ident)
+        return on_mv(sample)
+
+    h.plant._on_mv = spy
+    h.wait_samples(5)
+    assert threads == {h.plant_thread.ident}
+    rep = h.query("transition", {"op": "create", "grade": "OPII"})
+    assert h.wait_transition(rep.data["id"])["state"] == "settled"
+    st = h.plant.status()
+    assert st["busy_poll"] is True and st["lockstep_timeouts"] == 0
+    assert abs(h.plant.runner.y()[0] - CSTR_OPII_Y) <= SETTLE_TOL
+    h.stop_plant.set()
+    h.plant_thread.join(5)
+    assert not h.plant_thread.is_alive()
+
+
+def test_plant_busy_poll_keeps_real_time_and_yields_between_polls(harness, monkeypatch):
+    """Real-time mode with busy polling: the boundaries come from polling the clock (with
+    os.sched_yield between polls, which releases the interpreter lock), the moves
+    answering each sample are applied, and queries are answered meanwhile."""
+    import services.plant_node as pn
+
+    calls = []
+    real = pn.os.sched_yield
+    monkeypatch.setattr(pn.os, "sched_yield", lambda: (calls.append(1), real())[1])
+    h = harness(lockstep=False, speed=10.0, plant_busy_poll=True)  # 5 ms wall period
+    h.wait_samples(40)
+    st = h.plant.status()
+    assert st["busy_poll"] is True and len(calls) > 100
+    assert st["samples"] >= 40 and st["mv_accepted"] >= 0.8 * st["samples"]
+    assert st["publish_lag"]["n"] >= 30  # boundaries kept by the clock, not by the moves
 
 
 def test_telemetry_recording_holds_every_sample_the_node_logged(harness):

@@ -46,6 +46,36 @@ def test_clock_reanchors_instead_of_bursting():
     assert clock.deadline() == pytest.approx(103.0)
 
 
+def test_clock_with_poll_polls_until_the_boundary_instead_of_sleeping():
+    fake = FakeClock()
+    clock = SampleClock(0.5, now=fake)
+    calls = []
+
+    def poll():  # each poll: 0.125 s of fake time (exact in binary)
+        calls.append(fake.now)
+        fake.now += 0.125
+
+    assert clock.wait_next(poll=poll) == 1
+    # polled from 100.0 while before the boundary at 100.5, then returned at it
+    assert calls == [100.0, 100.125, 100.25, 100.375]
+    assert fake.now == 100.5 and clock.overruns == 0
+
+
+def test_clock_poll_stops_polling_when_asked():
+    fake = FakeClock()
+    clock = SampleClock(10.0, now=fake)
+    stop = threading.Event()
+    calls = []
+
+    def poll():
+        calls.append(1)
+        if len(calls) == 3:
+            stop.set()
+
+    assert clock.wait_next(stop, poll=poll) == 1
+    assert len(calls) == 3 and fake.now == 100.0  # returned long before the boundary
+
+
 def test_deadline_stats_counts_misses_and_slack():
     s = DeadlineStats(budget_s=1e-3)
     assert not s.record(0.5e-3)

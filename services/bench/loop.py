@@ -39,7 +39,8 @@ overlap one (``with_probe_stall``); off by default, as its ~1000 wake-ups a seco
 disturb what they observe on a 2-CPU machine.
 
 ``--rt-priority N`` runs the plant and controller nodes under SCHED_FIFO;
-``--busy-poll`` runs the controller node with ``--busy-poll``. The controller node
+``--busy-poll`` runs the controller node with ``--busy-poll``, ``--plant-busy-poll``
+the plant node (every case reports both). The controller node
 runs without Rerun telemetry unless ``--telemetry`` is given (then it records to an
 ``.rrd`` file in the run's temporary state directory, as ``ssmpc up`` does); every
 case reports which (``telemetry``).
@@ -79,6 +80,8 @@ def add_arguments(parser) -> None:
                              "missed and held samples to its stalls (adds ~1000 wake-ups/s)")
     parser.add_argument("--busy-poll", action="store_true",
                         help="run the controller node with --busy-poll (one CPU polling)")
+    parser.add_argument("--plant-busy-poll", action="store_true",
+                        help="run the plant node with --busy-poll (one more CPU polling)")
     parser.add_argument("--telemetry", action="store_true",
                         help="record Rerun telemetry in the controller node (to an .rrd file), "
                              "as ssmpc up does; default: off")
@@ -93,7 +96,8 @@ class _Nodes:
 
     def __init__(self, unit: str, speed: float, lockstep: bool, api: bool, state_dir: str,
                  rt_priority: int | None = None, unit_config: str | None = None,
-                 busy_poll: bool = False, telemetry: bool = False):
+                 busy_poll: bool = False, telemetry: bool = False,
+                 plant_busy_poll: bool = False):
         from services.commands.up import _spawn, _wait_ready
         from services.zenoh_session import free_port
 
@@ -115,7 +119,8 @@ class _Nodes:
             self.procs.append(c)
             _wait_ready(c, "controller", deadline)
             p = _spawn(["plant", *common, "--listen", ep_p, "--connect", ep_c]
-                       + (["--lockstep"] if lockstep else []))
+                       + (["--lockstep"] if lockstep else [])
+                       + (["--busy-poll"] if plant_busy_poll else []))
             self.procs.append(p)
             _wait_ready(p, "plant", deadline)
             if api:
@@ -183,12 +188,13 @@ def _wait_running(session, unit: str, samples: int = 50, timeout_s: float = 300.
 
 def _rung(unit: str, speed: float, seconds: float, state_dir: str,
           rt_priority: int | None = None, unit_config: str | None = None,
-          busy_poll: bool = False, stall_probe: bool = False, telemetry: bool = False) -> dict:
+          busy_poll: bool = False, stall_probe: bool = False, telemetry: bool = False,
+          plant_busy_poll: bool = False) -> dict:
     from services import keys
 
     nodes = _Nodes(unit, speed, lockstep=False, api=False, state_dir=state_dir,
                    rt_priority=rt_priority, unit_config=unit_config, busy_poll=busy_poll,
-                   telemetry=telemetry)
+                   telemetry=telemetry, plant_busy_poll=plant_busy_poll)
     s = _client_session(nodes)
     try:
         _wait_running(s, unit)
@@ -226,6 +232,8 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
             "plant_advance_max_ms": ps.get("advance_max_ms"),
             "plant_publish_lag_us": ps.get("publish_lag"),
             "telemetry_samples": cs.get("telemetry_samples"),
+            # how each node waited, as the nodes report it
+            "plant_busy_poll": ps.get("busy_poll"),
             "missed_samples": missed, "miss_causes": causes,
             "held_samples": held, "held_causes": held_causes,
             # of the held samples with both nodes' records: which part of the round trip
@@ -254,7 +262,7 @@ def speed_case(args, state_dir: str) -> dict:
     for speed in ladder:
         r = _rung(args.unit, speed, args.rung_seconds, state_dir, args.rt_priority,
                   args.unit_config, busy_poll=args.busy_poll, stall_probe=args.stall_probe,
-                  telemetry=args.telemetry)
+                  telemetry=args.telemetry, plant_busy_poll=args.plant_busy_poll)
         rungs.append(r)
         ok = r["deadline_misses"] == 0 and r["held"] == 0 and r["samples"] > 0
         if ok:
@@ -263,6 +271,7 @@ def speed_case(args, state_dir: str) -> dict:
             break
     common = {"case": "speed", "unit": "x real time", "plant_unit": args.unit, "rungs": rungs,
               "rt_priority": args.rt_priority, "busy_poll": args.busy_poll,
+              "plant_busy_poll": args.plant_busy_poll,
               "telemetry": args.telemetry, "cpu_idle": cpu_idle_settings(),
               "controller": cfg.controller,
               "strategy": cfg.strategy if cfg.plant == "te" else None}
@@ -283,7 +292,8 @@ def latency_case_run(args, state_dir: str) -> dict:
     cfg = load_unit_config(args.unit, args.unit_config)
     nodes = _Nodes(args.unit, 1.0, lockstep=True, api=False, state_dir=state_dir,
                    rt_priority=args.rt_priority, unit_config=args.unit_config,
-                   busy_poll=args.busy_poll, telemetry=args.telemetry)
+                   busy_poll=args.busy_poll, telemetry=args.telemetry,
+                   plant_busy_poll=args.plant_busy_poll)
     s = _client_session(nodes)
     try:
         _wait_running(s, args.unit)
@@ -300,7 +310,8 @@ def latency_case_run(args, state_dir: str) -> dict:
             "samples_per_wall_s": rate, "lockstep_speed": rate * cfg.sample_period_s,
             "te_equivalent_speed": rate * TE_SAMPLE_PERIOD_S,
             "sample_period_s": cfg.sample_period_s, "rt_priority": args.rt_priority,
-            "busy_poll": args.busy_poll, "telemetry": args.telemetry}
+            "busy_poll": args.busy_poll, "plant_busy_poll": args.plant_busy_poll,
+            "telemetry": args.telemetry}
 
 
 def rest_case_run(args, state_dir: str) -> dict:

@@ -65,6 +65,10 @@ def register(sub) -> None:
     p.add_argument("--noise", action="store_true", help="TE: measurement noise on")
     p.add_argument("--idv", action="append", type=int, default=[], metavar="K",
                    help="TE: switch disturbance IDV(K) on from the start (repeatable)")
+    p.add_argument("--busy-poll", action="store_true",
+                   help="keep the sample boundaries by polling instead of sleeping (a "
+                        "wake-up can come ms late on a VM), at the cost of one CPU at "
+                        "100%% (docs/realtime.md)")
     p.set_defaults(func=run_plant)
 
     p = sub.add_parser("controller", help="run a unit's controller node")
@@ -131,6 +135,15 @@ def _realtime_tuning(rt_priority: int | None = None) -> None:
             raise CLIError(f"rt_priority: cannot switch to SCHED_FIFO ({exc})") from exc
 
 
+def _warn_busy_poll_under_fifo(role: str, args) -> None:
+    if args.busy_poll and args.rt_priority is not None:
+        # a SCHED_FIFO thread that never sleeps keeps its CPU from every thread of
+        # lower or equal priority (Zenoh's, the kernel's) but for the RT throttling
+        logging.getLogger(f"ssmpc.{role}").warning(
+            "--busy-poll with --rt-priority: the polling thread holds one CPU under "
+            "SCHED_FIFO; give the node a CPU of its own (isolcpus, taskset)")
+
+
 def _logging() -> None:
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -186,8 +199,9 @@ def run_plant(args) -> int:
     try:
         node = PlantNode(cfg, session, speed=args.speed, expected_sender=args.sender,
                          lockstep=args.lockstep, lockstep_timeout_s=args.lockstep_timeout,
-                         runner=runner)
+                         runner=runner, busy_poll=args.busy_poll)
         _realtime_tuning(args.rt_priority)
+        _warn_busy_poll_under_fifo("plant", args)
         _ready("plant", cfg.unit, zid=session.zid())
         node.run(stop)
     finally:
@@ -240,12 +254,7 @@ def run_controller(args) -> int:
         node = ControllerNode(cfg, session, store, telemetry, speed=args.speed,
                               sender=args.sender, busy_poll=args.busy_poll)
         _realtime_tuning(args.rt_priority)
-        if args.busy_poll and args.rt_priority is not None:
-            # a SCHED_FIFO thread that never sleeps keeps its CPU from every thread of
-            # lower or equal priority (Zenoh's, the kernel's) but for the RT throttling
-            logging.getLogger("ssmpc.controller").warning(
-                "--busy-poll with --rt-priority: the polling thread holds one CPU under "
-                "SCHED_FIFO; give the node a CPU of its own (isolcpus, taskset)")
+        _warn_busy_poll_under_fifo("controller", args)
         _ready("controller", cfg.unit, zid=session.zid(), store=store.path)
         node.run(stop)
     finally:
