@@ -45,6 +45,7 @@ import logging
 import math
 import os
 import queue
+import resource
 import threading
 import time
 from collections import deque
@@ -75,6 +76,16 @@ from services.zenoh_session import declare_loop_publisher
 __all__ = ["ControllerNode"]
 
 log = logging.getLogger("ssmpc.controller")
+
+
+def _thread_switches() -> tuple[int, int]:
+    """(voluntary, involuntary) context switches of the calling thread so far (Linux;
+    (0, 0) where the platform does not count them per thread)."""
+    try:
+        ru = resource.getrusage(resource.RUSAGE_THREAD)
+    except (AttributeError, OSError):
+        return 0, 0
+    return ru.ru_nvcsw, ru.ru_nivcsw
 
 
 class _Worker:
@@ -573,6 +584,7 @@ class ControllerNode:
         """One sample: transition, reference, controller step, MV, bookkeeping."""
         t_begin = time.perf_counter()
         cpu_begin = time.thread_time()
+        sw_begin = _thread_switches()
         if self._align_pending:
             self._align(msg)
         hold = self.u_last.copy()
@@ -626,6 +638,7 @@ class ControllerNode:
         elapsed = time.perf_counter() - arrived
         self.sample_times.note(msg.seq, arrived, arrived + elapsed)
         cpu_ms = (time.thread_time() - cpu_begin) * 1e3
+        sw_end = _thread_switches()
         with self._lock:
             self.stats.record(elapsed, fallback=fired or decision.fallback)
             self.stats.note_phases(elapsed, {
@@ -642,6 +655,10 @@ class ControllerNode:
                 # guest counts time the host takes its vCPU away as CPU time (no steal
                 # time here), so a cpu_ms well above the usual one is the host's doing.
                 "cpu_ms": cpu_ms,
+                # context switches of this thread meanwhile: "preempted" (involuntary: a
+                # CPU taken by another thread) and "blocked" (it waited: a lock, the
+                # interpreter lock); they tell the two kinds of waiting apart
+                "preempted": sw_end[1] - sw_begin[1], "blocked": sw_end[0] - sw_begin[0],
                 "waited_ms": (arrived + elapsed - t_begin) * 1e3 - cpu_ms})
             self.u_last = np.asarray(u, float)
             self.last_decision = decision

@@ -35,7 +35,9 @@ def miss_cause(phases_ms: dict) -> str:
         A controller node's phase record (ms): ``queue_ms`` (from arrival to the start
         of processing: decoding, a previous sample still running), ``cpu_ms`` (the
         sample thread's CPU time while processing) and ``waited_ms`` (the rest of the
-        processing: waiting for the interpreter lock or for a CPU).
+        processing: waiting for the interpreter lock or for a CPU). The record's
+        ``preempted`` and ``blocked`` counts (the thread's involuntary and voluntary
+        context switches meanwhile) tell which of the two a "waiting" sample did.
 
     Returns
     -------

@@ -30,6 +30,8 @@ def test_bench_loop_jitter_and_speed_rungs(capsys):
         assert key in rung
     assert set(rung["miss_causes"]) == {"queued", "computing", "waiting"}
     assert sum(rung["miss_causes"].values()) == len(rung["missed_samples"])
+    assert set(rung["waiting_misses"]) == {"preempted", "blocked"}
+    assert all(0 <= n <= rung["miss_causes"]["waiting"] for n in rung["waiting_misses"].values())
     assert len(rung["missed_samples"]) <= rung["deadline_misses"]
     assert set(rung["held_causes"]) == {"published_late", "answered_late", "no_answer"}
     assert sum(rung["held_causes"].values()) == len(rung["held_samples"]) <= rung["held"]

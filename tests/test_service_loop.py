@@ -166,6 +166,9 @@ def test_closed_loop_transition_settles_at_the_grade(harness):
     assert worst["cpu_ms"] > 0 and worst["waited_ms"] > -0.05  # clocks differ in µs
     assert worst["cpu_ms"] + worst["waited_ms"] == pytest.approx(
         worst["total_ms"] - worst["queue_ms"], abs=1e-6)
+    # and the thread's context switches meanwhile (a CPU taken / a lock waited for)
+    for kind in ("preempted", "blocked"):  # counts (the record keeps numbers as floats)
+        assert worst[kind] >= 0 and worst[kind] == int(worst[kind])
     assert st["missed_samples"] == [] or all(
         m["total_ms"] > st["budget_ms"] for m in st["missed_samples"])
     h.ctrl.flush()

@@ -76,6 +76,27 @@ def test_clock_poll_stops_polling_when_asked():
     assert len(calls) == 3 and fake.now == 100.0  # returned long before the boundary
 
 
+def test_thread_switches_count_the_calling_threads_waits():
+    from services.controller_node import _thread_switches
+
+    out = {}
+
+    def sleeper():  # each sleep gives the CPU up: a voluntary switch of this thread only
+        v0, i0 = _thread_switches()
+        for _ in range(5):
+            time.sleep(0.002)
+        v1, i1 = _thread_switches()
+        out["v"], out["i"] = v1 - v0, i1 - i0
+
+    v_main0, _ = _thread_switches()
+    th = threading.Thread(target=sleeper)
+    th.start()
+    th.join()
+    assert out["v"] >= 5 and out["i"] >= 0
+    v_main1, _ = _thread_switches()
+    assert v_main1 - v_main0 <= 3  # the main thread only waited in join()
+
+
 def test_deadline_stats_counts_misses_and_slack():
     s = DeadlineStats(budget_s=1e-3)
     assert not s.record(0.5e-3)

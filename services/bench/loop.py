@@ -13,7 +13,9 @@ speed
     largest part (:func:`services.timing.miss_cause`): "queued" (before processing),
     "computing" (the thread's CPU time: the step itself, or the host taking the
     vCPU away, which a VM without steal time counts as CPU time), "waiting" (for the
-    interpreter lock or a CPU). Likewise the plant's latest held samples and
+    interpreter lock or a CPU; ``waiting_misses`` counts those that were preempted,
+    i.e. another thread took the CPU, and those that blocked on a lock). Likewise the
+    plant's latest held samples and
     ``held_causes`` (:func:`services.plant_node.held_cause`): "published_late" (the
     plant's own wake-up at the boundary), "answered_late", "no_answer". Each kept
     held sample is set beside the controller's record of it (the ``sample_times``
@@ -213,8 +215,13 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
         nodes.close()
     missed = cs.get("missed_samples") or []
     causes = {c: 0 for c in MISS_CAUSES}
+    waits = {"preempted": 0, "blocked": 0}
     for m in missed:  # the latest ones the controller kept (a bounded number)
-        causes[miss_cause(m)] += 1
+        cause = miss_cause(m)
+        causes[cause] += 1
+        if cause == "waiting":  # was its CPU taken, or did it wait for a lock?
+            for kind in waits:
+                waits[kind] += m.get(kind, 0) > 0
     held_causes = {c: 0 for c in HELD_CAUSES}
     split_counts = {p: 0 for p in HELD_PARTS}
     for h in held:
@@ -235,6 +242,8 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
             # how each node waited, as the nodes report it
             "plant_busy_poll": ps.get("busy_poll"),
             "missed_samples": missed, "miss_causes": causes,
+            # of the "waiting" ones: how many were preempted, how many blocked (or both)
+            "waiting_misses": waits,
             "held_samples": held, "held_causes": held_causes,
             # of the held samples with both nodes' records: which part of the round trip
             # was the longest (see held_split)
