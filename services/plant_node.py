@@ -266,6 +266,8 @@ class PlantNode:
     #: MV messages the busy-poll channel holds (more than one only when the loop is
     #: behind; all are taken in order, the newest acts).
     POLL_QUEUE = 16
+    #: Longest sleep between two looks at the stop event while waiting for a move, s.
+    STOP_CHECK_S = 0.1
 
     def __init__(self, cfg: UnitConfig, session, *, speed: float = 1.0,
                  expected_sender: str | None = None, lockstep: bool = False,
@@ -445,8 +447,8 @@ class PlantNode:
 
     def _take_mv(self, timeout_s: float,
                  stop: threading.Event | None = None) -> MVMessage | None:
-        """The newest accepted MV; waits up to ``timeout_s`` for the one answering sample k
-        (busy polling: also until ``stop`` is set)."""
+        """The newest accepted MV; waits up to ``timeout_s`` for the one answering sample k,
+        or until ``stop`` is set (seen within :attr:`STOP_CHECK_S` when sleeping)."""
         if self.busy_poll:
             end = time.perf_counter() + max(0.0, timeout_s)
             while True:
@@ -455,8 +457,15 @@ class PlantNode:
                         or (stop is not None and stop.is_set())):
                     break
         with self._cond:
-            ok = self._cond.wait_for(self._answered,
-                                     timeout=0.0 if self.busy_poll else max(0.0, timeout_s))
+            if self.busy_poll:
+                ok = self._answered()
+            else:  # in slices, so that a stop is not kept waiting for a whole period
+                end = time.perf_counter() + max(0.0, timeout_s)
+                while not (ok := self._answered()):
+                    left = end - time.perf_counter()
+                    if left <= 0 or (stop is not None and stop.is_set()):
+                        break
+                    self._cond.wait(min(left, self.STOP_CHECK_S))
             if not ok and self.lockstep:
                 self.counters.lockstep_timeouts += 1
             msg, self._pending = self._pending, None

@@ -512,6 +512,20 @@ def test_busy_poll_acts_on_the_newest_of_queued_measurements(harness):
     assert h.ctrl.status()["dropped_measurements"] == 2
 
 
+@pytest.mark.parametrize("plant_busy_poll", [False, True])
+def test_plant_waiting_for_a_move_stops_when_asked(harness, plant_busy_poll):
+    """A plant waiting for a move that does not come (its controller gone, a long
+    lock-step timeout or a slow speed's long period) stops at once when asked."""
+    h = harness(start_plant=False, plant_busy_poll=plant_busy_poll)
+    h.stop_controller()
+    h.start_plant(lockstep_timeout_s=30.0)
+    time.sleep(0.3)  # waiting for the move of sample 0
+    t0 = time.monotonic()
+    h.stop_plant.set()
+    h.plant_thread.join(5)
+    assert not h.plant_thread.is_alive() and time.monotonic() - t0 < 1.0
+
+
 def test_plant_busy_poll_takes_the_moves_in_on_its_own_thread(harness):
     """A plant node with busy polling: its loop thread takes the MV messages in (Zenoh's
     thread only queues them) and the loop runs a transition as the default does; the

@@ -83,8 +83,8 @@ def test_thread_switches_count_the_calling_threads_waits():
 
     def sleeper():  # each sleep gives the CPU up: a voluntary switch of this thread only
         v0, i0 = _thread_switches()
-        for _ in range(5):
-            time.sleep(0.002)
+        for _ in range(50):
+            time.sleep(0.001)
         v1, i1 = _thread_switches()
         out["v"], out["i"] = v1 - v0, i1 - i0
 
@@ -92,9 +92,10 @@ def test_thread_switches_count_the_calling_threads_waits():
     th = threading.Thread(target=sleeper)
     th.start()
     th.join()
-    assert out["v"] >= 5 and out["i"] >= 0
+    assert out["v"] >= 50 and out["i"] >= 0
     v_main1, _ = _thread_switches()
-    assert v_main1 - v_main0 <= 3  # the main thread only waited in join()
+    # per thread: the main thread only waited in start() and join(), a few times
+    assert v_main1 - v_main0 < 25
 
 
 def test_deadline_stats_counts_misses_and_slack():
