@@ -503,6 +503,10 @@ class MultiModelController:
         # None when the law has no soft constraint or did not solve this sample
         slack = info.get("slack") if isinstance(info, dict) and status != "law_failed" else None
         extra["constraint_slack"] = None if slack is None else float(slack)
+        if isinstance(info, dict) and status != "law_failed":
+            for key in ("iterations", "qp_solve_ms"):  # the QP's own work, when reported
+                if key in info:
+                    extra[key] = info[key]
         if self.record_params:
             extra["params"] = {j: self.estimators[j].p.copy() for j in self.adaptive}
         return self._decision(u, status, fallback, alarms, t0, extra)

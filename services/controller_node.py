@@ -88,6 +88,16 @@ def _thread_switches() -> tuple[int, int]:
     return ru.ru_nvcsw, ru.ru_nivcsw
 
 
+def _qp_work(extra: dict) -> dict:
+    """``qp_solve_ms`` and ``qp_iterations`` of a decision's extras, those reported."""
+    out = {}
+    if isinstance(extra.get("qp_solve_ms"), int | float):
+        out["qp_solve_ms"] = extra["qp_solve_ms"]
+    if isinstance(extra.get("iterations"), int):
+        out["qp_iterations"] = extra["iterations"]
+    return out
+
+
 class _Worker:
     """One background thread for the slow chores of a sample (SQLite, Rerun),
     in submission order, so that they never delay the next move."""
@@ -659,6 +669,10 @@ class ControllerNode:
                 # CPU taken by another thread) and "blocked" (it waited: a lock, the
                 # interpreter lock); they tell the two kinds of waiting apart
                 "preempted": sw_end[1] - sw_begin[1], "blocked": sw_end[0] - sw_begin[0],
+                # the QP's part of controller_ms, when the controller reports it: a slow
+                # sample with a usual QP time and iteration count was slowed down, not
+                # given more work
+                **_qp_work(decision.extra),
                 "waited_ms": (arrived + elapsed - t_begin) * 1e3 - cpu_ms})
             self.u_last = np.asarray(u, float)
             self.last_decision = decision

@@ -169,6 +169,7 @@ def test_closed_loop_transition_settles_at_the_grade(harness):
     # and the thread's context switches meanwhile (a CPU taken / a lock waited for)
     for kind in ("preempted", "blocked"):  # counts (the record keeps numbers as floats)
         assert worst[kind] >= 0 and worst[kind] == int(worst[kind])
+    assert "qp_solve_ms" not in worst  # the cstr unit's H-infinity law solves no QP
     assert st["missed_samples"] == [] or all(
         m["total_ms"] > st["budget_ms"] for m in st["missed_samples"])
     h.ctrl.flush()
@@ -328,6 +329,12 @@ def test_each_unit_controller_runs_a_transition_over_zenoh(harness, unit, contro
     err = np.abs([st["cv"][n] - v for n, v in target.items()])
     assert np.all(err <= h.cfg.settle_tolerance * scale + 1e-12)
     assert st["active_model_name"] in h.ctrl.last_decision.model_names
+    worst = st["slowest_sample"]
+    if controller == "ssmpc":  # the QP's part of the step and its iterations
+        assert 0 < worst["qp_solve_ms"] <= worst["controller_ms"]
+        assert worst["qp_iterations"] >= 1
+    else:
+        assert "qp_solve_ms" not in worst and "qp_iterations" not in worst
 
 
 def test_stale_and_implausible_measurements_are_not_acted_on(harness):

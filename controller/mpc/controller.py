@@ -350,8 +350,8 @@ class MPCController:
             # The budget covers the sample's work except a one-off (re)build of a
             # model's matrices, which prepare() can do ahead of time.
             elapsed_ms = (self.clock() - t_build + t_pre - t0) * 1e3
-            extra = {"iterations": res.iterations, "y_filtered": y_f,
-                     "elapsed_ms": elapsed_ms, "backend": res.backend}
+            extra = {"iterations": res.iterations, "qp_solve_ms": res.solve_ms,
+                     "y_filtered": y_f, "elapsed_ms": elapsed_ms, "backend": res.backend}
             if res.ok and elapsed_ms <= s.budget_ms:
                 z = res.x
                 plan = z[:form.n_moves].reshape(s.M, s.nu)

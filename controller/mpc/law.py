@@ -209,6 +209,9 @@ class MPCLaw:
                 "solve_ms": dec.solve_ms}
         if "slack" in dec.extra:
             info["slack"] = dec.extra["slack"]
+        for key in ("iterations", "qp_solve_ms"):  # the QP's own work, for diagnostics
+            if key in dec.extra:
+                info[key] = dec.extra[key]
         return dec.u, info
 
     def counters(self) -> dict[str, int]:
