@@ -43,6 +43,19 @@ def test_ssmpc_structure():
     assert spec.sample_steps == 20
 
 
+def test_ssmpc_decision_reports_the_qps_own_work():
+    """The QP's solve time and iterations reach the TE decision (the controller node
+    keeps them with a slow sample's phases)."""
+    ctl, _ = make_te_controller("ssmpc")
+    dec = ctl.step(0, 0.0, np.r_[grade(0).xmeas].astype(float), None)
+    assert dec.status == "solved" and not dec.fallback
+    assert dec.extra["iterations"] >= 1
+    assert 0 < dec.extra["qp_solve_ms"] <= dec.extra["solve_ms"]
+    fixed, _ = make_te_controller("pi")  # no QP: nothing reported
+    dec = fixed.step(0, 0.0, np.r_[grade(0).xmeas].astype(float), None)
+    assert "iterations" not in dec.extra and "qp_solve_ms" not in dec.extra
+
+
 def test_bad_mpc_options():
     with pytest.raises(ValueError, match="pressure_soft_max"):
         TEMPCOptions(pressure_soft_max=3100.0)

@@ -390,6 +390,9 @@ class TEController:
             # the MPC's soft reactor-pressure constraint: its slack (None = no solve)
             info["constraint_slack"] = dec.extra.get("constraint_slack")
             info["law_status"] = dec.extra.get("law_status", status)
+            for key in ("iterations", "qp_solve_ms"):  # the QP's own work, when reported
+                if key in dec.extra:
+                    info[key] = dec.extra[key]
         for j, xmv in enumerate(CORE_XMVS):
             if xmv is not None:
                 u[xmv - 1] = core_u[j]
