@@ -71,7 +71,7 @@ from services.units import (
     plausible_ranges,
     unit_info,
 )
-from services.zenoh_session import declare_loop_publisher
+from services.zenoh_session import declare_loop_publisher, declare_loop_subscriber
 
 __all__ = ["ControllerNode"]
 
@@ -238,13 +238,9 @@ class ControllerNode:
         self._mv_pub = declare_loop_publisher(session, keys.mv(cfg.unit))
         self._status_pub = session.declare_publisher(keys.status(cfg.unit))
         self.busy_poll = bool(busy_poll)
-        if self.busy_poll:  # run() polls the channel; Zenoh's thread only queues
-            import zenoh
-
-            self._sub = session.declare_subscriber(
-                keys.meas(cfg.unit), handler=zenoh.handlers.FifoChannel(self.POLL_QUEUE))
-        else:
-            self._sub = session.declare_subscriber(keys.meas(cfg.unit), self._on_meas)
+        self._sub = declare_loop_subscriber(  # busy polling: run() polls the channel
+            session, keys.meas(cfg.unit), self._on_meas,
+            poll_queue=self.POLL_QUEUE if self.busy_poll else None)
         self._qry = session.declare_queryable(keys.cmd_all(cfg.unit), self._on_query)
         self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "controller"))
         self._plant_live = session.liveliness().declare_subscriber(

@@ -49,7 +49,7 @@ from services import keys
 from services.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.timing import GC_PAUSES, SampleClock, TimingBudget, percentile_summary
 from services.units import UnitConfig, build_plant, cv_indices, mv_indices, time_scale_s
-from services.zenoh_session import declare_loop_publisher
+from services.zenoh_session import declare_loop_publisher, declare_loop_subscriber
 
 __all__ = ["ODERunner", "PlantNode", "PlantCounters"]
 
@@ -301,13 +301,9 @@ class PlantNode:
         self._held_open: dict[int, dict] = {}  # sample -> its record, awaiting the answer
         self._pub = declare_loop_publisher(session, keys.meas(cfg.unit))
         self.busy_poll = bool(busy_poll)
-        if self.busy_poll:  # run() polls the channel; Zenoh's thread only queues
-            import zenoh
-
-            self._sub = session.declare_subscriber(
-                keys.mv(cfg.unit), handler=zenoh.handlers.FifoChannel(self.POLL_QUEUE))
-        else:
-            self._sub = session.declare_subscriber(keys.mv(cfg.unit), self._on_mv)
+        self._sub = declare_loop_subscriber(  # busy polling: run() polls the channel
+            session, keys.mv(cfg.unit), self._on_mv,
+            poll_queue=self.POLL_QUEUE if self.busy_poll else None)
         self._qry = session.declare_queryable(keys.plant_cmd_all(cfg.unit), self._on_query)
         self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "plant"))
         self.controller_alive = False

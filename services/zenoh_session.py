@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 __all__ = ["SessionSettings", "build_config", "open_session", "declare_loop_publisher",
-           "free_port", "free_tcp_endpoint"]
+           "declare_loop_subscriber", "free_port", "free_tcp_endpoint"]
 
 MODES = ("peer", "client", "router")
 
@@ -110,6 +110,21 @@ def declare_loop_publisher(session, key_expr):
     return session.declare_publisher(key_expr, express=True,
                                      priority=zenoh.Priority.REAL_TIME,
                                      congestion_control=zenoh.CongestionControl.DROP)
+
+
+def declare_loop_subscriber(session, key_expr, callback, *, poll_queue: int | None = None):
+    """A subscriber for the control loop's own messages.
+
+    ``callback`` runs on Zenoh's thread for each sample; with ``poll_queue`` Zenoh's
+    thread only queues the samples in a FIFO channel of that depth, and the loop's
+    own thread takes them with ``try_recv`` (busy polling).
+    """
+    if poll_queue is None:
+        return session.declare_subscriber(key_expr, callback)
+    import zenoh
+
+    return session.declare_subscriber(key_expr,
+                                      handler=zenoh.handlers.FifoChannel(int(poll_queue)))
 
 
 def free_port(host: str = "127.0.0.1") -> int:
