@@ -13,7 +13,12 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["ControlDecision", "SampleController"]
+__all__ = ["ControlDecision", "SampleController", "QP_WORK_KEYS"]
+
+#: Keys of ``ControlDecision.extra`` with the QP's own work at a sample, where a
+#: controller solves one: ``iterations`` (int) and ``qp_solve_ms`` (float). Layers
+#: that wrap a QP controller pass them on.
+QP_WORK_KEYS = ("iterations", "qp_solve_ms")
 
 
 @dataclass(frozen=True)

@@ -49,7 +49,7 @@ import numpy as np
 import scipy.linalg
 
 from controller.adaptation import AdaptiveKind, NLSSettings, NormalizedLeastSquares
-from controller.interfaces import ControlDecision
+from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.state_shared import StateSharedModel
 from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
 
@@ -501,12 +501,11 @@ class MultiModelController:
                                  "law_status": status}
         # the soft output constraint's exact-penalty slack (not the timing slack);
         # None when the law has no soft constraint or did not solve this sample
-        slack = info.get("slack") if isinstance(info, dict) and status != "law_failed" else None
+        reported = info if isinstance(info, dict) and status != "law_failed" else {}
+        slack = reported.get("slack")
         extra["constraint_slack"] = None if slack is None else float(slack)
-        if isinstance(info, dict) and status != "law_failed":
-            for key in ("iterations", "qp_solve_ms"):  # the QP's own work, when reported
-                if key in info:
-                    extra[key] = info[key]
+        # the QP's own work, when the law reports it
+        extra.update((key, reported[key]) for key in QP_WORK_KEYS if key in reported)
         if self.record_params:
             extra["params"] = {j: self.estimators[j].p.copy() for j in self.adaptive}
         return self._decision(u, status, fallback, alarms, t0, extra)

@@ -45,7 +45,6 @@ import logging
 import math
 import os
 import queue
-import resource
 import threading
 import time
 from collections import deque
@@ -56,7 +55,14 @@ from services import keys
 from services.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.store import UnitStore
 from services.telemetry import TelemetryLogger
-from services.timing import GC_PAUSES, DeadlineStats, SampleTimes, TimingBudget, Watchdog
+from services.timing import (
+    GC_PAUSES,
+    DeadlineStats,
+    SampleTimes,
+    TimingBudget,
+    Watchdog,
+    thread_switches,
+)
 from services.transitions import (
     ConflictError,
     TransitionError,
@@ -78,18 +84,9 @@ __all__ = ["ControllerNode"]
 log = logging.getLogger("ssmpc.controller")
 
 
-def _thread_switches() -> tuple[int, int]:
-    """(voluntary, involuntary) context switches of the calling thread so far (Linux;
-    (0, 0) where the platform does not count them per thread)."""
-    try:
-        ru = resource.getrusage(resource.RUSAGE_THREAD)
-    except (AttributeError, OSError):
-        return 0, 0
-    return ru.ru_nvcsw, ru.ru_nivcsw
-
-
 def _qp_work(extra: dict) -> dict:
-    """``qp_solve_ms`` and ``qp_iterations`` of a decision's extras, those reported."""
+    """``qp_solve_ms`` and ``qp_iterations`` of a decision's extras, those reported
+    (:data:`controller.interfaces.QP_WORK_KEYS`)."""
     out = {}
     if isinstance(extra.get("qp_solve_ms"), int | float):
         out["qp_solve_ms"] = extra["qp_solve_ms"]
@@ -590,7 +587,7 @@ class ControllerNode:
         """One sample: transition, reference, controller step, MV, bookkeeping."""
         t_begin = time.perf_counter()
         cpu_begin = time.thread_time()
-        sw_begin = _thread_switches()
+        sw_begin = thread_switches()
         if self._align_pending:
             self._align(msg)
         hold = self.u_last.copy()
@@ -644,7 +641,7 @@ class ControllerNode:
         elapsed = time.perf_counter() - arrived
         self.sample_times.note(msg.seq, arrived, arrived + elapsed)
         cpu_ms = (time.thread_time() - cpu_begin) * 1e3
-        sw_end = _thread_switches()
+        sw_end = thread_switches()
         with self._lock:
             self.stats.record(elapsed, fallback=fired or decision.fallback)
             self.stats.note_phases(elapsed, {

@@ -445,8 +445,8 @@ class PlantNode:
                  stop: threading.Event | None = None) -> MVMessage | None:
         """The newest accepted MV; waits up to ``timeout_s`` for the one answering sample k,
         or until ``stop`` is set (seen within :attr:`STOP_CHECK_S` when sleeping)."""
+        end = time.perf_counter() + max(0.0, timeout_s)
         if self.busy_poll:
-            end = time.perf_counter() + max(0.0, timeout_s)
             while True:
                 self._poll_mv()
                 if (self._answered() or time.perf_counter() >= end
@@ -456,7 +456,6 @@ class PlantNode:
             if self.busy_poll:
                 ok = self._answered()
             else:  # in slices, so that a stop is not kept waiting for a whole period
-                end = time.perf_counter() + max(0.0, timeout_s)
                 while not (ok := self._answered()):
                     left = end - time.perf_counter()
                     if left <= 0 or (stop is not None and stop.is_set()):

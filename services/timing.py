@@ -11,6 +11,7 @@ the late computation finishes, and the miss is counted.
 from __future__ import annotations
 
 import math
+import resource
 import threading
 import time
 from collections import deque
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["TimingBudget", "SampleClock", "DeadlineStats", "SampleTimes", "Watchdog",
-           "GC_PAUSES", "percentile_summary", "miss_cause", "MISS_CAUSES"]
+           "GC_PAUSES", "percentile_summary", "miss_cause", "MISS_CAUSES", "thread_switches"]
 
 #: Where a missed sample's time went, by its largest part (see :func:`miss_cause`).
 MISS_CAUSES = ("queued", "computing", "waiting")
@@ -50,6 +51,17 @@ def miss_cause(phases_ms: dict) -> str:
     parts = {"queued": phases_ms["queue_ms"], "computing": phases_ms["cpu_ms"],
              "waiting": phases_ms["waited_ms"]}
     return max(MISS_CAUSES, key=lambda k: parts[k])
+
+
+def thread_switches() -> tuple[int, int]:
+    """(voluntary, involuntary) context switches of the calling thread so far (Linux;
+    (0, 0) where the platform does not count them per thread): the ``blocked`` and
+    ``preempted`` counts of a phase record (:func:`miss_cause`)."""
+    try:
+        ru = resource.getrusage(resource.RUSAGE_THREAD)
+    except (AttributeError, OSError):
+        return 0, 0
+    return ru.ru_nvcsw, ru.ru_nivcsw
 
 
 def percentile_summary(values, scale: float = 1.0) -> dict | None:

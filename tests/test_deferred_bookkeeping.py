@@ -13,12 +13,19 @@ import pytest
 
 from controller.adaptation import NLSSettings, NormalizedLeastSquares
 
+G_D = 0.01  # per-sample gain of every estimator here
+
+
+def _estimator(n: int) -> NormalizedLeastSquares:
+    """An estimator of n parameters from zero, default settings."""
+    return NormalizedLeastSquares(NLSSettings(), np.zeros(n), G_D)
+
 
 @pytest.mark.parametrize("n", [12, 213])  # dense covariance / implicit c I - V V'
 def test_deferred_covariance_step_equals_the_immediate_one(n):
     rng = np.random.default_rng(7)
-    a = NormalizedLeastSquares(NLSSettings(), np.zeros(n), 0.01)
-    b = NormalizedLeastSquares(NLSSettings(), np.zeros(n), 0.01)
+    a = _estimator(n)
+    b = _estimator(n)
     theta = rng.standard_normal(n)
     for k in range(120):
         W = rng.standard_normal((5, n))
@@ -39,12 +46,12 @@ def test_deferred_covariance_step_equals_the_immediate_one(n):
 def test_checkpoint_commits_a_pending_step():
     rng = np.random.default_rng(1)
     n = 213
-    a = NormalizedLeastSquares(NLSSettings(), np.zeros(n), 0.01)
+    a = _estimator(n)
     W, y = rng.standard_normal((5, n)), rng.standard_normal(5)
     a.update(W, y, defer=True)
-    twin = NormalizedLeastSquares(NLSSettings(), np.zeros(n), 0.01)
+    twin = _estimator(n)
     twin.restore(json.loads(json.dumps(a.checkpoint())))
-    ref = NormalizedLeastSquares(NLSSettings(), np.zeros(n), 0.01)
+    ref = _estimator(n)
     ref.update(W, y)
     np.testing.assert_array_equal(twin.P, ref.P)
 
@@ -92,8 +99,8 @@ PREPARED_RTOL = 1e-10  # P W' summed in another order: round-off only
 def test_prepared_update_equals_the_update_on_the_full_regressor(n):
     """``prepare(W_base, d)`` then ``update_prepared(y)`` is ``update(W_base + y d', y)``."""
     rng = np.random.default_rng(11)
-    a = NormalizedLeastSquares(NLSSettings(), np.zeros(n), 0.01)
-    b = NormalizedLeastSquares(NLSSettings(), np.zeros(n), 0.01)
+    a = _estimator(n)
+    b = _estimator(n)
     theta = rng.standard_normal(n)
     d = np.zeros(n)
     d[3:7] = rng.standard_normal(4)  # the hold's columns
@@ -113,7 +120,7 @@ def test_prepared_update_equals_the_update_on_the_full_regressor(n):
 
 def test_a_covariance_change_discards_the_preparation():
     rng = np.random.default_rng(2)
-    est = NormalizedLeastSquares(NLSSettings(), np.zeros(20), 0.01)
+    est = _estimator(20)
     W = rng.standard_normal((3, 20))
     with pytest.raises(RuntimeError, match="prepare"):
         est.update_prepared(np.ones(3))
@@ -130,7 +137,7 @@ def test_a_covariance_change_discards_the_preparation():
 
 
 def test_prepared_update_skips_a_non_finite_output_and_keeps_p():
-    est = NormalizedLeastSquares(NLSSettings(), np.ones(8), 0.01)
+    est = NormalizedLeastSquares(NLSSettings(), np.ones(8), G_D)
     d = np.zeros(8)
     d[2] = 0.5
     est.prepare(np.eye(2, 8), d)

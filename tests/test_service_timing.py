@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from services.timing import DeadlineStats, SampleClock, TimingBudget, Watchdog
+from services.timing import DeadlineStats, SampleClock, TimingBudget, Watchdog, thread_switches
 
 
 def test_budget_is_fraction_of_scaled_period():
@@ -77,23 +77,21 @@ def test_clock_poll_stops_polling_when_asked():
 
 
 def test_thread_switches_count_the_calling_threads_waits():
-    from services.controller_node import _thread_switches
-
     out = {}
 
     def sleeper():  # each sleep gives the CPU up: a voluntary switch of this thread only
-        v0, i0 = _thread_switches()
+        v0, i0 = thread_switches()
         for _ in range(50):
             time.sleep(0.001)
-        v1, i1 = _thread_switches()
+        v1, i1 = thread_switches()
         out["v"], out["i"] = v1 - v0, i1 - i0
 
-    v_main0, _ = _thread_switches()
+    v_main0, _ = thread_switches()
     th = threading.Thread(target=sleeper)
     th.start()
     th.join()
     assert out["v"] >= 50 and out["i"] >= 0
-    v_main1, _ = _thread_switches()
+    v_main1, _ = thread_switches()
     # per thread: the main thread only waited in start() and join(), a few times
     assert v_main1 - v_main0 < 25
 

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.interfaces import QP_WORK_KEYS
 from controller.mpc.controller import ModelView, MPCController
 from controller.mpc.settings import MPCSettings
 from controller.packing import pack_array, unpack_array
@@ -209,9 +210,7 @@ class MPCLaw:
                 "solve_ms": dec.solve_ms}
         if "slack" in dec.extra:
             info["slack"] = dec.extra["slack"]
-        for key in ("iterations", "qp_solve_ms"):  # the QP's own work, for diagnostics
-            if key in dec.extra:
-                info[key] = dec.extra[key]
+        info.update((key, dec.extra[key]) for key in QP_WORK_KEYS if key in dec.extra)
         return dec.u, info
 
     def counters(self) -> dict[str, int]:

@@ -86,7 +86,7 @@ from typing import Any
 
 import numpy as np
 
-from controller.interfaces import ControlDecision
+from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop, RegulatoryLayer
 from services.studies.te_grades import TransitionPlan, limit_margins
 from services.studies.te_pi_baseline import PI_BASELINE_LOOPS, PRODUCTION_LOOP, VelocityPI
@@ -390,9 +390,7 @@ class TEController:
             # the MPC's soft reactor-pressure constraint: its slack (None = no solve)
             info["constraint_slack"] = dec.extra.get("constraint_slack")
             info["law_status"] = dec.extra.get("law_status", status)
-            for key in ("iterations", "qp_solve_ms"):  # the QP's own work, when reported
-                if key in dec.extra:
-                    info[key] = dec.extra[key]
+            info.update((key, dec.extra[key]) for key in QP_WORK_KEYS if key in dec.extra)
         for j, xmv in enumerate(CORE_XMVS):
             if xmv is not None:
                 u[xmv - 1] = core_u[j]
