@@ -35,7 +35,7 @@ from api.schemas import (
     UnitLiveliness,
     UnitsResponse,
 )
-from services.messages import Reply
+from services.io.messages import Reply
 
 __all__ = ["create_app"]
 

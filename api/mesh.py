@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import threading
 
-from services import keys
-from services.messages import MessageError, Reply, Request
+from services.io import keys
+from services.io.messages import MessageError, Reply, Request
 
 __all__ = ["Mesh", "MeshError"]
 

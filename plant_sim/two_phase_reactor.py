@@ -21,7 +21,7 @@ loops): the inputs are the set points F1, F2, F3 (kmol/h) and x4bar, and the val
 follow (x3 = F3 / (Cv3 sqrt(P - Pr))). With flow inputs the OPI linearization gives
 the seed's eigenvalues (R3.1) to 4 digits (-3.6077, -1.2647, -0.0744, -0.0659); with
 valve inputs the slowest mode is 6.5 % off (finding of the chapter-3 study,
-services/studies/ch3.py). Outputs
+services/reproduce/ch3.py). Outputs
 P (kPa), yA3 (mol %), F4 (kmol/h). The shutdown limit P <= 3000 kPa is the upper
 bound of the P output (2900 kPa is Ricker's conservative override,
 :data:`P_CONSERVATIVE`). The computed product valve x4 is clipped to 0-100 % and
@@ -36,7 +36,7 @@ Operating points are solved at construction with :func:`find_steady_state`:
 - OPII: **provisional reconstruction, low confidence** (the seed's Tables 3.1/3.2 are
   lost): F4 = 130 kmol/h, P = 2850 kPa, yA3 = 63.5 %, same ND, chosen in the facts
   because its eigenvalues fit the seed's to 1-3 %.
-- ``opii="eigenfit"``: the chapter-3 study's OPII instead (services/studies/ch3.py):
+- ``opii="eigenfit"``: the chapter-3 study's OPII instead (services/reproduce/ch3.py):
   P = 2850 kPa, yA3 = 63 %, F4 = 130 kmol/h with x4bar kept at its OPI value, so the
   proportional level loop settles at VL = 15.9 m^3. With ``inputs="flows"`` its
   eigenvalues match the seed's OPII ones (-4.4591, -1.3009, -0.1107, -0.1001) to

@@ -9,8 +9,8 @@ import uvicorn
 
 from api.app import create_app
 from api.mesh import Mesh
-from services import keys
-from services.zenoh_session import SessionSettings, free_port, open_session
+from services.io import keys
+from services.io.zenoh_session import SessionSettings, free_port, open_session
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 

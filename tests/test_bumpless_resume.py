@@ -2,7 +2,7 @@
 
 A restarted controller node restores a checkpoint that may be many samples old and
 then takes over the move the plant holds (``MultiModelController.align``). The loops
-here run the unit controllers of :mod:`services.units` on their plants sample by
+here run the unit controllers of :mod:`services.registry` on their plants sample by
 sample (no Zenoh): checkpoint, run on, restore the old checkpoint, align to the move
 now held, and compare the moves that follow with the held move itself (the
 independent reference) and with the size of the moves before the restart.
@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from controller.hinf import DiscreteController, equilibrium_state
-from services.plant_node import ODERunner
-from services.units import build_controller, build_plant, get_unit, grade_setpoints
+from controller.units.config import build_plant, grade_setpoints
+from services.nodes.plant import ODERunner
+from services.registry import build_controller, get_unit
 
 FIRST_MOVE_TOL = 1e-9  # the first move after the take-over is the held move (round-off)
 KICK_FACTOR = 2.0  # later moves: at most this many times the largest move before the kill

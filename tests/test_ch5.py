@@ -172,7 +172,7 @@ def test_sampled_opi_controller_with_the_exact_zoh_opii_linearization_is_stable(
     from controller.hinf import siso_model_tf, synthesize
     from plant_sim import get_plant
     from plant_sim.linearize import linearize
-    from services.studies.ch5 import A_POLY, BIO_WEIGHTS, _fixed_spec
+    from services.reproduce.ch5 import A_POLY, BIO_WEIGHTS, _fixed_spec
 
     plant = get_plant("bioreactor")
     th = _fixed_spec(plant, "OPI", "M1").theta[:, 0]

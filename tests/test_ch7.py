@@ -1,11 +1,10 @@
-"""Seed chapter 7 reproductions (services.studies.ch7): checks against printed numbers."""
+"""Seed chapter 7 reproductions (services.reproduce.ch7): checks against printed numbers."""
 
 import math
 
 import pytest
 
-from services.reproduce import StudyContext
-from services.studies import ch7
+from services.reproduce import StudyContext, ch7
 
 CTX = StudyContext()
 PROD_UP = 5.0  # %, a production rise beyond this under a lost feed would be implausible

@@ -59,10 +59,10 @@ def test_checkpoint_commits_a_pending_step():
 def _te_moves(finish: bool, n: int = 160):
     from test_te_control_mpc import apply_decision
 
+    from controller.units.te.control import make_te_controller
+    from controller.units.te.grades import Leg, TransitionPlan
     from plant_sim.tennessee_eastman import TESimulator
     from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
-    from services.studies.te_control import make_te_controller
-    from services.studies.te_grades import Leg, TransitionPlan
 
     ctl, spec = make_te_controller("ssmpc", TransitionPlan("mode0", (Leg(0.2, "mode2"),)))
     sim = TESimulator()
@@ -152,10 +152,10 @@ def test_te_step_reads_no_covariance_when_the_bookkeeping_ran():
     the measurement and the move does not form P W' (the (213, 213) covariance)."""
     from test_te_control_mpc import apply_decision
 
+    from controller.units.te.control import make_te_controller
+    from controller.units.te.grades import TransitionPlan
     from plant_sim.tennessee_eastman import TESimulator
     from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
-    from services.studies.te_control import make_te_controller
-    from services.studies.te_grades import TransitionPlan
 
     ctl, spec = make_te_controller("ssmpc", TransitionPlan("mode0"))
     sim = TESimulator()
@@ -180,9 +180,9 @@ def test_te_plan_references_are_evaluated_after_the_move_on_the_sample_grid():
     """finish_sample evaluates the next sample's plan references; a step at that time
     (up to the round-off of another clock) uses them, one off the grid evaluates its
     own, and the values are those of the plan at the grid time."""
+    from controller.units.te.control import SAMPLE_H, make_te_controller
+    from controller.units.te.grades import Leg, TransitionPlan
     from plant_sim.tennessee_eastman import TESimulator
-    from services.studies.te_control import SAMPLE_H, make_te_controller
-    from services.studies.te_grades import Leg, TransitionPlan
 
     plan = TransitionPlan("mode0", (Leg(0.05, "mode2"),))
     ctl, _ = make_te_controller("ssmpc", plan)

@@ -2,7 +2,7 @@
 
 A controller node and a plant node (CSTR unit, real-time mode at 10x: 10 ms per
 sample) run in threads, each on its own Zenoh session; the two sessions are not
-linked, a :class:`~services.faults.ChaosRelay` forwards between them and injects
+linked, a :class:`~services.soak.faults.ChaosRelay` forwards between them and injects
 one fault kind in a window of process time. Every test checks the handling that
 the fault needs, so it fails if that handling is removed. Node kills are tested
 through the soak (``test_soak.py``); the fault grammar at the end.
@@ -14,8 +14,13 @@ import time
 import numpy as np
 import pytest
 
-from services.controller_node import ControllerNode
-from services.faults import (
+from controller.units.config import build_plant
+from services.io.messages import Measurement, MessageError, MVMessage
+from services.io.zenoh_session import SessionSettings, free_tcp_endpoint, open_session
+from services.nodes.controller import ControllerNode
+from services.nodes.plant import PlantNode
+from services.registry import build_controller, get_unit
+from services.soak.faults import (
     OUT_OF_RANGE_VALUE,
     ChaosRelay,
     FaultSpecError,
@@ -25,12 +30,8 @@ from services.faults import (
     default_faults,
     parse_faults,
 )
-from services.messages import Measurement, MessageError, MVMessage
-from services.plant_node import PlantNode
 from services.store import UnitStore
 from services.timing import TimingBudget
-from services.units import build_controller, build_plant, get_unit
-from services.zenoh_session import SessionSettings, free_tcp_endpoint, open_session
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
@@ -268,7 +269,7 @@ def test_corrupted_measurement_decodes_or_fails_as_intended(kind):
 
 
 def test_relay_mirrors_the_plant_liveliness_to_the_controller_side(chaos):
-    from services import keys
+    from services.io import keys
 
     loop = chaos(windows=[])
     loop.run_until(0.5)

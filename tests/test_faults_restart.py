@@ -16,12 +16,12 @@ import time
 import numpy as np
 import pytest
 
-from services.controller_node import ControllerNode
-from services.messages import MVMessage
-from services.plant_node import PlantNode
+from services.io.messages import MVMessage
+from services.io.zenoh_session import SessionSettings, free_tcp_endpoint, open_session
+from services.nodes.controller import ControllerNode
+from services.nodes.plant import PlantNode
+from services.registry import get_unit
 from services.store import UnitStore
-from services.units import get_unit
-from services.zenoh_session import SessionSettings, free_tcp_endpoint, open_session
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
@@ -47,7 +47,7 @@ def test_restart_resumes_from_the_move_the_plant_holds(tmp_path):
     s_spy = open_session(SessionSettings(connect=(ep,), lease_ms=1000))
     s_ctrl = open_session(SessionSettings(connect=(ep,), lease_ms=1000))
     mvs: list[tuple[float, MVMessage]] = []
-    from services import keys
+    from services.io import keys
 
     spy = s_spy.declare_subscriber(
         keys.mv("cstr"),

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from plant_sim import PlantInputError, get_plant
-from services.benchmarking import latency_case, rate_case
+from services.bench._common import latency_case, rate_case
 
 
 def test_variables_by_kind_and_clear_errors():

@@ -13,7 +13,7 @@ from test_service_loop import Harness
 
 from api.app import create_app
 from api.mesh import Mesh
-from services.zenoh_session import SessionSettings, open_session
+from services.io.zenoh_session import SessionSettings, open_session
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(600)]
 

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from services.messages import (
+from services.io.messages import (
     SCHEMA_VERSION,
     Measurement,
     MessageError,

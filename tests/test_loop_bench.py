@@ -65,7 +65,7 @@ def test_bench_loop_with_telemetry_and_both_nodes_polling(capsys):
 
 
 def test_held_cause_names_the_part_that_was_late():
-    from services.plant_node import held_cause
+    from services.nodes.plant import held_cause
 
     rec = {"period_ms": 3.6, "publish_lag_ms": 0.1, "answered_after_ms": 4.0}
     assert held_cause(rec) == "answered_late"

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from services.messages import (
+from services.io.messages import (
     SCHEMA_VERSION,
     Measurement,
     MessageError,

@@ -36,7 +36,7 @@ def test_r6_1_f4_reaches_130_within_10_h_without_pressure_violation(capsys, tmp_
 
 def test_r6_1_closed_loop_directly():
     """Independent of the study's own settling metric: the plant output itself."""
-    from services.studies.ch6 import ReactorCase, run_reactor
+    from services.reproduce.ch6 import ReactorCase, run_reactor
 
     run = run_reactor(ReactorCase(t_end=12.0))
     after = run.t >= run.case.t_step + 10.0
@@ -84,7 +84,7 @@ NOISE_STD_RTOL = 0.1  # sample std of ~150 draws vs the closed form (about 6 % s
 def test_r6_2_noise_has_the_stated_size(dist, factor):
     """Measurement minus true output: std = level x set-point change (normal) or
     level x change / sqrt(3) (uniform on ±level x change), closed forms."""
-    from services.studies.ch6 import ReactorCase, run_reactor
+    from services.reproduce.ch6 import ReactorCase, run_reactor
 
     run = run_reactor(ReactorCase(noise=True, noise_level=0.1, noise_dist=dist, t_end=15.0))
     change = np.abs(run.setpoint[-1] - run.setpoint[0])
@@ -95,7 +95,7 @@ def test_r6_2_noise_has_the_stated_size(dist, factor):
 
 
 def test_r6_2_noise_settings_are_validated_naming_the_field():
-    from services.studies.ch6 import ReactorCase
+    from services.reproduce.ch6 import ReactorCase
 
     with pytest.raises(ValueError, match="noise_dist"):
         ReactorCase(noise_dist="pink")

@@ -13,9 +13,9 @@ import pytest
 from test_api import AUTH, TOKEN
 from test_service_loop import Harness
 
-from services import keys
-from services.messages import MVMessage
-from services.zenoh_session import free_port
+from services.io import keys
+from services.io.messages import MVMessage
+from services.io.zenoh_session import free_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 

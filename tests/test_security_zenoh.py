@@ -18,13 +18,13 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from services import keys
-from services.controller_node import ControllerNode
-from services.messages import MVMessage, Reply, Request
-from services.plant_node import PlantNode
+from services.io import keys
+from services.io.messages import MVMessage, Reply, Request
+from services.io.zenoh_session import free_port
+from services.nodes.controller import ControllerNode
+from services.nodes.plant import PlantNode
+from services.registry import get_unit
 from services.store import UnitStore
-from services.units import get_unit
-from services.zenoh_session import free_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 

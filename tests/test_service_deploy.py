@@ -30,7 +30,7 @@ def test_a_typo_in_a_config_is_caught(tmp_path):
 
 
 def test_router_config_opens_a_router(tmp_path):
-    from services.zenoh_session import free_port
+    from services.io.zenoh_session import free_port
 
     text = (DEPLOY / "zenoh" / "router.json5").read_text().replace(
         "tcp/0.0.0.0:7447", f"tcp/127.0.0.1:{free_port()}")

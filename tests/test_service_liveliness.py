@@ -10,9 +10,9 @@ from pathlib import Path
 import httpx
 import pytest
 
-from services import keys
-from services.messages import Reply, Request
-from services.zenoh_session import SessionSettings, free_port, open_session
+from services.io import keys
+from services.io.messages import Reply, Request
+from services.io.zenoh_session import SessionSettings, free_port, open_session
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 

@@ -11,14 +11,14 @@ import time
 import numpy as np
 import pytest
 
-from services import keys
-from services.controller_node import ControllerNode
-from services.messages import Measurement, MVMessage, Reply, Request
-from services.plant_node import PlantNode
+from services.io import keys
+from services.io.messages import Measurement, MVMessage, Reply, Request
+from services.io.zenoh_session import SessionSettings, free_tcp_endpoint, open_session
+from services.nodes.controller import ControllerNode
+from services.nodes.plant import PlantNode
+from services.registry import get_unit
 from services.store import UnitStore
 from services.telemetry import TelemetryLogger
-from services.units import get_unit
-from services.zenoh_session import SessionSettings, free_tcp_endpoint, open_session
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
@@ -62,7 +62,7 @@ class Harness:
         self.store = UnitStore(self.store_path, self.cfg.unit)
         tel = None
         if self.telemetry:
-            from services.units import build_plant, unit_info
+            from controller.units.config import build_plant, unit_info
 
             info = unit_info(self.cfg, build_plant(self.cfg))
             tel = TelemetryLogger(self.cfg.unit, info.cv_names, info.mv_names,
@@ -430,7 +430,7 @@ def test_gc_pauses_are_recorded_per_generation():
 def test_status_is_published_at_most_every_min_wall_interval(harness):
     """Status every ``status_every`` samples, but not faster than STATUS_MIN_WALL_S of
     wall time: a fast loop must not spend its thread on status messages."""
-    from services.messages import decode_object
+    from services.io.messages import decode_object
 
     got = []
     h = harness(status_every=1)
@@ -482,7 +482,7 @@ def test_busy_poll_yields_the_cpu_and_the_interpreter_lock_between_polls(harness
     the node's other threads are not held up for a switch interval."""
     import os
 
-    import services.controller_node as cn
+    import services.nodes.controller as cn
 
     calls = []
     real = os.sched_yield
@@ -563,7 +563,7 @@ def test_plant_busy_poll_keeps_real_time_and_yields_between_polls(harness, monke
     """Real-time mode with busy polling: the boundaries come from polling the clock (with
     os.sched_yield between polls, which releases the interpreter lock), the moves
     answering each sample are applied, and queries are answered meanwhile."""
-    import services.plant_node as pn
+    import services.nodes.plant as pn
 
     calls = []
     real = pn.os.sched_yield
@@ -612,7 +612,7 @@ def test_a_measurement_delivered_while_the_node_is_built_is_processed(tmp_path):
     """On a running plant the first measurement can arrive on Zenoh's thread before
     ControllerNode.__init__ returns (a restart in a soak hit it): everything a sample
     needs is set before the subscriber is declared."""
-    from services.units import build_plant
+    from controller.units.config import build_plant
 
     cfg = get_unit("cstr")
     plant = build_plant(cfg)

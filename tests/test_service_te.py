@@ -1,7 +1,7 @@
 """The TE unit's plumbing over real Zenoh: regulatory layer in the plant node, the MVs the
 controller writes, IDV switched by command, shutdown → transition failed + alarm.
 
-The TE MPC itself comes from issue 8; here the controller node runs the ``hold``
+The TE MPC itself lives in controller.units.te; here the controller node runs the ``hold``
 controller ("MPC off", regulatory layer alone), which seed R7.11 says holds mode 0.
 """
 
@@ -10,9 +10,12 @@ import time
 import pytest
 from test_service_loop import Harness
 
-from services import keys
-from services.messages import Reply, Request
-from services.units import HoldController, get_unit, grade_setpoints, te_mv_names
+from controller.units.baselines import HoldController
+from controller.units.config import grade_setpoints
+from controller.units.te.structure import te_mv_names
+from services.io import keys
+from services.io.messages import Reply, Request
+from services.registry import get_unit
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 
@@ -116,8 +119,8 @@ def test_rest_request_moves_te_from_mode0_to_mode2_over_zenoh(tmp_path):
     import httpx  # noqa: F401
     from test_api import AUTH, ApiServer
 
-    # the unit's configured strategy (issue 8's controller behind TEServiceController)
-    # the seed's state-shared MPC (issue 8's strategy "ssmpc"); lock-step, speed 1000
+    # the unit's configured strategy (the TE controller behind TEServiceController)
+    # the seed's state-shared MPC (strategy "ssmpc"); lock-step, speed 1000
     # sets a 18 ms budget for its step
     h = Harness(tmp_path, unit="te", speed=1_000.0, telemetry=True, strategy="ssmpc")
     api = ApiServer(h)

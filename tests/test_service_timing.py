@@ -188,7 +188,7 @@ def test_loop_publishers_are_express_real_time_and_drop():
 
     import zenoh
 
-    from services.zenoh_session import SessionSettings, declare_loop_publisher, open_session
+    from services.io.zenoh_session import SessionSettings, declare_loop_publisher, open_session
 
     s = open_session(SessionSettings())
     try:
@@ -218,7 +218,7 @@ def test_node_tuning_runs_blas_on_the_calling_thread_only():
         "import json, numpy, scipy.linalg\n"
         "from threadpoolctl import threadpool_info\n"
         "before = [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas']\n"
-        "from services.commands.nodes import _realtime_tuning\n"
+        "from services.nodes.run import _realtime_tuning\n"
         "_realtime_tuning()\n"
         "after = [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas']\n"
         "print(json.dumps([before, after]))\n")

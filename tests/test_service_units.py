@@ -5,7 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from services.units import PIBaseline, UnitConfig, build_controller, get_unit, load_unit_config
+from controller.units.baselines import PIBaseline
+from controller.units.config import UnitConfig
+from services.registry import build_controller, get_unit, load_unit_config
 
 # Seed Table 5.3 (facts/cstr_bioreactor.md): G(s) = k1 (s + k2) / (s^2 + k3 s + k4) at OPI
 K1, K2, K4 = 0.3000, 1.2440, 0.2337

@@ -10,8 +10,8 @@ from pathlib import Path
 import httpx
 import pytest
 
+from services.io.zenoh_session import free_port
 from services.telemetry import entity_paths
-from services.zenoh_session import free_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 
@@ -49,7 +49,11 @@ def test_up_transition_and_clean_shutdown(tmp_path):
             lines.append(line)
             if line.startswith("ssmpc up:"):
                 break
-        assert [ln.split()[1] for ln in lines[:3]] == ["controller", "plant", "api"]
+        # it says what it starts, then each node's ready line, in order
+        ready = [ln.split()[1] for ln in lines if ln.startswith("ready")]
+        assert ready == ["controller", "plant", "api"]
+        starting = [ln.split()[2] for ln in lines if ln.startswith("starting the")]
+        assert starting == ["controller", "plant", "api"]
         children = _children(proc.pid)
         assert len(children) == 3
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as c:
@@ -124,7 +128,7 @@ def test_up_ctrl_c_stops_every_process(tmp_path, busy_poll):
 
 
 def test_a_new_up_run_keeps_the_previous_store_aside(tmp_path):
-    from services.commands.up import _move_aside
+    from services.nodes.supervisor import _move_aside
 
     for suffix in (".sqlite", ".sqlite-wal", ".rrd"):
         (tmp_path / f"ssmpc-te{suffix}").write_text(suffix)
@@ -148,3 +152,18 @@ def test_restarted_controller_continues_its_recording_in_a_new_file(tmp_path):
     assert [f.name for f in files] == ["ssmpc-cstr.1.rrd", "ssmpc-cstr.rrd"]
     ids = {rr_chunk.RrdReader(str(f)).recordings()[0].recording_id for f in files}
     assert len(ids) == 1
+
+
+def test_up_says_what_it_is_doing_while_a_node_starts(monkeypatch):
+    # a node that takes a while to get ready (a first start compiles with numba)
+    from services.nodes import supervisor
+
+    monkeypatch.setattr(supervisor, "PROGRESS_EVERY_S", 0.3)
+    proc = subprocess.Popen([sys.executable, "-c",
+                             "import time; time.sleep(1.2); print('ready slow te', flush=True)"],
+                            stdout=subprocess.PIPE, text=True, bufsize=1)
+    notes = []
+    line = supervisor._wait_ready(proc, "slow", time.monotonic() + 30, notes.append)
+    proc.wait(5)
+    assert line == "ready slow te"
+    assert len(notes) >= 2 and notes == sorted(notes)  # elapsed seconds, growing

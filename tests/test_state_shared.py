@@ -19,7 +19,7 @@ from controller.state_shared import (
     theta_from_mfd,
 )
 
-FREQ_RTOL = 1e-9  # relative frequency-response agreement required by the issue
+FREQ_RTOL = 1e-9  # relative frequency-response agreement required of the representation
 STEP_TOL = 1e-9  # step responses, relative to the peak output
 SEED_PRINT_TOL = 5e-5  # the seed prints 4 decimals
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.studies.ch3 import reactor_state_shared, state_shared_from_plant
+from services.reproduce.ch3 import reactor_state_shared, state_shared_from_plant
 
 PRINT_REL = 0.02  # catalogue: +-2 % on the printed coefficients
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from controller.linear import Realization
-from services.studies.ch3_te import (
+from controller.units.te.linear_models import (
     TE_MODES,
     te_closed_loop,
     te_reduced,
@@ -70,7 +70,7 @@ def test_tight_temperature_loop_gives_hurwitz_models_r7_10():
     # R7.10: in the seed's variant (T_r as an input) all eigenvalues are negative at
     # modes 0, 2, 3; a tighter reactor-temperature loop reproduces that here, while the
     # printed -0.5 %/degC leaves an unstable pair at modes 0 and 2.
-    from services.studies.ch3_te import TE_LOOPS_TIGHT_TR
+    from controller.units.te.linear_models import TE_LOOPS_TIGHT_TR
 
     for mode in TE_MODES:
         assert te_closed_loop(mode, TE_LOOPS_TIGHT_TR).model.is_stable()

@@ -1,4 +1,4 @@
-"""TE grades, references and run metrics (services.studies.te_grades)."""
+"""TE grades, references and run metrics (controller.units.te.grades)."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from services.studies.te_grades import (
+from controller.units.te.grades import (
     GRADES,
     GradeError,
     Leg,

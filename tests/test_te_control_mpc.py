@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from services.studies import te_models
-from services.studies.te_control import ALARM_LIMITS, TEMPCOptions, make_te_controller, run_te
-from services.studies.te_grades import Leg, TransitionPlan, grade
+from controller.units.te import models as te_models
+from controller.units.te.control import ALARM_LIMITS, TEMPCOptions, make_te_controller, run_te
+from controller.units.te.grades import Leg, TransitionPlan, grade
 
 G_BAND = 1.0  # mol%, R7.14/R7.16 check
 ADAPTIVE_SHARE = 0.8  # R7.16: the adaptive model active >= 80 % of samples

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from services.studies.te_control import INNER_LOOPS, make_te_controller, run_te
-from services.studies.te_grades import Leg, TransitionPlan, grade
+from controller.units.te.control import INNER_LOOPS, make_te_controller, run_te
+from controller.units.te.grades import Leg, TransitionPlan, grade
 
 G_BAND = 1.0  # mol%, R7.14 check
 P_HOLD = 5.0  # kPa around the mode-0 pressure while holding the grade

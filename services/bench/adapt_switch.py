@@ -25,7 +25,7 @@ from controller.adaptation import NLSSettings
 from controller.multimodel import HoldLaw, MultiModelController, MultiModelSettings
 from controller.state_shared import ModelSpec, StateSharedModel
 from controller.switching import IndexSettings
-from services.benchmarking import latency_case
+from services.bench._common import latency_case
 
 NAME = "adapt-switch"
 DESCRIPTION = "per-sample cost of shared-state update + adaptation + switching (SISO, TE size)"
@@ -74,7 +74,7 @@ def _time(ctl: MultiModelController, m: int, n_samples: int, rng) -> np.ndarray:
 def run(args) -> list[dict]:
     import contextlib
 
-    from services.studies.ch5 import single_threaded_blas
+    from controller.blas import single_threaded_blas
 
     if args.samples < 10:
         raise ValueError(f"samples: must be >= 10, got {args.samples}")

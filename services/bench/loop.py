@@ -16,7 +16,7 @@ speed
     interpreter lock or a CPU; ``waiting_misses`` counts those that were preempted,
     i.e. another thread took the CPU, and those that blocked on a lock). Likewise the
     plant's latest held samples and
-    ``held_causes`` (:func:`services.plant_node.held_cause`): "published_late" (the
+    ``held_causes`` (:func:`services.nodes.plant.held_cause`): "published_late" (the
     plant's own wake-up at the boundary), "answered_late", "no_answer". Each kept
     held sample is set beside the controller's record of it (the ``sample_times``
     query): ``split`` gives the round trip's parts, ms (:func:`held_split`), and
@@ -53,9 +53,9 @@ from __future__ import annotations
 import tempfile
 import time
 
-from services.benchmarking import latency_case
+from services.bench._common import latency_case
 from services.machine import cpu_idle_settings
-from services.plant_node import HELD_CAUSES, held_cause
+from services.nodes.plant import HELD_CAUSES, held_cause
 from services.timing import MISS_CAUSES, miss_cause
 
 NAME = "loop"
@@ -100,8 +100,8 @@ class _Nodes:
                  rt_priority: int | None = None, unit_config: str | None = None,
                  busy_poll: bool = False, telemetry: bool = False,
                  plant_busy_poll: bool = False):
-        from services.commands.up import _spawn, _wait_ready
-        from services.zenoh_session import free_port
+        from services.io.zenoh_session import free_port
+        from services.nodes.supervisor import _spawn, _wait_ready
 
         self.procs = []
         state_dir = tempfile.mkdtemp(dir=state_dir)  # a fresh store: no restored checkpoint
@@ -135,7 +135,7 @@ class _Nodes:
             raise
 
     def close(self) -> None:
-        from services.commands.up import stop_children
+        from services.nodes.supervisor import stop_children
 
         stop_children(self.procs)
 
@@ -160,7 +160,7 @@ def held_split(held: dict, ctrl: dict | None) -> dict | None:
 
 
 def _query(session, key, action, args=None):
-    from services.messages import Reply, Request
+    from services.io.messages import Reply, Request
 
     for r in session.get(key, payload=Request(action, args or {}).to_bytes(), timeout=5.0):
         if r.ok is not None:
@@ -169,7 +169,7 @@ def _query(session, key, action, args=None):
 
 
 def _client_session(nodes: _Nodes):
-    from services.zenoh_session import SessionSettings, open_session
+    from services.io.zenoh_session import SessionSettings, open_session
 
     s = open_session(SessionSettings(connect=(nodes.ep_c, nodes.ep_p)))
     time.sleep(0.5)
@@ -178,7 +178,7 @@ def _client_session(nodes: _Nodes):
 
 def _wait_running(session, unit: str, samples: int = 50, timeout_s: float = 300.0) -> None:
     """Wait until the loop has run ``samples`` samples (first-use JIT compiles may take a while)."""
-    from services import keys
+    from services.io import keys
 
     t_end = time.monotonic() + timeout_s
     while time.monotonic() < t_end:
@@ -192,7 +192,7 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
           rt_priority: int | None = None, unit_config: str | None = None,
           busy_poll: bool = False, stall_probe: bool = False, telemetry: bool = False,
           plant_busy_poll: bool = False) -> dict:
-    from services import keys
+    from services.io import keys
 
     nodes = _Nodes(unit, speed, lockstep=False, api=False, state_dir=state_dir,
                    rt_priority=rt_priority, unit_config=unit_config, busy_poll=busy_poll,
@@ -258,7 +258,7 @@ def _rung(unit: str, speed: float, seconds: float, state_dir: str,
 
 
 def speed_case(args, state_dir: str) -> dict:
-    from services.units import load_unit_config
+    from services.registry import load_unit_config
 
     cfg = load_unit_config(args.unit, args.unit_config)
     if args.speeds:
@@ -295,8 +295,8 @@ def speed_case(args, state_dir: str) -> dict:
 
 def latency_case_run(args, state_dir: str) -> dict:
     """Lock-step loop (as fast as it goes): the plant's record of meas -> MV times."""
-    from services import keys
-    from services.units import load_unit_config
+    from services.io import keys
+    from services.registry import load_unit_config
 
     cfg = load_unit_config(args.unit, args.unit_config)
     nodes = _Nodes(args.unit, 1.0, lockstep=True, api=False, state_dir=state_dir,

@@ -12,7 +12,7 @@ Cases
     (order 24) plus one free-running adaptive model, P = 40, M = 4, 3 MVs;
     transitions 100 → 130 → 100 kmol/h repeated.
 
-    ``te``: the chapter-3 TE state-shared model (``services.studies.ch3_te``: modes 0,
+    ``te``: the chapter-3 TE state-shared model (``controller.units.te.linear_models``: modes 0,
     2, 3 + one adaptive model, n = 8, m = 5, shared order 80, 208 parameters per
     model; 5 MVs: XMV 3, 4, 6, T_r*, XMV 11), P = 10, M = 4 (QP: 21 variables, input,
     rate and soft output limits). The state-shared model is square (as many MVs as
@@ -79,7 +79,7 @@ def _sample(ssm, est, j_ad, index, switcher, law, y, reference, u, k, timer, ada
 
 
 def _case(name: str, timer: _Timer, **extra) -> dict:
-    from services.benchmarking import latency_case
+    from services.bench._common import latency_case
 
     parts = {f"{p}_median_ms": float(np.median(v)) for p, v in timer.parts.items()
              if p != "total"}
@@ -94,8 +94,8 @@ def two_phase_case(samples: int, adapt: bool = True) -> dict:
     from controller.reference import ReferenceTrajectory, SetpointSchedule
     from controller.state_shared import ModelSpec, StateSharedModel
     from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
+    from controller.units.two_phase_reactor import ReactorCase, reactor_models, reactor_settings
     from plant_sim.integrate import step as plant_step
-    from services.studies.ch6 import ReactorCase, reactor_models, reactor_settings
 
     case = ReactorCase()
     specs, a, plant = reactor_models(case.order)
@@ -179,7 +179,7 @@ def te_case(samples: int, seed: int = 0, adapt: bool = True, synthetic: bool = F
             ssm.add_model(ModelSpec(f"M{j}", theta, bias, "adaptive" if j == 3 else "fixed"))
         plant_j = 0
     else:
-        from services.studies.ch3_te import te_state_shared_model
+        from controller.units.te.linear_models import te_state_shared_model
 
         ssm = te_state_shared_model(dt=dt)
         plant_j = ssm.names.index("mode3")  # the stable one of the three
@@ -232,7 +232,7 @@ def te_case(samples: int, seed: int = 0, adapt: bool = True, synthetic: bool = F
 
 
 def _te_u_op(mode: str) -> np.ndarray:
-    from services.studies.ch3_te import te_closed_loop
+    from controller.units.te.linear_models import te_closed_loop
 
     return np.asarray(te_closed_loop(mode).u_op, dtype=float)
 

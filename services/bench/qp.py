@@ -121,7 +121,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> list[dict]:
-    from services.benchmarking import latency_case
+    from services.bench._common import latency_case
 
     n = getattr(args, "samples", 400)
     repeat = getattr(args, "repeat", 3)

@@ -5,7 +5,7 @@ outputs), the per-sample work of the identifier before adaptation and
 switching. Sizes: TE as in the seed (n = 40, m = 5, order 400, 3 fixed + 1 adaptive
 model, R7.15), two-phase reactor (n = 2, m = 3), SISO (n = 2, m = 1); with
 ``--te-model`` also the numerically sane TE model actually built
-(:mod:`services.studies.ch3_te`, n = 8). Thetas are
+(:mod:`controller.units.te.linear_models`, n = 8). Thetas are
 random: the cost does not depend on their values. Also reported: building one
 model's prediction form (exact ZOH of the 400-state closed form) at TE size.
 """
@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from controller.state_shared import ModelSpec, StateSharedModel, designer_polynomial
-from services.benchmarking import latency_case
+from services.bench._common import latency_case
 
 NAME = "state-shared"
 DESCRIPTION = "state-shared model: one update + all model estimates (TE size, SISO), in us"
@@ -76,7 +76,7 @@ def run(args) -> list[dict]:
         cases.append(latency_case(f"update+estimates {case}", _time_sample(ssm, args.samples, rng),
                                   "us", n_deg=n, m=m, models=k, order=ssm.order))
     if getattr(args, "te_model", False):
-        from services.studies.ch3_te import te_state_shared_model
+        from controller.units.te.linear_models import te_state_shared_model
 
         ssm = te_state_shared_model(dt=0.01)
         cases.append(latency_case("update+estimates te_model_n8_m5_k4",

@@ -2,7 +2,7 @@
 
 For each strategy (SSMPC, fixed-model MPC, PI baseline) ``--runs`` closed-loop runs
 of ``--hours`` process hours (grade 2 requested at 1 h, grade 3 at 25 h) on the
-original plant at 1.8 s, supervisory sample 36 s (``services.studies.te_control``):
+original plant at 1.8 s, supervisory sample 36 s (``controller.units.te.control``):
 
 - "<strategy> process rate": process hours per wall second of the whole loop
   (plant, inner PI loops, supervisory controller, recording);
@@ -33,10 +33,10 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> list[dict]:
-    from services.benchmarking import latency_case, rate_case
+    from controller.units.te.control import STRATEGIES, run_te
+    from controller.units.te.grades import Leg, TransitionPlan
+    from services.bench._common import latency_case, rate_case
     from services.output import CLIError
-    from services.studies.te_control import STRATEGIES, run_te
-    from services.studies.te_grades import Leg, TransitionPlan
 
     runs = int(args.runs)
     hours = float(args.hours)

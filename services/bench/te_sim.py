@@ -60,7 +60,7 @@ def _batch(n: int, backend: str) -> tuple[float, float]:
 
 
 def run(args) -> list[dict]:
-    from services.benchmarking import rate_case
+    from services.bench._common import rate_case
     from services.output import CLIError
 
     runs = int(args.runs)

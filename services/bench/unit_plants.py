@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from services.benchmarking import latency_case, rate_case
+from services.bench._common import latency_case, rate_case
 
 NAME = "unit-plants"
 DESCRIPTION = "unit plant integration: step latency and simulate rate"

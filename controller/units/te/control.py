@@ -1,0 +1,735 @@
+"""The Tennessee Eastman cascade of seed §7.4/7.7 and its controllers (strategies a, b, PI).
+
+Layers (seed Fig. 7.2)
+    1. Inner PI loops of Table 7.10 (R7.11) at the plant's 1.8 s Euler step,
+       :class:`plant_sim.tennessee_eastman.regulatory.RegulatoryLayer`: reactor
+       temperature -> reactor coolant XMV(10) (gain changed, see
+       :data:`INNER_LOOPS`), reactor level -> D feed XMV(1), separator level ->
+       separator underflow XMV(7), stripper level -> stripper underflow XMV(8);
+       plus reactor pressure -> purge XMV(6) (see "Pressure").
+    2. The supervisory controller, every :data:`SAMPLE_H` (36 s, 20 plant steps):
+       - grade references (:class:`controller.units.te.grades.TransitionPlan`): level
+         set points (reactor 75 -> 65 %), reactor temperature, G mol%;
+       - XMV(5) and XMV(9) follow first-order ramps to the grade's optimum (closed
+         toward modes 1-3, §7.7); XMV(12) (agitator) fixed;
+       - the E/D feed ratio (§7.7): XMV(2) = ratio x measured D feed (XMEAS 2), the
+         D share ``s = D/(D+E)`` from a grade feedforward plus a slow PI on the
+         product analyzer's G mol% (XMEAS 40, 0.25 h sample + 0.25 h dead time);
+       - the core on five handles, XMV(3), XMV(4), P_r*, T_r*, XMV(11):
+         strategy ``"fixed"`` (a): MPC with three fixed models (modes 0, 2, 3)
+         switched by the performance index (§7.5-7.6); strategy ``"ssmpc"`` (b):
+         the same three plus a re-initialized adaptive model (§7.7); ``"pi"``: the
+         decentralized baseline of :mod:`controller.units.te.pi_baseline`. The MPC's
+         input targets follow the grade plan (:class:`TEMPCOptions`), trimmed by an
+         outer production loop (XMEAS 17 -> A+C feed);
+       - a high-pressure override cuts the A+C feed above 2900 kPa (all strategies).
+
+Known limit
+    The fixed models' performance index is not informative off their own
+    operating points: the state-shared coefficients of the n = 8 models (time in
+    h, poles up to 150 1/h) reach 1e6-1e8, so a fixed model's estimate away from
+    its own point is off by orders of magnitude and the index keeps the model the
+    run started with (mode 0 in the transitions, mode 3 under IDV(6)).
+
+Pressure
+    The seed's MPC writes the purge valve XMV(6) directly. On the original plant
+    that structure did not survive the 0 -> 2 transition here: with the seed's
+    equal weights and P = 10 the reactor pressure reached the 3000 kPa interlock
+    after 2-3 h in every tuning tried (sample 0.01-0.05 h, P 10-60, move weights
+    1-1000, with and without input targets). As a control engineer would, the
+    fast safety variable gets its own inner loop like the reactor temperature:
+    reactor pressure -> purge (XMV 6, -0.15 %/kPa, Ti 0.5 h) at the Euler step,
+    and the MPC writes its set point P_r* (limited to 2500-2950 kPa) instead of
+    the valve. The five CVs, the other handles, P = 10 and M = 4 are the seed's.
+
+Alarms
+    Every sample the controller compares the measurements with alarm limits set
+    below the interlocks (:data:`ALARM_LIMITS`) and reports each crossing in
+    ``ControlDecision.alarms``; the MPC's soft limit on the reactor pressure
+    (:attr:`TEMPCOptions.pressure_soft_max`) acts in the same band, and its
+    exact-penalty slack (kPa / ``output_scale[0]``; > 0 when the MPC predicts the
+    limit cannot be held) is ``ControlDecision.extra["constraint_slack"]``.
+
+Sample period
+    36 s (0.01 h). The handles act on the reactor pressure within minutes (gas
+    holdup time constants of 0.05-0.3 h; the pressure filter is 12 s; IDV(6) trips
+    the open plant in 0.44 h), and the composition analyzers sample every 0.1 h
+    and 0.25 h, so 0.01 h resolves the pressure dynamics with about 10 samples per
+    dominant time constant while keeping a 48 h run at 4,800 supervisory samples.
+
+Use (service node and studies)::
+
+    from controller.units.te.control import make_te_controller
+    from controller.units.te.grades import Leg, TransitionPlan
+
+    plan = TransitionPlan("mode0", (Leg(1.0, "mode2"),))   # GradeError if unreachable
+    ctl, spec = make_te_controller("ssmpc", plan)           # or "fixed", "pi"
+    reg = RegulatoryLayer(sim, loops=spec.loops)             # the five inner PI loops
+    # every spec.sample_steps plant steps (36 s), with xmeas = the 41 XMEAS:
+    dec = ctl.step(k, t_h, xmeas, None)                      # reference: from the plan
+    ctl.finish_sample()                                      # after the move is out
+    # dec.u: 12 XMV targets; write those in spec.written_xmvs, NaN = owned by a loop
+    # (spec.loop_xmvs); dec.extra["setpoints"]: one per loop in spec.loops order
+    # (T_r*, reactor level, separator level, stripper level, P_r*);
+    reg.set_setpoints(dec.extra["setpoints"]); reg.run_steps(spec.sample_steps)
+    ctl.retarget(new_plan)                                   # a new grade request
+
+:func:`run_te` runs it against a :class:`plant_sim.tennessee_eastman.TESimulator`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from controller.interfaces import QP_WORK_KEYS, ControlDecision
+from controller.units.te.grades import TransitionPlan, limit_margins
+from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
+from controller.units.te.pi_baseline import PI_BASELINE_LOOPS, PRODUCTION_LOOP, VelocityPI
+from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
+
+#: Largest trim (%) of the A-feed target by the outer A loop (anti-windup).
+A_TRIM_MAX = 50.0
+#: Largest trim (%) of the A+C-feed target by the outer production loop.
+P_TRIM_MAX = 20.0
+#: The A-in-reactor-feed loop (shared with the PI baseline).
+A_FEED_LOOP = next(lp for lp in PI_BASELINE_LOOPS if lp.cv == 23)
+
+__all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec",
+           "TEController", "make_te_controller", "make_mpc_core", "TEMPCOptions", "TERun",
+           "run_te", "RatioSettings", "TR_LIMITS", "PR_LIMITS", "PRESSURE_LOOP",
+           "ALARM_LIMITS"]
+
+#: Supervisory sample period, h (36 s = 20 Euler steps of 1.8 s).
+SAMPLE_H = 0.01
+STRATEGIES = ("fixed", "ssmpc", "pi")
+#: The five core handles: XMV numbers, None = reactor-temperature set point (R7.15).
+CORE_XMVS = (3, 4, None, None, 11)
+CORE_NAMES = ("XMV3", "XMV4", "Pr_sp", "Tr_sp", "XMV11")
+#: Reactor pressure set point range, kPa (the interlock trips at 3000).
+PR_LIMITS = (2500.0, 2950.0)
+#: MPC controlled variables (XMEAS numbers, R7.15).
+CORE_CVS = (7, 11, 13, 16, 18)
+_CORE_CV_INDEX = np.array(CORE_CVS) - 1
+#: Reactor temperature set point range, degC (R7.12).
+TR_LIMITS = (110.0, 130.0)
+#: Alarm limits below the interlocks (XMEAS number -> (low, high), XMEAS units):
+#: reactor pressure 2950 kPa (trip 3000), reactor temperature 170 degC (trip 175),
+#: levels 10-90 % (the liquid-volume trips correspond to reactor -2 % / 114 %,
+#: separator 3 % / 137 %, stripper -27 % / 131 % of the level spans).
+ALARM_LIMITS = {7: (-math.inf, 2950.0), 9: (-math.inf, 170.0), 8: (10.0, 90.0),
+                12: (10.0, 90.0), 15: (10.0, 90.0)}
+#: High-pressure override on the A+C feed (production), as in Ricker's (1996)
+#: decentralized TE control: above this reactor pressure (kPa) the A+C feed is cut
+#: at OVERRIDE_GAIN %/(kPa h), at most OVERRIDE_MAX %; it is released below it.
+OVERRIDE_PRESSURE = 2900.0
+OVERRIDE_GAIN = 2.0
+OVERRIDE_MAX = 30.0
+_D_FULL_KG_H = 5811.0
+_E_FULL_KG_H = 8354.0
+
+
+@dataclass(frozen=True)
+class RatioSettings:
+    """The G mol% loop on the D share of the D+E feed (§7.7's XMV(1)/XMV(2) ratio).
+
+    Parameters
+    ----------
+    gain : float
+        Change of the D share per mol% of G error (e = reference - XMEAS 40).
+    ti_h : float
+        Integral time, h.
+    s_min, s_max : float
+        Limits of the D share.
+    """
+
+    gain: float = 0.004
+    ti_h: float = 1.0
+    s_min: float = 0.03
+    s_max: float = 0.97
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.gain) and self.gain >= 0):
+            raise ValueError(f"gain: must be finite and >= 0, got {self.gain!r}")
+        if not (math.isfinite(self.ti_h) and self.ti_h > 0):
+            raise ValueError(f"ti_h: must be > 0 h, got {self.ti_h!r}")
+        if not 0 < self.s_min < self.s_max < 1:
+            raise ValueError(f"s_min/s_max: need 0 < s_min < s_max < 1, got "
+                             f"{self.s_min}, {self.s_max}")
+
+
+@dataclass(frozen=True)
+class TEControlSpec:
+    """What the plant side needs to apply a TE controller's decisions."""
+
+    strategy: str
+    sample_h: float
+    sample_steps: int
+    loops: tuple = INNER_LOOPS
+    loop_xmvs: tuple[int, ...] = tuple(lp.mv for lp in INNER_LOOPS)
+    written_xmvs: tuple[int, ...] = (2, 3, 4, 5, 9, 11, 12)
+
+
+class TEController:
+    """Supervisory TE controller (:class:`controller.interfaces.SampleController`).
+
+    ``y`` is the 41-vector of XMEAS; ``reference`` is ignored (the references come
+    from the :class:`TransitionPlan`, change it with :meth:`retarget`).
+
+    Parameters
+    ----------
+    strategy : {"fixed", "ssmpc", "pi"}
+    plan : TransitionPlan
+    core : object
+        For "pi" a :class:`VelocityPI`; for the MPC strategies a
+        :class:`controller.multimodel.MultiModelController` on the five handles.
+    ratio : RatioSettings
+    sample_h : float
+    horizon : int
+        Samples of reference handed to the core (the MPC's P).
+    outer_a_loop : bool
+        MPC strategies: let the A-in-feed loop trim the A-feed input target (the PI
+        baseline's loop of the same tuning). Without it the MPC strategies trip on
+        reactor pressure under IDV(1) (at 6.8 h from mode 0, 13.3 h from mode 3)
+        where the PI baseline does not.
+    production_loop : bool
+        MPC strategies: let the product flow (XMEAS 17, reference Table 7.3 row 17
+        along the plan) trim the A+C-feed input target (:data:`PRODUCTION_LOOP`,
+        the PI baseline has the same loop). Under IDV(6) it keeps the production,
+        as the seed's MPC did by raising the A+C feed.
+    """
+
+    def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
+                 sample_h: float = SAMPLE_H, horizon: int = 10,
+                 outer_a_loop: bool = True, production_loop: bool = True) -> None:
+        if strategy not in STRATEGIES:
+            raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
+        self.strategy = strategy
+        self.plan = plan
+        self.core = core
+        self.ratio = ratio
+        self.sample_h = float(sample_h)
+        self.horizon = int(horizon)
+        self.outer_a_loop = bool(outer_a_loop)
+        self.s: float | None = None
+        self.s_ff_prev: float | None = None
+        self.e_g_prev: float | None = None
+        self.last_g: float | None = None
+        self.n_samples = 0
+        self.override = 0.0
+        self.a_trim = 0.0
+        self.p_trim = 0.0
+        self.e_p_prev: float | None = None
+        self.production_loop = PRODUCTION_LOOP if production_loop else None
+        self.e_a_prev: float | None = None
+        self._t_last: float | None = None
+        # the plan's references of the next sample, evaluated after the move
+        # (finish_sample): (t, plan, refs) or None
+        self._refs_ahead: tuple | None = None
+
+    def retarget(self, plan: TransitionPlan) -> None:
+        """Follow a new plan from now on (times are absolute, h)."""
+        self.plan = plan
+
+    #: A sample within this of the previous one + ``sample_h`` is on the grid (h; 3.6 us)
+    GRID_TOL_H = 1e-9
+
+    def _grid_time(self, t: float) -> float:
+        """The time the plan is evaluated at for a sample at ``t``: the previous sample's
+        time + ``sample_h`` when ``t`` is that up to round-off (the clocks of the plant
+        and of the simulator sum their steps in other orders), else ``t``. So the
+        references evaluated ahead (:meth:`finish_sample`) are the very ones the step
+        would evaluate."""
+        if self._t_last is not None:
+            t_next = self._t_last + self.sample_h
+            if abs(t - t_next) <= self.GRID_TOL_H:
+                return t_next
+        return t
+
+    def _plan_refs(self, t: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """The plan at one sample: XMEAS references at ``t`` and over the horizon
+        ((horizon + 1, 41); one row for the PI strategy), valve references at ``t`` and
+        at the horizon's end ((2, 12)) and the D share of the D+E feed at ``t``."""
+        n_ahead = self.horizon if self.strategy != "pi" else 0
+        ym_all = self.plan.xmeas_ref(t + self.sample_h * np.arange(n_ahead + 1))
+        xv_all = self.plan.xmv_ref(np.array([t, t + n_ahead * self.sample_h]))
+        return ym_all, xv_all, self.plan.d_fraction_ref(t)
+
+    # -- pieces ---------------------------------------------------------------------------
+    def _production_step(self, ym: np.ndarray, xmeas: np.ndarray) -> float:
+        """Outer production loop of the MPC strategies: product flow (XMEAS 17)
+        trims the MPC's input target of the A+C feed (XMV 4). ``ym``: the plan's
+        XMEAS references now."""
+        lp = self.production_loop
+        y = float(xmeas[lp.cv - 1])
+        if math.isfinite(y):
+            e = float(ym[lp.cv - 1]) - y
+            if self.e_p_prev is None:
+                self.e_p_prev = e
+            self.p_trim += lp.gain * ((e - self.e_p_prev) + self.sample_h / lp.ti_h * e)
+            self.p_trim = min(max(self.p_trim, -P_TRIM_MAX), P_TRIM_MAX)
+            self.e_p_prev = e
+        return self.p_trim
+
+    def _a_trim_step(self, ym: np.ndarray, xmeas: np.ndarray) -> float:
+        """Outer composition loop of the MPC strategies: A in the reactor feed
+        (XMEAS 23, 0.1 h analyzer) trims the MPC's input target of the A feed (the
+        PI baseline's loop of the same tuning, :data:`A_FEED_LOOP`)."""
+        y = float(xmeas[A_FEED_LOOP.cv - 1])
+        if math.isfinite(y):
+            e = float(ym[A_FEED_LOOP.cv - 1]) - y
+            if self.e_a_prev is None:
+                self.e_a_prev = e
+            self.a_trim += A_FEED_LOOP.gain * ((e - self.e_a_prev)
+                                               + self.sample_h / A_FEED_LOOP.ti_h * e)
+            self.a_trim = min(max(self.a_trim, -A_TRIM_MAX), A_TRIM_MAX)
+            self.e_a_prev = e
+        return self.a_trim
+
+    def _override_step(self, xmeas: np.ndarray) -> float:
+        """High-pressure override: integral cut of the A+C feed (XMV 4) above
+        :data:`OVERRIDE_PRESSURE`, released below it (never negative)."""
+        p = float(xmeas[6])
+        if math.isfinite(p):
+            self.override += OVERRIDE_GAIN * self.sample_h * (p - OVERRIDE_PRESSURE)
+            self.override = min(max(self.override, 0.0), OVERRIDE_MAX)
+        return self.override
+
+    def _ratio_step(self, ff: float, ym: np.ndarray, xmeas: np.ndarray) -> float:
+        if self.s is None:
+            self.s, self.s_ff_prev = ff, ff
+        s = self.s + (ff - self.s_ff_prev)
+        self.s_ff_prev = ff
+        g = float(xmeas[39])
+        if math.isfinite(g):
+            e = float(ym[39] - g)
+            if self.e_g_prev is None:
+                self.e_g_prev = e
+            s += self.ratio.gain * ((e - self.e_g_prev) + self.sample_h / self.ratio.ti_h * e)
+            self.e_g_prev = e
+        self.s = min(max(s, self.ratio.s_min), self.ratio.s_max)
+        return self.s
+
+    def _set_input_target(self, target: np.ndarray) -> None:
+        # The MPC's input targets follow the plan (trimmed by the outer loops).
+        setter = getattr(getattr(self.core, "law", None), "set_input_target", None)
+        if callable(setter):
+            setter(target)
+
+    @staticmethod
+    def _core_ff(xv: np.ndarray, ym: np.ndarray) -> np.ndarray:
+        """Core handles' plan values from the valve and XMEAS references."""
+        return np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
+
+    # -- the sample ------------------------------------------------------------------------
+    def step(self, k: int, t: float, y, reference=None) -> ControlDecision:
+        t0 = time.perf_counter()
+        self.n_samples += 1
+        xmeas = np.asarray(y, dtype=float).reshape(-1)
+        alarms: list[str] = []
+        if xmeas.shape != (41,):
+            return ControlDecision(u=np.full(12, np.nan), status="invalid_measurement",
+                                   fallback=True, alarms=(f"y: expected 41 XMEAS, got "
+                                                          f"{xmeas.shape}",))
+        for cv, (lo, hi) in ALARM_LIMITS.items():
+            v = xmeas[cv - 1]
+            if v > hi or v < lo:
+                side, lim = ("above", hi) if v > hi else ("below", lo)
+                alarms.append(f"XMEAS{cv} = {v:.1f} {side} its alarm limit {lim:g} "
+                              f"(interlock ahead)")
+        # every plan reference of the sample in one evaluation: now and the horizon, on
+        # the sample grid (see _grid_time); usually evaluated after the previous move
+        t_ref = self._grid_time(t)
+        ahead, self._refs_ahead = self._refs_ahead, None
+        if ahead is not None and ahead[0] == t_ref and ahead[1] is self.plan:
+            ym_all, xv_all, ff = ahead[2]
+        else:
+            ym_all, xv_all, ff = self._plan_refs(t_ref)
+        self._t_last = t
+        xv, ym = xv_all[0], ym_all[0]
+        s = self._ratio_step(ff, ym, xmeas)
+        u = np.full(12, np.nan)
+        d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
+        u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0)
+        u[4], u[8], u[11] = xv[4], xv[8], xv[11]
+        ff = self._core_ff(xv, ym)
+        info: dict[str, Any] = {}
+        if self.strategy == "pi":
+            core_u = self.core.step(xmeas, ym, ff)
+            status, fallback, active, J, names = "solved", False, -1, np.zeros(0), ()
+        else:
+            yc = xmeas[_CORE_CV_INDEX]
+            refs = ym_all[1:, _CORE_CV_INDEX]
+            target = self._core_ff(xv_all[-1], ym_all[-1])
+            if self.outer_a_loop:
+                target[0] = min(max(target[0] + self._a_trim_step(ym, xmeas), 0.0), 100.0)
+            if self.production_loop is not None:
+                target[1] = min(max(target[1] + self._production_step(ym, xmeas), 0.0), 100.0)
+            self._set_input_target(target)
+            dec = self.core.step(k, t, yc, refs)
+            core_u, status, fallback = dec.u, dec.status, dec.fallback
+            active, J, names = dec.active_model, dec.J, dec.model_names
+            alarms.extend(dec.alarms)
+            info["solve_ms"] = dec.solve_ms
+            # the MPC's soft reactor-pressure constraint: its slack (None = no solve)
+            info["constraint_slack"] = dec.extra.get("constraint_slack")
+            info["law_status"] = dec.extra.get("law_status", status)
+            info.update((key, dec.extra[key]) for key in QP_WORK_KEYS if key in dec.extra)
+        for j, xmv in enumerate(CORE_XMVS):
+            if xmv is not None:
+                u[xmv - 1] = core_u[j]
+        cut = self._override_step(xmeas)
+        if cut > 0:
+            u[3] = max(u[3] - cut, 0.0)
+            if cut >= 0.05:
+                alarms.append(f"reactor pressure {xmeas[6]:.0f} kPa: high-pressure override "
+                              f"cuts the A+C feed by {cut:.1f} % (interlock 3000 kPa)")
+        setpoints = np.array([core_u[3], ym[7], ym[11], ym[14], core_u[2]])
+        extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
+        extra.update(info)
+        return ControlDecision(u=u, active_model=active, model_names=tuple(names), J=J,
+                               solve_ms=(time.perf_counter() - t0) * 1e3, fallback=fallback,
+                               status=status, alarms=tuple(alarms), extra=extra)
+
+    def finish_sample(self) -> None:
+        """The bookkeeping after the move: the core's (see
+        :meth:`controller.multimodel.MultiModelController.finish_sample`) and the plan's
+        references of the next sample (at the last sample's time + ``sample_h``; used
+        when the next step comes at exactly that time)."""
+        finish = getattr(self.core, "finish_sample", None)
+        if callable(finish):
+            finish()
+        if self._t_last is not None and self._refs_ahead is None:
+            t_next = self._t_last + self.sample_h
+            self._refs_ahead = (t_next, self.plan, self._plan_refs(t_next))
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,
+                "override": self.override, "a_trim": self.a_trim, "e_a_prev": self.e_a_prev,
+                "p_trim": self.p_trim, "e_p_prev": self.e_p_prev,
+                "core": self.core.checkpoint(), "n_samples": self.n_samples,
+                "t_last": self._t_last}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
+        self.core.restore(state["core"])
+        self.n_samples = int(state.get("n_samples", 0))
+        t_last = state.get("t_last")
+        self._t_last = None if t_last is None else float(t_last)
+        self._refs_ahead = None
+        self.override = float(state.get("override", 0.0))
+        self.a_trim = float(state.get("a_trim", 0.0))
+        self.e_a_prev = state.get("e_a_prev")
+        self.p_trim = float(state.get("p_trim", 0.0))
+        self.e_p_prev = state.get("e_p_prev")
+
+
+def _core_limits():
+    lo = np.array([0.0, 0.0, PR_LIMITS[0], TR_LIMITS[0], 0.0])
+    hi = np.array([100.0, 100.0, PR_LIMITS[1], TR_LIMITS[1], 100.0])
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class TEMPCOptions:
+    """Tuning of the MPC core (strategies a and b).
+
+    Parameters
+    ----------
+    P, M : int
+        Prediction and control horizons in samples (seed: 10 and 4, R7.12/R7.15).
+    output_scale : tuple of 5 float
+        Scale of each CV (kPa, degC, kPa, kPa, degC); the weights are equal on the
+        scaled errors, ``Xi = w / scale^2``.
+    output_weight : float
+        The common output weight w of strategy (a); strategy (b) uses half of it
+        (R7.15). 0.5: with 1 the fixed-model MPC tripped in the 2 -> 3 leg.
+    output_relative : tuple of 5 float
+        Relative weight of each CV. The seed's are equal; here the separator and
+        stripper pressures get 0.01: they move with the reactor pressure (their
+        rows of the steady-state gain are nearly parallel to its row), so equal
+        weights make the MPC fight for unreachable pressure differences (in
+        this port the 0 -> 2 transition then trips on reactor pressure).
+    move_weight : float
+        Equal move weight on every handle per (% or degC)^2.
+    du_max : tuple of 5 float
+        Rate limits per sample: 50 % for valves, 10 degC for T_r* (R7.12), 20 kPa
+        for P_r*.
+    pressure_soft_max : float
+        Soft upper limit of the reactor pressure in the MPC, kPa (interlock 3000).
+    index_dwell_h : float
+        Minimum dwell of a model, h.
+    nls_gain : float
+        Adaptive gain of the normalized least squares (1/h), strategy (b).
+    target_weight : float or tuple of 5 float
+        Weight (per (% or degC or kPa)^2) pulling each handle toward the grade's
+        steady value (Ricker's optimum, along the plan's first-order path): the
+        MPC's input targets, as an RTO layer would give them, trimmed by the outer
+        A-in-feed and production loops. 0 = none (the seed's formulation; in this
+        port the 0 -> 2 transition then trips on reactor pressure within 2-19 h,
+        depending on the weights). Default 1000 on the A feed XMV3, the production
+        handle XMV4 and T_r* (pinned to the plan and the outer loops) and 10 on
+        P_r* and XMV11: when the MPC moved XMV4 and T_r* freely the 2 -> 3 leg of
+        0 -> 2 -> 3 tripped on reactor pressure at 32-35 h in every weighting tried
+        (the D valve of the level loop saturates and the level collapses), and
+        with XMV3 free of the A loop IDV(1) tripped. The seed notes that T_r*
+        stayed in a narrow range in its 0 -> 2 -> 3 run.
+    """
+
+    P: int = 10
+    M: int = 4
+    output_scale: tuple = (20.0, 1.0, 20.0, 20.0, 1.0)
+    output_weight: float = 0.5
+    output_relative: tuple = (1.0, 1.0, 0.01, 0.01, 1.0)
+    move_weight: float = 1.0
+    du_max: tuple = (50.0, 50.0, 20.0, 10.0, 50.0)
+    pressure_soft_max: float = 2950.0
+    index_dwell_h: float = 0.25
+    nls_gain: float = 10.0
+    target_weight: float | tuple = (1000.0, 1000.0, 10.0, 1000.0, 10.0)
+
+    def __post_init__(self) -> None:
+        if len(self.output_scale) != 5 or min(self.output_scale) <= 0:
+            raise ValueError("output_scale: need 5 positive values")
+        if len(self.du_max) != 5 or min(self.du_max) <= 0:
+            raise ValueError("du_max: need 5 positive values")
+        tw = np.asarray(self.target_weight, dtype=float)
+        if tw.size not in (1, 5) or not np.isfinite(tw).all() or np.any(tw < 0):
+            raise ValueError(f"target_weight: one or 5 finite values >= 0, got "
+                             f"{self.target_weight!r}")
+        for name in ("output_weight", "move_weight", "index_dwell_h", "nls_gain"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
+        if not 2000.0 < self.pressure_soft_max <= 3000.0:
+            raise ValueError(f"pressure_soft_max: must be in (2000, 3000] kPa, got "
+                             f"{self.pressure_soft_max!r}")
+
+
+def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | None = None):
+    """Multiple-model MPC on the five handles: (MultiModelController, P).
+
+    Strategy ``"fixed"`` (a): fixed models of modes 0, 2, 3, the active one chosen by
+    the performance index (eq. 4.6). ``"ssmpc"`` (b): the same plus a
+    re-initialized adaptive model (§7.7), output weights halved (R7.15).
+    """
+    from controller.adaptation import NLSSettings
+    from controller.mpc import MPCSettings
+    from controller.mpc.law import MPCLaw
+    from controller.multimodel import MultiModelController, MultiModelSettings
+    from controller.switching import IndexSettings
+    from controller.units.te.models import state_shared_model
+
+    opt = options or TEMPCOptions()
+    adaptive = strategy == "ssmpc"
+    ssm = state_shared_model(sample_h, adaptive)
+    scale = np.asarray(opt.output_scale, dtype=float)
+    w = opt.output_weight * (0.5 if adaptive else 1.0)
+    lo, hi = _core_limits()
+    y_max = np.full(5, np.inf)
+    y_max[0] = opt.pressure_soft_max
+    settings = MPCSettings(nu=5, ny=5, P=opt.P, M=opt.M,
+                           Xi=w * np.asarray(opt.output_relative, dtype=float) / scale ** 2,
+                           Lambda=np.full(5, opt.move_weight), u_min=lo, u_max=hi,
+                           du_max=np.asarray(opt.du_max, dtype=float), y_max=y_max,
+                           slack_scale=scale, budget_ms=50.0,
+                           u_target=u0,
+                           u_target_weight=np.broadcast_to(np.asarray(opt.target_weight,
+                                                                      dtype=float), (5,)))
+    law = MPCLaw(settings)
+    law.prepare(ssm)
+    kinds = (["re-initialized"] if adaptive else []) + ["fixed"] * 3
+    mm = MultiModelSettings(
+        nls=NLSSettings(gain=opt.nls_gain),
+        index=IndexSettings(mu=1.0, nu=0.1, min_dwell=opt.index_dwell_h,
+                            output_weights=tuple(1.0 / scale ** 2)),
+        u_min=tuple(lo), u_max=tuple(hi), param_margin=1.0)
+    core = MultiModelController(ssm, law, np.asarray(u0, dtype=float), mm, kinds=kinds,
+                                initial_model=0)
+    return core, opt.P
+
+
+def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
+                       sample_h: float = SAMPLE_H, plant_dt_s: float = 1.8,
+                       ratio: RatioSettings | None = None,
+                       mpc: TEMPCOptions | None = None,
+                       outer_a_loop: bool = True, production_loop: bool = True
+                       ) -> tuple[TEController, TEControlSpec]:
+    """A TE supervisory controller and what the plant side needs to apply it.
+
+    Parameters
+    ----------
+    strategy : {"fixed", "ssmpc", "pi"}
+        (a) fixed models + MPC, (b) state-shared MPC, or the PI baseline.
+    plan : TransitionPlan, optional
+        Grade references; default: hold mode 0.
+    sample_h : float
+        Supervisory sample, h; a whole number of plant steps.
+    plant_dt_s : float
+        The plant's Euler step, s.
+    mpc : TEMPCOptions, optional
+        MPC tuning (strategies "fixed" and "ssmpc").
+    outer_a_loop, production_loop : bool
+        See :class:`TEController`.
+
+    Returns
+    -------
+    (TEController, TEControlSpec)
+    """
+    if strategy not in STRATEGIES:
+        raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
+    if plan is None:
+        plan = TransitionPlan("mode0")
+    steps = sample_h * 3600.0 / plant_dt_s
+    if not (math.isfinite(steps) and steps >= 1 and abs(steps - round(steps)) < 1e-9):
+        raise ValueError(f"sample_h: must be a whole number (>= 1) of plant steps of "
+                         f"{plant_dt_s} s, got {sample_h} h")
+    lo, hi = _core_limits()
+    if strategy == "pi":
+        core = VelocityPI(PI_BASELINE_LOOPS, sample_h, lo, hi)
+        horizon = 1
+    else:
+        xv, ym = plan.xmv_ref(0.0), plan.xmeas_ref(0.0)
+        u0 = np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
+        core, horizon = make_mpc_core(strategy, sample_h, u0, mpc)
+    ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon,
+                       outer_a_loop, production_loop)
+    return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
+
+
+# -- closed-loop runner ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class TERun:
+    """Signals of one closed-loop TE run, one row per supervisory sample.
+
+    Attributes
+    ----------
+    t : ndarray (K,)
+        Time, h.
+    xmeas : ndarray (K, 41)
+        Measurements the controller received.
+    xmv : ndarray (K, 12)
+        XMVs in force after the sample's decision.
+    setpoints : ndarray (K, 5)
+        Inner-loop set points (Table 7.10 order).
+    ref : ndarray (K, 41)
+        References of the XMEAS (grade trajectory).
+    cost : ndarray (K,)
+        Operating cost, $/h.
+    active : ndarray (K,)
+        Active model index (-1 for the PI baseline).
+    solve_ms : ndarray (K,)
+        Controller step wall time, ms.
+    shutdown : object
+        The plant's first trip or None.
+    constraint_slack : ndarray (K,) or None
+        Slack of the MPC's soft output constraint per sample (NaN: no solve or
+        no MPC).
+    """
+
+    strategy: str
+    t: np.ndarray
+    xmeas: np.ndarray
+    xmv: np.ndarray
+    setpoints: np.ndarray
+    ref: np.ndarray
+    cost: np.ndarray
+    active: np.ndarray
+    solve_ms: np.ndarray
+    shutdown: Any
+    model_names: tuple[str, ...] = ()
+    alarms: tuple[str, ...] = ()
+    fallbacks: int = 0
+    wall_s: float = 0.0
+    meta: dict = field(default_factory=dict)
+    constraint_slack: np.ndarray | None = None
+
+    @property
+    def margins(self) -> dict:
+        return limit_margins(self.xmeas)
+
+
+def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = False,
+           input_snr: float | None = None, idv: dict[int, float] | None = None,
+           seed: int = 0, sample_h: float = SAMPLE_H, stop_on_trip: bool = True,
+           **options) -> TERun:
+    """Closed-loop run of the TE cascade from the plan's start grade.
+
+    Parameters
+    ----------
+    strategy : {"fixed", "ssmpc", "pi"}
+    plan : TransitionPlan
+    hours : float
+        Length, h.
+    noise : bool
+        The original measurement noise (Downs & Vogel).
+    input_snr : float, optional
+        Input noise on every supervisory valve command: Gaussian, standard
+        deviation = |command| / input_snr (amplitude SNR).
+    idv : dict, optional
+        IDV number -> switch-on time (h).
+    seed : int
+        Seed of the input noise; the plant's generator keeps the original seed.
+    """
+    from plant_sim.tennessee_eastman import TESimulator
+
+    ctl, spec = make_te_controller(strategy, plan, sample_h=sample_h, **options)
+    mode = plan.start[4:]
+    sim = TESimulator(noise=noise, mode="base" if mode == "0" else mode)
+    for k_idv, t_on in (idv or {}).items():
+        sim.set_idv(int(k_idv), True, at_h=float(t_on))
+    reg = RegulatoryLayer(sim, loops=spec.loops)
+    rng = np.random.default_rng(seed)
+    n = int(round(hours / spec.sample_h))
+    T = np.empty(n)
+    X = np.empty((n, 41))
+    U = np.empty((n, 12))
+    S = np.empty((n, len(spec.loops)))
+    R = np.empty((n, 41))
+    cost = np.empty(n)
+    act = np.empty(n, dtype=int)
+    ms = np.empty(n)
+    slack = np.full(n, np.nan)
+    alarms: list[str] = []
+    fallbacks = 0
+    names: tuple[str, ...] = ()
+    w0 = time.perf_counter()
+    k = -1
+    for k in range(n):
+        t = sim.time
+        xmeas = sim.xmeas
+        dec = ctl.step(k, t, xmeas, None)
+        ctl.finish_sample()
+        xmv = sim.xmv
+        u = np.asarray(dec.u, dtype=float)
+        for i in spec.written_xmvs:
+            v = u[i - 1]
+            if math.isfinite(v):
+                if input_snr and i != 12:
+                    v = v + rng.normal() * abs(v) / input_snr
+                xmv[i - 1] = v
+        sim.set_xmv(xmv)
+        reg.set_setpoints(dec.extra["setpoints"])
+        T[k], X[k], U[k], S[k] = t, xmeas, xmv, dec.extra["setpoints"]
+        R[k] = plan.xmeas_ref(t)
+        cost[k] = sim.cost()
+        act[k], ms[k] = dec.active_model, dec.solve_ms
+        if dec.extra.get("constraint_slack") is not None:
+            slack[k] = dec.extra["constraint_slack"]
+        names = names or dec.model_names
+        fallbacks += int(dec.fallback)
+        for a in dec.alarms:
+            if len(alarms) < 50:
+                alarms.append(f"t={t:.2f} h: {a}")
+        reg.run_steps(spec.sample_steps, stop_on_trip=stop_on_trip)
+        if stop_on_trip and sim.shutdown is not None:
+            break
+    m = k + 1
+    return TERun(strategy, T[:m], X[:m], U[:m], S[:m], R[:m], cost[:m], act[:m], ms[:m],
+                 sim.shutdown, names, tuple(alarms), fallbacks, time.perf_counter() - w0,
+                 {"sample_h": spec.sample_h, "noise": noise, "input_snr": input_snr,
+                  "idv": dict(idv or {})}, slack[:m])

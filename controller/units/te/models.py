@@ -1,0 +1,131 @@
+"""TE linear models for the MPC of the §7.4 cascade as this project runs it.
+
+Why not :mod:`controller.units.te.linear_models`: that module closes Table 7.10's loops as
+printed (reactor-temperature gain -0.5 %/degC), which leaves the linearized plant
+unstable at modes 0 and 2, and holds the E feed constant. The cascade that runs
+the original plant here (:mod:`controller.units.te.control`) uses a stabilizing
+reactor-temperature gain (-2 %/degC, Ti 0.5 h) and ratios the E feed to the
+measured D feed (§7.7). The MPC's model must be the plant it acts on, so this
+module linearizes exactly that, with the chapter-3 tooling:
+
+1. Jacobian linearization of ``get_plant("te")`` (50 states, h) at the grade's
+   tabulated state (Ricker 1995 / the base case);
+2. the four inner PI loops closed (:data:`controller.units.te.loops.INNER_LOOPS`, integrators as
+   states), and the E/D ratio: XMV(2) deviation = r x XMV(1) valve deviation with
+   r the grade's ratio in % of each valve range;
+3. a unity-gain first-order filter on reactor pressure, 1/300 h (R7.10);
+4. inputs XMV3, XMV4, P_r* (set point of the pressure loop on XMV6), T_r*, XMV11;
+   outputs reactor pressure (filtered),
+   separator temperature, separator pressure, stripper pressure, stripper
+   temperature (R7.15);
+5. balanced truncation to n = 8 (as ch3_te: above that the state-shared
+   coefficient representation loses accuracy) and the state-shared model with
+   the three fixed models (modes 0, 2, 3) and, for strategy (b), one
+   re-initialized adaptive model.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from controller.linear import Realization, balanced_truncation
+from controller.state_shared import ModelSpec, StateSharedModel, designer_polynomial
+
+__all__ = ["MODEL_GRADES", "ORDER", "DESIGNER_ROOTS", "closed_loop", "reduced",
+           "state_shared_model", "PRESSURE_FILTER_H"]
+
+MODEL_GRADES = ("mode0", "mode2", "mode3")
+ORDER = 8
+PRESSURE_FILTER_H = 1.0 / 300.0
+#: roots of the designer polynomial, 1/h: a geometric spread over the retained poles
+DESIGNER_ROOTS = tuple(-np.geomspace(0.05, 20.0, ORDER))
+#: inputs: ("xmv", number) or ("sp", index of the inner loop whose set point it is)
+_CORE_INPUTS = (("xmv", 3), ("xmv", 4), ("sp", 4), ("sp", 0), ("xmv", 11))
+_CORE_CVS = (7, 11, 13, 16, 18)
+
+
+@lru_cache(maxsize=8)
+def closed_loop(grade: str) -> tuple[Realization, np.ndarray, np.ndarray]:
+    """Linear cascade about ``grade``: (realization, u_op (5,), y_op (5,)), time in h."""
+    from controller.units.te.grades import grade as get_grade
+    from controller.units.te.loops import INNER_LOOPS
+    from plant_sim import get_plant
+    from plant_sim.linearize import linearize
+
+    g = get_grade(grade)
+    plant = get_plant("te")
+    lm = linearize(plant, plant.operating_point(g.name))
+    A, B, C = lm.A.copy(), lm.B, lm.C
+    nx, nl = A.shape[0], len(INNER_LOOPS)
+    # E/D ratio: XMV2 follows the D valve position (state 39) in % of its range
+    ratio = g.xmv[1] / g.xmv[0]
+    A[:, 38] += B[:, 1] * ratio
+    yl = [lp.cv - 1 for lp in INNER_LOOPS]
+    ul = [lp.mv - 1 for lp in INNER_LOOPS]
+    Kc = np.array([lp.gain for lp in INNER_LOOPS])
+    Ti = np.array([lp.ti_h for lp in INNER_LOOPS])
+    CL, BL = C[yl], B[:, ul]
+    N = nx + nl + 1
+    Acl = np.zeros((N, N))
+    Acl[:nx, :nx] = A - BL @ np.diag(Kc) @ CL
+    Acl[:nx, nx:nx + nl] = BL @ np.diag(Kc / Ti)
+    Acl[nx:nx + nl, :nx] = -CL
+    Acl[-1, :nx] = C[_CORE_CVS[0] - 1] / PRESSURE_FILTER_H
+    Acl[-1, -1] = -1.0 / PRESSURE_FILTER_H
+    Bcl = np.zeros((N, 5))
+    for j, (kind, idx) in enumerate(_CORE_INPUTS):
+        if kind == "sp":  # u = Kc (r - y) + Kc/Ti z, z' = r - y
+            Bcl[:nx, j] = BL[:, idx] * Kc[idx]
+            Bcl[nx + idx, j] = 1.0
+        else:
+            Bcl[:nx, j] = B[:, idx - 1]
+    Ccl = np.zeros((5, N))
+    Ccl[0, -1] = 1.0
+    for i, cv in enumerate(_CORE_CVS[1:], start=1):
+        Ccl[i, :nx] = C[cv - 1]
+    y = lm.y_op
+    u_op = np.array([lm.u_op[idx - 1] if kind == "xmv" else y[INNER_LOOPS[idx].cv - 1]
+                     for kind, idx in _CORE_INPUTS])
+    y_op = np.array([y[cv - 1] for cv in _CORE_CVS])
+    return Realization(Acl, Bcl, Ccl, None), u_op, y_op
+
+
+@lru_cache(maxsize=8)
+def reduced(grade: str, order: int = ORDER):
+    """Balanced truncation of :func:`closed_loop` (DC gain matched)."""
+    sys, _, _ = closed_loop(grade)
+    return balanced_truncation(sys, order=order, method="matchdc", unstable="keep")
+
+
+def state_shared_model(dt_h: float, adaptive: bool, order: int = ORDER,
+                       roots=DESIGNER_ROOTS) -> StateSharedModel:
+    """State-shared model: fixed modes 0, 2, 3 (+ one adaptive slot "reinit" at mode 0,
+    placed first).
+
+    Parameters
+    ----------
+    dt_h : float
+        Sample time, h.
+    adaptive : bool
+        Add the adaptive slot (strategy b).
+    """
+    a = designer_polynomial(roots)
+    if a.size != order:
+        raise ValueError(f"roots: expected {order} roots (the order), got {a.size}")
+    specs = []
+    for g in MODEL_GRADES:
+        _, u_op, y_op = closed_loop(g)
+        r = reduced(g, order).reduced
+        specs.append(StateSharedModel.model_from_linear(g, r.A, r.B, r.C, u_op, y_op, a))
+    ssm = StateSharedModel(a, 5, dt_h)
+    if adaptive:
+        # First slot: on a tie of the index (right after a re-initialization the
+        # adaptive model and its source have the same J) the smallest-J rule picks
+        # the lowest index, which must be the adaptive model or it would be
+        # re-initialized again at every sample and never adapt.
+        ssm.add_model(ModelSpec("reinit", specs[0].theta, specs[0].bias, "adaptive"))
+    for spec in specs:
+        ssm.add_model(spec)
+    return ssm

@@ -1,0 +1,98 @@
+"""The TE unit's structure as the service sees it: MV vector, loops, grades, checks.
+
+The plant side runs the inner loops of the cascade (:data:`controller.units.te.control.
+INNER_LOOPS`) at the 1.8 s Euler step; the controller writes the free valves and one
+set point per loop (:func:`te_mv_names`). The grades are seed Table 7.3's rows
+(:mod:`controller.units.te.grades`) with the modes' steady valves.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from controller.units.te.control import TEControlSpec
+from controller.units.te.grades import grade as te_grade
+
+__all__ = ["TE_EULER_STEP_S", "TE_STRATEGIES", "TE_XMEAS", "check_config", "grade_values",
+           "te_mv_names", "te_setpoint_name", "te_structure"]
+
+TE_EULER_STEP_S = 1.8
+
+TE_STRATEGIES = ("ssmpc", "fixed", "pi")
+
+TE_XMEAS = tuple(f"XMEAS{i}" for i in range(1, 42))
+
+
+def te_setpoint_name(loop) -> str:
+    """MV name of a TE inner loop's set point: ``"reactor level"`` → ``reactor_level_sp``."""
+    return loop.name.replace(" ", "_") + "_sp"
+
+
+def te_structure(strategy: str = "pi") -> tuple[tuple, tuple[int, ...]]:
+    """``(inner loops, XMVs the supervisory controller writes)`` of the TE cascade.
+
+    From the TE controller's spec (:class:`controller.units.te.control.TEControlSpec`).
+    The plant side runs these loops; the controller's MV vector is the written XMVs,
+    then one set point per loop (:func:`te_mv_names`).
+    """
+    spec = TEControlSpec(strategy, TE_EULER_STEP_S * 20 / 3600.0, 20)
+    return tuple(spec.loops), tuple(spec.written_xmvs)
+
+
+def te_mv_names(cfg) -> tuple[str, ...]:
+    """The TE unit's MV vector: explicit ``cfg.mvs``, else the cascade's (te_structure)."""
+    if cfg.mvs:
+        return tuple(cfg.mvs)
+    loops, written = te_structure(cfg.strategy)
+    return tuple(f"XMV{i}" for i in written) + tuple(te_setpoint_name(lp) for lp in loops)
+
+
+def check_config(cfg) -> None:
+    if tuple(cfg.cvs) != TE_XMEAS:
+        raise ValueError("cvs: the TE unit measures all 41 XMEAS (XMEAS1..XMEAS41, in order)")
+    if cfg.mvs:
+        loops, _ = te_structure(cfg.strategy)
+        sps = {te_setpoint_name(lp) for lp in loops}
+        owned = {f"XMV{lp.mv}" for lp in loops}
+        allowed = {f"XMV{i}" for i in range(1, 13)} | sps
+        for name in cfg.mvs:
+            if name in owned:
+                raise ValueError(f"mvs: {name} is driven by an inner loop; write its set "
+                                 f"point instead ({', '.join(sorted(sps))})")
+            if name not in allowed:
+                raise ValueError(f"mvs: unknown TE MV {name!r}; use XMV1..XMV12 or "
+                                 f"{', '.join(sorted(sps))}")
+    if cfg.strategy not in TE_STRATEGIES:
+        raise ValueError(f"strategy: expected one of {TE_STRATEGIES}, got {cfg.strategy!r}")
+    n = cfg.sample_period_s / TE_EULER_STEP_S
+    if abs(n - round(n)) > 1e-9 or round(n) < 1:
+        raise ValueError(f"sample_period_s: must be a multiple of the TE Euler step "
+                         f"{TE_EULER_STEP_S} s, got {cfg.sample_period_s}")
+
+
+def grade_values(cfg) -> dict[str, dict[str, Any]]:
+    """TE grades: noise-free XMEAS at each mode's start state as CV set points; the
+    mode's XMVs and its regulatory set points (the loops' CVs there) as MVs."""
+    from plant_sim.tennessee_eastman import SimSettings, TESimulator
+    from plant_sim.tennessee_eastman.modes import MODES, grade_name
+
+    cvi = [int(n[5:]) - 1 for n in cfg.cvs]
+    mvs = te_mv_names(cfg)
+    loops, _ = te_structure(cfg.strategy)
+    sp_cv = {te_setpoint_name(lp): lp.cv for lp in loops}
+    out = {}
+    for mode in MODES:
+        sim = TESimulator(SimSettings(mode=mode))
+        # the grade table's measurements (seed Table 7.3 rows) as the CV set points
+        y0 = np.asarray(te_grade(grade_name(mode)).xmeas, dtype=float)
+        mv = []
+        for name in mvs:
+            if name in sp_cv:
+                mv.append(float(y0[sp_cv[name] - 1]))
+            else:
+                mv.append(float(sim.xmv[int(name[3:]) - 1]))
+        out[grade_name(mode)] = {"setpoints": y0[cvi].tolist(), "mv": mv,
+                                 "description": f"TE mode {mode}", "stability": "unstable"}
+    return out

@@ -1,0 +1,7 @@
+"""``python -m services.cli``: the ``ssmpc`` command."""
+
+import sys
+
+from services.cli.entry import main
+
+sys.exit(main())

@@ -1,0 +1,305 @@
+"""``ssmpc plant|controller|api``: one node alone, on the embedded default or a Zenoh mesh.
+
+Each node opens its own Zenoh session (``--zenoh-config FILE`` or the embedded
+default: peer mode, loopback, multicast scouting off; ``--listen`` and
+``--connect`` add endpoints), prints ``ready <role> <unit>`` on stdout when it
+serves, and stops cleanly on SIGINT/SIGTERM or after ``--duration`` wall
+seconds: telemetry flushed, checkpoint written, session closed.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import sys
+import threading
+import time
+
+from services.output import CLIError
+
+__all__ = ["register", "add_mesh_arguments", "session_settings"]
+
+
+def add_mesh_arguments(p) -> None:
+    g = p.add_argument_group("Zenoh mesh")
+    g.add_argument("--zenoh-config", metavar="FILE",
+                   help="Zenoh JSON5 config (default: embedded peer on loopback, no multicast)")
+    g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to connect to (repeatable)")
+    g.add_argument("--mode", choices=["peer", "client"], default="peer",
+                   help="Zenoh mode of the embedded default (default peer)")
+    g.add_argument("--lease-ms", type=int, default=None,
+                   help="transport lease in ms (shorter: a dead peer is noticed sooner)")
+
+
+def session_settings(args):
+    from services.io.zenoh_session import SessionSettings
+
+    return SessionSettings(config_file=args.zenoh_config, mode=args.mode,
+                           listen=tuple(args.listen), connect=tuple(args.connect),
+                           lease_ms=args.lease_ms)
+
+
+def _add_unit_arguments(p) -> None:
+    p.add_argument("--unit", default="te", help="unit name (see services.registry; default te)")
+    p.add_argument("--unit-config", metavar="FILE", help="JSON overrides of the unit config")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="process seconds per wall second (default 1 = real time)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="stop by itself after this many wall seconds")
+    p.add_argument("--rt-priority", type=int, default=None,
+                   help="run the node under SCHED_FIFO with this priority 1..99 (Linux)")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("plant", help="run a unit's plant node (scaled real time on Zenoh)")
+    _add_unit_arguments(p)
+    add_mesh_arguments(p)
+    p.add_argument("--lockstep", action="store_true",
+                   help="wait for each sample's MV instead of the wall clock (tests, benches)")
+    p.add_argument("--lockstep-timeout", type=float, default=2.0,
+                   help="longest wait for an MV in lock-step mode, wall s")
+    p.add_argument("--sender", default=None, help="expected controller sender id")
+    p.add_argument("--noise", action="store_true", help="TE: measurement noise on")
+    p.add_argument("--idv", action="append", type=int, default=[], metavar="K",
+                   help="TE: switch disturbance IDV(K) on from the start (repeatable)")
+    p.add_argument("--busy-poll", action="store_true",
+                   help="keep the sample boundaries by polling instead of sleeping (a "
+                        "wake-up can come ms late on a VM), at the cost of one CPU at "
+                        "100%% (docs/realtime.md)")
+    p.set_defaults(func=run_plant)
+
+    p = sub.add_parser("controller", help="run a unit's controller node")
+    _add_unit_arguments(p)
+    add_mesh_arguments(p)
+    p.add_argument("--state-dir", default=".", help="directory of the SQLite store (default .)")
+    p.add_argument("--rrd", default=None,
+                   help="Rerun recording file (default <state-dir>/ssmpc-<unit>.rrd)")
+    p.add_argument("--rerun-addr", default=None,
+                   help="send telemetry to a Rerun viewer (rerun+http://host:9876/proxy) "
+                        "instead of a file")
+    p.add_argument("--no-telemetry", action="store_true", help="do not record telemetry")
+    p.add_argument("--sender", default=None, help="sender id written into MV messages")
+    p.add_argument("--busy-poll", action="store_true",
+                   help="poll for measurements without sleeping: the step starts from warm "
+                        "caches, at the cost of one CPU at 100%% (docs/realtime.md)")
+    p.set_defaults(func=run_controller)
+
+    p = sub.add_parser("api", help="run the REST api node (FastAPI on uvicorn)")
+    add_mesh_arguments(p)
+    p.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
+    p.add_argument("--query-timeout", type=float, default=2.0,
+                   help="Zenoh query timeout, s (then 504)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="stop by itself after this many wall seconds")
+    p.set_defaults(func=run_api)
+
+
+def _realtime_tuning(rt_priority: int | None = None) -> None:
+    """Fewer, shorter pauses in a node's sample loop.
+
+    The objects made at start-up (modules, models, JIT code) are moved out of the
+    collector's way (``gc.freeze``) and young-generation collections become rarer;
+    the GIL is handed between the Zenoh callback threads and the loop more often
+    than the default 5 ms. BLAS runs on the calling thread only: the loop's matrices
+    are small (TE: 213 parameters at most), and OpenBLAS's worker threads spin-wait
+    between calls, which at 10,000x kept one of two vCPUs busy, away from the plant
+    and Zenoh. With ``rt_priority`` every thread of the process
+    (including Zenoh's) runs under ``SCHED_FIFO`` (Linux, needs CAP_SYS_NICE), as a
+    control loop on a shared machine should.
+    """
+    import gc
+    import os
+
+    from threadpoolctl import threadpool_limits
+
+    from services.timing import GC_PAUSES
+
+    threadpool_limits(limits=1, user_api="blas")
+    GC_PAUSES.install()
+    gc.collect()
+    gc.freeze()
+    gc.set_threshold(50_000, 50, 100)
+    sys.setswitchinterval(0.0005)
+    if rt_priority is not None:
+        if not 1 <= rt_priority <= 99:
+            raise CLIError(f"rt_priority: must be 1..99, got {rt_priority}")
+        try:
+            param = os.sched_param(rt_priority)
+            for tid in os.listdir("/proc/self/task"):
+                os.sched_setscheduler(int(tid), os.SCHED_FIFO, param)
+        except (OSError, AttributeError) as exc:
+            raise CLIError(f"rt_priority: cannot switch to SCHED_FIFO ({exc})") from exc
+
+
+def _warn_busy_poll_under_fifo(role: str, args) -> None:
+    if args.busy_poll and args.rt_priority is not None:
+        # a SCHED_FIFO thread that never sleeps keeps its CPU from every thread of
+        # lower or equal priority (Zenoh's, the kernel's) but for the RT throttling
+        logging.getLogger(f"ssmpc.{role}").warning(
+            "--busy-poll with --rt-priority: the polling thread holds one CPU under "
+            "SCHED_FIFO; give the node a CPU of its own (isolcpus, taskset)")
+
+
+def _logging() -> None:
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+
+
+def _stop_event(duration: float | None) -> threading.Event:
+    stop = threading.Event()
+
+    def handler(signum, frame):
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    if duration is not None:
+        if duration <= 0:
+            raise CLIError("duration: must be positive wall seconds")
+        timer = threading.Timer(duration, stop.set)
+        timer.daemon = True
+        timer.start()
+    return stop
+
+
+def _ready(role: str, unit: str, **extra) -> None:
+    tail = " ".join(f"{k}={v}" for k, v in extra.items())
+    print(f"ready {role} {unit} {tail}".rstrip(), flush=True)
+
+
+def _config(args):
+    from services.registry import load_unit_config
+
+    if args.speed is None or not args.speed > 0:
+        raise CLIError("speed: must be positive (process seconds per wall second)")
+    return load_unit_config(args.unit, args.unit_config)
+
+
+def run_plant(args) -> int:
+    from services.io.zenoh_session import open_session
+    from services.nodes.plant import PlantNode, make_runner
+
+    _logging()
+    cfg = _config(args)
+    if (args.noise or args.idv) and cfg.plant != "te":
+        raise CLIError("noise/idv: only the TE plant has them; use the plant's "
+                       "'disturbance' command for the others")
+    runner = make_runner(cfg, noise=args.noise) if cfg.plant == "te" else make_runner(cfg)
+    for k in args.idv:
+        if not 1 <= k <= 20:
+            raise CLIError(f"idv: IDV number must be 1..20, got {k}")
+        runner.set_idv(k, True)
+    stop = _stop_event(args.duration)
+    session = open_session(session_settings(args))
+    node = None
+    try:
+        node = PlantNode(cfg, session, speed=args.speed, expected_sender=args.sender,
+                         lockstep=args.lockstep, lockstep_timeout_s=args.lockstep_timeout,
+                         runner=runner, busy_poll=args.busy_poll)
+        _realtime_tuning(args.rt_priority)
+        _warn_busy_poll_under_fifo("plant", args)
+        _ready("plant", cfg.unit, zid=session.zid())
+        node.run(stop)
+    finally:
+        if node is not None:
+            node.close()
+        session.close()
+    return 0
+
+
+def _unused_path(path) -> str:
+    """``path`` if free, else ``<stem>.<n><suffix>``: a restart never overwrites a recording."""
+    if not path.exists():
+        return str(path)
+    n = 1
+    while True:
+        candidate = path.with_name(f"{path.stem}.{n}{path.suffix}")
+        if not candidate.exists():
+            return str(candidate)
+        n += 1
+
+
+def run_controller(args) -> int:
+    from pathlib import Path
+
+    from controller.units.config import build_plant, unit_info
+    from services.io.zenoh_session import open_session
+    from services.nodes.controller import ControllerNode
+    from services.store import UnitStore, default_store_path
+    from services.telemetry import TelemetryLogger
+
+    _logging()
+    cfg = _config(args)
+    info = unit_info(cfg, build_plant(cfg))
+    stop = _stop_event(args.duration)
+    store = UnitStore(default_store_path(cfg.unit, args.state_dir), cfg.unit)
+    sink = None
+    if not args.no_telemetry:
+        sink = args.rerun_addr or args.rrd or str(Path(args.state_dir) / f"ssmpc-{cfg.unit}.rrd")
+        if not args.rerun_addr:
+            sink = _unused_path(Path(sink))
+    # A restarted node continues its recording: same recording id, next file.
+    cp = store.load_checkpoint()
+    recording_id = None if cp is None else cp["state"].get("recording_id")
+    telemetry = TelemetryLogger(cfg.unit, info.cv_names, info.mv_names, sink,
+                                batch=cfg.telemetry_every, ref_names=cfg.track or None,
+                                recording_id=recording_id)
+    session = open_session(session_settings(args))
+    node = None
+    try:
+        node = ControllerNode(cfg, session, store, telemetry, speed=args.speed,
+                              sender=args.sender, busy_poll=args.busy_poll)
+        _realtime_tuning(args.rt_priority)
+        _warn_busy_poll_under_fifo("controller", args)
+        _ready("controller", cfg.unit, zid=session.zid(), store=store.path)
+        node.run(stop)
+    finally:
+        if node is not None:
+            node.close()
+        else:
+            telemetry.close()
+        session.close()
+        store.close()
+    return 0
+
+
+def run_api(args) -> int:
+    import uvicorn
+
+    from api.app import create_app
+    from api.mesh import Mesh
+    from services.io.zenoh_session import open_session
+
+    _logging()
+    if not 0 < args.port < 65536:
+        raise CLIError(f"port: must be 1..65535, got {args.port}")
+    session = open_session(session_settings(args))
+    mesh = Mesh(session, timeout_s=args.query_timeout)
+    try:
+        app = create_app(mesh)
+        config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning",
+                                access_log=False, lifespan="off")
+        server = uvicorn.Server(config)
+        stop = _stop_event(args.duration)
+        # uvicorn runs in a worker thread (so it installs no signal handlers); the main
+        # thread owns SIGINT/SIGTERM and tells it to exit.
+        thread = threading.Thread(target=server.run, name="uvicorn", daemon=True)
+        thread.start()
+        while not server.started and thread.is_alive() and not stop.is_set():
+            time.sleep(0.02)
+        if not thread.is_alive() and not server.started:
+            raise CLIError(f"port: cannot serve on {args.host}:{args.port} (in use?)")
+        if server.started:
+            _ready("api", "-", url=f"http://{args.host}:{args.port}")
+        while not stop.is_set() and thread.is_alive():
+            stop.wait(0.2)
+        server.should_exit = True
+        thread.join(timeout=10)
+    finally:
+        mesh.close()
+        session.close()
+    return 0

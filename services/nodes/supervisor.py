@@ -1,0 +1,189 @@
+"""``ssmpc up``: plant + controller + api of one unit on the embedded default.
+
+Three child processes (``ssmpc plant|controller|api``) on a fresh set of
+loopback ports: the controller listens, the plant and the api connect to it
+(and to each other); Zenoh peer mode, multicast scouting off, Rerun to
+``<state-dir>/ssmpc-<unit>.rrd``, API on 127.0.0.1:``--port``. The simulated
+plant starts afresh, so by default a previous run's store and recording are
+renamed with a time stamp (``--resume`` keeps the store, e.g. to continue). ``up`` waits
+until each child prints ``ready``, then runs until Ctrl-C/SIGTERM or
+``--duration`` wall seconds, and stops the children with SIGTERM (SIGKILL after
+a grace period). Children get the parent-death signal, so no orphan survives
+even if ``up`` itself is killed.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+from services.output import CLIError
+
+__all__ = ["register", "run_up"]
+
+DEFAULT_UNIT = "te"
+
+
+def register(sub) -> None:
+    p = sub.add_parser("up", help="plant + controller + api for one unit on the embedded default")
+    p.add_argument("--unit", default=DEFAULT_UNIT, help=f"unit (default {DEFAULT_UNIT})")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="process seconds per wall second (default 1)")
+    p.add_argument("--port", type=int, default=8000, help="API port on 127.0.0.1 (default 8000)")
+    p.add_argument("--state-dir", default=".", help="SQLite store and .rrd directory (default .)")
+    p.add_argument("--unit-config", metavar="FILE", help="JSON overrides of the unit config")
+    p.add_argument("--duration", type=float, default=None,
+                   help="stop by itself after this many wall seconds")
+    p.add_argument("--lockstep", action="store_true",
+                   help="plant waits for each MV instead of the wall clock")
+    p.add_argument("--lease-ms", type=int, default=1000, help="Zenoh lease, ms (default 1000)")
+    p.add_argument("--busy-poll", action="store_true",
+                   help="controller polls for measurements (warm caches; one CPU at 100%%)")
+    p.add_argument("--ready-timeout", type=float, default=120.0,
+                   help="longest wait for the nodes to start, s")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the controller's store of a previous run (default: the simulated "
+                        "plant starts afresh, so the previous store and recording are moved "
+                        "aside with a time stamp)")
+    p.set_defaults(func=run_up)
+
+
+def _pdeathsig():  # pragma: no cover - runs in the child
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except Exception:
+        pass
+
+
+def _spawn(argv: list[str]) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "services.cli", *argv],
+                            stdout=subprocess.PIPE, stderr=None, text=True, bufsize=1,
+                            preexec_fn=_pdeathsig if sys.platform.startswith("linux") else None)
+
+
+#: Wall seconds between "still starting" lines while a node gets ready.
+PROGRESS_EVERY_S = 10.0
+
+
+def _wait_ready(proc: subprocess.Popen, role: str, deadline: float,
+                progress=None) -> str:
+    """Wait for the node's ``ready`` line; ``progress(elapsed_s)`` is called every
+    :data:`PROGRESS_EVERY_S` meanwhile (a first start compiles for a minute)."""
+    t0 = time.monotonic()
+    next_note = t0 + PROGRESS_EVERY_S
+    while time.monotonic() < deadline:
+        if progress is not None and time.monotonic() >= next_note:
+            progress(time.monotonic() - t0)
+            next_note += PROGRESS_EVERY_S
+        if proc.poll() is not None:
+            raise CLIError(f"{role}: node exited with code {proc.returncode} before it was ready")
+        r, _, _ = select.select([proc.stdout], [], [], 0.2)
+        if r:
+            line = proc.stdout.readline()
+            if line.startswith("ready"):
+                return line.strip()
+    raise CLIError(f"{role}: not ready within the timeout")
+
+
+def _drain(proc: subprocess.Popen) -> None:
+    for line in proc.stdout:
+        sys.stdout.write(line)
+
+
+def stop_children(procs: list[subprocess.Popen], grace_s: float = 10.0) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + grace_s
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def _move_aside(state_dir: str, unit: str) -> list[str]:
+    """Rename a previous run's store and recording to ``*.<UTC time>.*`` (nothing is lost)."""
+    from pathlib import Path
+
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    moved = []
+    for suffix in (".sqlite", ".sqlite-wal", ".sqlite-shm", ".rrd"):
+        src = Path(state_dir) / f"ssmpc-{unit}{suffix}"
+        if src.exists():
+            dst = src.with_name(f"ssmpc-{unit}.{stamp}{suffix}")
+            os.replace(src, dst)
+            moved.append(str(dst))
+    return moved
+
+
+def run_up(args) -> int:
+    from services.io.zenoh_session import free_port
+    from services.registry import load_unit_config
+
+    load_unit_config(args.unit, args.unit_config)  # fail early on a bad unit/config
+    if not 0 < args.port < 65536:
+        raise CLIError(f"port: must be 1..65535, got {args.port}")
+    os.makedirs(args.state_dir, exist_ok=True)
+    if not args.resume:
+        for path in _move_aside(args.state_dir, args.unit):
+            print(f"previous run kept as {path}", flush=True)
+    p_ctrl, p_plant, p_api = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
+    common = ["--unit", args.unit, "--speed", str(args.speed), "--lease-ms", str(args.lease_ms)]
+    if args.unit_config:
+        common += ["--unit-config", args.unit_config]
+    stop = threading.Event()
+
+    def handler(signum, frame):
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    procs: list[subprocess.Popen] = []
+
+    def start(role: str, argv: list[str], doing: str) -> None:
+        print(f"starting the {role} node: {doing}", flush=True)
+        proc = _spawn(argv)
+        procs.append(proc)
+
+        def progress(elapsed: float) -> None:
+            print(f"  still starting the {role} node ({elapsed:.0f} s): the first start "
+                  f"compiles the numerical kernels with numba (about 45 s on 2 cores); "
+                  f"later starts load them from the cache", flush=True)
+
+        print(_wait_ready(proc, role, deadline, progress), flush=True)
+
+    try:
+        deadline = time.monotonic() + args.ready_timeout
+        start("controller", ["controller", *common, "--listen", p_ctrl, "--state-dir",
+                             args.state_dir] + (["--busy-poll"] if args.busy_poll else []),
+              f"models, controller and store in {args.state_dir}")
+        start("plant", ["plant", *common, "--listen", p_plant, "--connect", p_ctrl]
+              + (["--lockstep"] if args.lockstep else []), f"the {args.unit} simulation")
+        start("api", ["api", "--listen", p_api, "--connect", p_ctrl, "--connect", p_plant,
+                      "--lease-ms", str(args.lease_ms), "--port", str(args.port)],
+              f"REST on 127.0.0.1:{args.port}")
+        for p in procs:
+            threading.Thread(target=_drain, args=(p,), daemon=True).start()
+        print(f"ssmpc up: unit {args.unit} at {args.speed:g}x, API http://127.0.0.1:{args.port}"
+              f" (Ctrl-C to stop)", flush=True)
+        t_end = None if args.duration is None else time.monotonic() + args.duration
+        while not stop.is_set():
+            if t_end is not None and time.monotonic() >= t_end:
+                break
+            dead = [p for p in procs if p.poll() is not None]
+            if dead:
+                raise CLIError(f"a node exited unexpectedly (code {dead[0].returncode}); "
+                               "stopping the others")
+            stop.wait(0.2)
+    finally:
+        stop_children(procs)
+    return 0

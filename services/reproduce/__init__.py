@@ -1,0 +1,83 @@
+"""Seed-result reproduction records for ``ssmpc reproduce ID``.
+
+A study function takes a :class:`StudyContext` and returns a
+:class:`ReproduceResult`; its JSON form is the DESIGN.md shape
+``{"id", "rows": [{"name", "unit", "seed", "ours"}], "verdict", "why", "figures"}``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ["Row", "ReproduceResult", "StudyContext", "discover_studies", "VERDICTS"]
+
+VERDICTS = ("reproduced", "beaten", "differs")
+
+
+@dataclass(frozen=True)
+class Row:
+    """One compared number. ``seed`` is exactly as printed in seed_results.md (or None)."""
+
+    name: str
+    unit: str
+    seed: float | None
+    ours: float
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "unit": self.unit, "seed": self.seed, "ours": float(self.ours)}
+
+
+@dataclass
+class ReproduceResult:
+    id: str
+    rows: list[Row]
+    verdict: str
+    why: str
+    figures: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.verdict not in VERDICTS:
+            raise ValueError(f"verdict must be one of {VERDICTS}, got {self.verdict!r}")
+        if self.verdict == "differs" and not self.why:
+            raise ValueError("a 'differs' verdict needs a why")
+
+    def as_dict(self) -> dict:
+        return {
+            "id": self.id,
+            "rows": [r.as_dict() for r in self.rows],
+            "verdict": self.verdict,
+            "why": self.why,
+            "figures": list(self.figures),
+        }
+
+
+@dataclass(frozen=True)
+class StudyContext:
+    """What a study may use: where to put figures (None = no figures) and a seed."""
+
+    plot_dir: Path | None = None
+    seed: int = 0
+    quick: bool = False
+
+
+StudyFn = Callable[[StudyContext], ReproduceResult]
+
+
+def discover_studies() -> dict[str, StudyFn]:
+    """All ids registered by modules of :mod:`services.reproduce`."""
+    import services.reproduce as pkg
+
+    found: dict[str, StudyFn] = {}
+    for info in pkgutil.iter_modules(pkg.__path__):
+        if info.name.startswith("_"):
+            continue
+        mod = importlib.import_module(f"services.reproduce.{info.name}")
+        for rid, fn in getattr(mod, "RESULTS", {}).items():
+            if rid in found:
+                raise RuntimeError(f"result id {rid} registered twice")
+            found[rid] = fn
+    return found
