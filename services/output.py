@@ -62,6 +62,13 @@ def check_writable(path: str | os.PathLike, field: str = "out") -> Path:
         raise CLIError(f"{field}: directory {str(parent)!r} is not writable")
     if p.exists() and p.is_dir():
         raise CLIError(f"{field}: {str(p)!r} is a directory")
+    # os.access says yes to root everywhere (/proc, read-only mounts): try it for real
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".probe", dir=parent)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise CLIError(f"{field}: cannot write in {str(parent)!r}: {exc.strerror or exc}") from exc
     return p
 
 
@@ -84,7 +91,10 @@ def atomic_output(path: str | os.PathLike, mode: str = "w", field: str = "out") 
     On any exception the temporary file is removed, so no partial output is left.
     """
     p = check_writable(path, field)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=p.parent or ".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=p.parent or ".")
+    except OSError as exc:
+        raise CLIError(f"{field}: cannot write {str(p)!r}: {exc.strerror or exc}") from exc
     try:
         with os.fdopen(fd, mode) as fh:
             yield fh
@@ -93,6 +103,10 @@ def atomic_output(path: str | os.PathLike, mode: str = "w", field: str = "out") 
         # mkstemp creates 0600; give the file the permissions a plain open() would.
         os.chmod(tmp, 0o666 & ~_current_umask())
         os.replace(tmp, p)
+    except OSError as exc:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise CLIError(f"{field}: cannot write {str(p)!r}: {exc.strerror or exc}") from exc
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)

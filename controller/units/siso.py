@@ -34,7 +34,7 @@ from controller.switching import IndexSettings
 from controller.units.config import time_scale_s
 
 __all__ = ["A_POLY", "BIO_NLS", "BIO_WEIGHTS", "CSTR_WEIGHTS", "INDEX", "KINDS4", "NLS",
-           "RESYNTHESIS", "build"]
+           "RESYNTHESIS", "build", "input_limits"]
 
 A_POLY = (1.0, 1.0)  # omega(s) = s^2 + s + 1: F = [[0, 1], [-1, -1]] (seed §5.2.3)
 NLS = NLSSettings(kappa=10.0, gain=3.0, rate=1.0, eig_floor=1.0, dead_zone=0.005)
@@ -47,6 +47,15 @@ RESYNTHESIS = 0.2
 KINDS4 = ("fixed", "fixed", "free-running", "re-initialized")
 
 
+def input_limits(cfg, plant) -> tuple[float, float]:
+    """The input range the chapter-5 laws work to: CSTR -3 <= u <= 3 (the seed's is
+    lost), bioreactor the plant's range of D (0-1 1/h when the plant gives none)."""
+    if cfg.plant != "bioreactor":
+        return -3.0, 3.0
+    lo, hi = float(plant.input_vars[0].lower), float(plant.input_vars[0].upper)
+    return (lo, hi) if math.isfinite(lo) and math.isfinite(hi) else (0.0, 1.0)
+
+
 def build(cfg, plant, u0, grades, law_name: str) -> MultiModelController:
     """Chapter 5's multiple-model controller on a SISO unit plant (``law_name``:
     ``"hinf"`` or ``"mrac"``), starting at the move ``u0`` (1,)."""
@@ -56,6 +65,7 @@ def build(cfg, plant, u0, grades, law_name: str) -> MultiModelController:
         raise ValueError(f"controller: {law_name} is for the SISO units, {cfg.plant} is not SISO")
     bio = cfg.plant == "bioreactor"
     dt = cfg.sample_period_s / time_scale_s(plant)
+    lo, hi = input_limits(cfg, plant)
     specs, kinds = [], []
     for name, kind, op in (("M1", "fixed", "OPI"), ("M2", "fixed", "OPII"),
                            ("M3", "free-running", cfg.initial_grade),
@@ -67,9 +77,6 @@ def build(cfg, plant, u0, grades, law_name: str) -> MultiModelController:
                                "fixed" if kind == "fixed" else "adaptive"))
         kinds.append(kind)
     ssm = StateSharedModel(A_POLY, 1, dt, specs)
-    lo = float(plant.input_vars[0].lower) if bio else -3.0
-    hi = float(plant.input_vars[0].upper) if bio else 3.0
-    lo, hi = (0.0, 1.0) if bio and not (math.isfinite(lo) and math.isfinite(hi)) else (lo, hi)
     if law_name == "hinf":
         law = HInfLaw(BIO_WEIGHTS if bio else CSTR_WEIGHTS, dt, RESYNTHESIS, lo, hi)
     else:

@@ -83,8 +83,18 @@ def _run_reproduce(args) -> int:
 
     studies = discover_studies()
     if args.id == "list":
-        for rid in sorted(studies, key=_id_key):
-            print(rid)
+        from services.reproduce.titles import TITLES, last_verdicts
+
+        seen = last_verdicts()
+        rows = [{"id": rid, "title": TITLES.get(rid, ""),
+                 "verdict": seen.get(rid, {}).get("verdict")}
+                for rid in sorted(studies, key=_id_key)]
+        if args.json:
+            emit_json({"results": rows})
+        else:
+            print(f"{'id':<7} {'last verdict':<13} what it compares")
+            for r in rows:
+                print(f"{r['id']:<7} {r['verdict'] or '-':<13} {r['title']}")
         return 0
     rid = args.id.upper()
     if rid not in studies:
@@ -99,6 +109,9 @@ def _run_reproduce(args) -> int:
             raise CLIError(f"plot: cannot create {args.plot!r}: {exc}") from exc
     res = studies[rid](StudyContext(plot_dir=plot_dir, seed=args.seed))
     doc = res.as_dict()
+    from services.reproduce.titles import record_verdict
+
+    record_verdict(rid, doc["verdict"])
     if not args.json:
         print(f"{doc['id']}: {doc['verdict']} - {doc['why']}")
         for r in doc["rows"]:
@@ -141,6 +154,17 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:  # a defect: say so in one line, keep the traceback for a log
+        import logging
+
+        logging.getLogger("ssmpc").debug("unhandled error", exc_info=exc)
+        print(f"error: internal error ({type(exc).__name__}: {exc}); run with "
+              f"SSMPC_DEBUG=1 for the traceback", file=sys.stderr)
+        if os.environ.get("SSMPC_DEBUG"):
+            import traceback
+
+            traceback.print_exc()
+        return 1
     return int(code or 0)
 
 

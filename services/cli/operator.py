@@ -1,5 +1,5 @@
-"""``ssmpc transition UNIT GRADE``, ``ssmpc status UNIT``, ``ssmpc disturbance UNIT NAME VALUE``:
-a thin REST client for operators.
+"""``ssmpc transition UNIT GRADE``, ``ssmpc abort UNIT [ID]``, ``ssmpc status UNIT``,
+``ssmpc disturbance UNIT NAME VALUE``: a thin REST client for operators.
 
 Talks to an api node (``--api``, default http://127.0.0.1:8000; the token from
 ``--token`` or ``SSMPC_API_TOKEN``). Readable text by default, ``--json`` for
@@ -28,10 +28,19 @@ def register(sub) -> None:
     p.add_argument("unit")
     p.add_argument("grade")
     p.add_argument("--duration-h", type=float, default=None, help="transition duration, h")
+    p.add_argument("--queue", action="store_true",
+                   help="if a transition is under way, queue this one after it (else 409)")
     p.add_argument("--wait", action="store_true", help="poll until the transition ends")
     p.add_argument("--wait-timeout", type=float, default=600.0, help="longest wait, wall s")
     _common(p)
     p.set_defaults(func=run_transition)
+
+    p = sub.add_parser("abort", help="abort a unit's transition (the running one by default): "
+                                     "the set points are held where they are, control goes on")
+    p.add_argument("unit")
+    p.add_argument("id", nargs="?", default=None, help="transition id (default: the running one)")
+    _common(p)
+    p.set_defaults(func=run_abort)
 
     p = sub.add_parser("disturbance",
                        help="switch a plant disturbance through the REST API (TE: IDVk 1|0)")
@@ -78,7 +87,7 @@ def _get(client, path):
 def run_transition(args) -> int:
     import httpx
 
-    body = {"grade": args.grade}
+    body = {"grade": args.grade, "queue": bool(args.queue)}
     if args.duration_h is not None:
         body["duration_h"] = args.duration_h
     with _client(args) as c:
@@ -104,6 +113,28 @@ def run_transition(args) -> int:
     return 0 if view["state"] not in ("failed",) else 1
 
 
+def run_abort(args) -> int:
+    import httpx
+
+    with _client(args) as c:
+        tid = args.id
+        if tid is None:
+            running = [v for v in _get(c, f"/api/v1/units/{args.unit}/transitions")
+                       if v.get("state") in ("running", "pending")]
+            if not running:
+                raise CLIError(f"id: unit {args.unit!r} has no transition under way")
+            tid = next((v["id"] for v in running if v["state"] == "running"), running[0]["id"])
+        try:
+            view = _check(c.delete(f"/api/v1/units/{args.unit}/transitions/{tid}"))
+        except httpx.HTTPError as exc:
+            raise CLIError(f"api: cannot reach {args.api}: {exc}") from exc
+    if args.json:
+        emit_json(view)
+    else:
+        print(f"transition {view['id']} -> {view['grade']}: {view['state']}")
+    return 0
+
+
 def run_disturbance(args) -> int:
     import httpx
 
@@ -122,33 +153,84 @@ def run_disturbance(args) -> int:
     return 0
 
 
+#: The text view fits this many columns.
+STATUS_WIDTH = 100
+
+
+def _fmt(v, width: int) -> str:
+    if v is None:
+        return f"{'-':>{width}}"
+    return f"{v:>{width}.5g}"
+
+
+def _flag(v: dict, alarmed: set[str]) -> str:
+    if v.get("at_limit") == "hi":
+        return "HI"
+    if v.get("at_limit") == "lo":
+        return "LO"
+    return "!" if v["name"] in alarmed else ""
+
+
+def status_lines(st: dict, show_all: bool = False) -> list[str]:
+    """The text view of a status document (each line at most :data:`STATUS_WIDTH`).
+
+    CVs shown: the tracked ones, those at a limit or in alarm (``--all``: every CV);
+    every MV. The last column marks a variable at its high or low limit (``HI``,
+    ``LO``) or named by an alarm (``!``).
+    """
+    out = []
+    tr = st.get("transition")
+    grade = st.get("grade") or "-"
+    if tr and tr.get("state") in ("pending", "running"):
+        eta = tr.get("eta_s")
+        grade = (f"{tr.get('from_grade') or grade} -> {tr['grade']}  {tr['state']} "
+                 f"{100 * tr.get('progress', 0.0):.1f} %  ETA "
+                 f"{'-' if eta is None else f'{eta / 3600:.2f} h'}")
+    out.append(f"{st['unit']} ({st['plant']})  sample {st['sample']}  "
+               f"t {st['process_time_s'] / 3600:.3f} h  grade {grade}")
+    solve = st.get("solve_ms")
+    out.append(f"controller {st.get('controller_status') or '-'}  solve "
+               f"{'-' if solve is None else f'{solve:.3f} ms'} of {st['budget_ms']:.3g} ms  "
+               f"deadline misses {st['deadline_misses']}  fallback {st['fallback_moves']}  "
+               f"failed {st.get('failed_samples', 0)}")
+    J = {k: v for k, v in (st.get("J") or {}).items() if v is not None}
+    if st.get("active_model_name") or J:
+        js = "  ".join(f"{k} {v:.2e}" for k, v in J.items())
+        out.append(f"active model {st.get('active_model_name') or '-'}  J: {js}"[:STATUS_WIDTH])
+    alarms = st.get("alarms", [])[-5:]
+    text = " ".join(alarms)
+    variables = st.get("variables") or []
+    alarmed = {v["name"] for v in variables if v["name"] in text}
+    head = (f"{'':<22} {'description':<23} {'value':>10} {'target':>10} {'lo':>8} {'hi':>8} "
+            f"{'unit':<9} ")
+    for kind, title in (("cv", "CV"), ("mv", "MV")):
+        rows = [v for v in variables if v["kind"] == kind]
+        if kind == "cv" and not show_all:
+            rows = [v for v in rows if v.get("target") is not None or v.get("at_limit")
+                    or v["name"] in alarmed]
+        if not rows:
+            continue
+        out.append(title + head[len(title):])
+        for v in rows:
+            out.append(f"{v['name'][:22]:<22} {v['description'][:23]:<23} "
+                       f"{_fmt(v['value'], 10)} {_fmt(v.get('target'), 10)} "
+                       f"{_fmt(v['lo'], 8)} {_fmt(v['hi'], 8)} {v['unit'][:9]:<9} "
+                       f"{_flag(v, alarmed)}")
+    hidden = sum(v["kind"] == "cv" for v in variables) - sum(
+        1 for ln in out if ln.split(" ")[0] in {v["name"] for v in variables if v["kind"] == "cv"})
+    if hidden > 0:
+        out.append(f"({hidden} more CVs: --all)")
+    for a in alarms:
+        out.append(f"alarm: {a}"[:STATUS_WIDTH])
+    return out
+
+
 def run_status(args) -> int:
     with _client(args) as c:
         st = _get(c, f"/api/v1/units/{args.unit}/status")
     if args.json:
         emit_json(st)
         return 0
-    print(f"unit {st['unit']} ({st['plant']})  sample {st['sample']}  "
-          f"t = {st['process_time_s'] / 3600:.3f} h  grade {st['grade']}")
-    print("  CV        value        reference")
-    tracked = [n for n in st["cv"] if n in st["ref"]]
-    shown = list(st["cv"]) if args.all or len(st["cv"]) <= 8 else tracked
-    for name in shown:
-        v, r = st["cv"][name], st["ref"].get(name)
-        print(f"  {name:<8} {'-' if v is None else f'{v:12.5g}'}  "
-              f"{'-' if r is None else f'{r:12.5g}'}")
-    if len(shown) < len(st["cv"]):
-        print(f"  ({len(st['cv']) - len(shown)} more CVs: --all)")
-    print("  MV: " + ", ".join(f"{k}={v:.5g}" for k, v in st["mv"].items() if v is not None))
-    print(f"  active model {st['active_model_name']}  J "
-          + ", ".join(f"{k}={v:.3g}" for k, v in st["J"].items() if v is not None))
-    solve = st["solve_ms"]
-    print(f"  solve {'-' if solve is None else f'{solve:.3f} ms'} (budget {st['budget_ms']:.3g} ms)"
-          f"  deadline misses {st['deadline_misses']}  fallback moves {st['fallback_moves']}")
-    tr = st.get("transition")
-    if tr:
-        print(f"  transition {tr['id']} -> {tr['grade']}: {tr['state']}, "
-              f"progress {100 * tr['progress']:.1f} %, ISE {tr['ise']:.4g}")
-    for a in st.get("alarms", [])[-5:]:
-        print(f"  alarm: {a}")
+    for line in status_lines(st, args.all):
+        print(line)
     return 0

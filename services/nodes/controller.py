@@ -54,6 +54,7 @@ import numpy as np
 from controller.interfaces import ControlDecision
 from controller.units.config import UnitConfig, build_plant, cv_scales, plausible_ranges, unit_info
 from controller.units.takeover import align_multimodel
+from controller.units.variables import at_limit, unit_variables
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.io.zenoh_session import declare_loop_publisher, declare_loop_subscriber
@@ -182,6 +183,7 @@ class ControllerNode:
         self.horizon = int(horizon)
         plant = build_plant(cfg)
         self.info = unit_info(cfg, plant)
+        self.variables = unit_variables(cfg, plant)
         self.ny, self.nu = len(self.info.cv_names), len(self.info.mv_names)
         grades = self.info.grades
         self.u_last = np.asarray(grades[cfg.initial_grade]["mv"], float)
@@ -541,6 +543,7 @@ class ControllerNode:
                 "process_time_s": self.t, "speed": self.budget.speed,
                 "cv": named(self.info.cv_names, self.y),
                 "ref": named(self.track_names, self.r),
+                "variables": self._variables_view(),
                 "mv": named(self.info.mv_names, self.u_last),
                 "active_model": None if d is None else int(d.active_model),
                 "active_model_name": (None if d is None or not d.model_names
@@ -572,6 +575,24 @@ class ControllerNode:
                                       if self.telemetry is not None
                                       and self.telemetry.enabled else None),
             }
+
+    def _variables_view(self) -> list[dict]:
+        """The ``variables`` of the status (DESIGN.md): each CV, MV and DV with its value,
+        target (a tracked CV's reference), limits and the limit it sits at. Call with
+        the lock held."""
+        values = {"cv": dict(zip(self.info.cv_names, self.y)),
+                  "mv": dict(zip(self.info.mv_names, self.u_last))}
+        targets = dict(zip(self.track_names, self.r))
+        out = []
+        for v in self.variables:
+            x = values.get(v.kind, {}).get(v.name)
+            x = float(x) if x is not None and math.isfinite(x) else None
+            tgt = targets.get(v.name) if v.kind == "cv" else None
+            out.append({**v.as_dict(), "value": x,
+                        "target": float(tgt) if tgt is not None and math.isfinite(tgt) else None,
+                        "at_limit": at_limit(x, v.lo, v.hi),
+                        "mode": "auto" if v.kind != "dv" else None})
+        return out
 
     # -- the sample ----------------------------------------------------------------------
     def _publish_mv(self, meas_seq: int, u, fallback: bool) -> None:
