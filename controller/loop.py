@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.blas import single_threaded
 from controller.interfaces import SampleController
 from controller.reference import ReferenceTrajectory
 
@@ -126,6 +127,7 @@ def settling_time(t, y, target: float, band: float, t_from: float = -math.inf) -
     return float(t[0] if idx.size == 0 else t[idx[-1] + 1])
 
 
+@single_threaded
 def run_closed_loop(
     plant_step: Callable[[np.ndarray, np.ndarray, float, float], np.ndarray],
     measure: Callable[[np.ndarray, float], np.ndarray],

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from controller.blas import single_threaded
 from controller.linear import balanced_truncation
 from controller.mpc import FirstOrderFilter, MPCSettings
 from controller.mpc.law import MPCLaw
@@ -247,6 +248,7 @@ def reactor_settings(case: ReactorCase, y1, y2) -> MPCSettings:
         slack_quadratic=1.0, filter_alpha=0.2 if case.noise else 1.0, budget_ms=50.0)
 
 
+@single_threaded
 def run_reactor(case: ReactorCase = ReactorCase()) -> ReactorRun:
     """Closed loop F4 100 → 130 kmol/h with the state-shared MPC (Figs. 6.1–6.3)."""
     from plant_sim.integrate import step as plant_step

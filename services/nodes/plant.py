@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from controller.blas import single_threaded_blas
 from controller.units.config import UnitConfig, build_plant, cv_indices, mv_indices, time_scale_s
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
@@ -496,6 +497,12 @@ class PlantNode:
         self._held_open[self.k] = record
 
     def run(self, stop: threading.Event, max_samples: int | None = None) -> None:
+        """Run until ``stop`` is set (or ``max_samples`` samples have been integrated),
+        with BLAS single-threaded meanwhile (:mod:`controller.blas`); see :meth:`_run`."""
+        with single_threaded_blas():
+            self._run(stop, max_samples)
+
+    def _run(self, stop: threading.Event, max_samples: int | None = None) -> None:
         """Run until ``stop`` is set (or ``max_samples`` samples have been integrated).
 
         Real-time mode integrates the interval ``[t_k, t_k+1]`` as soon as the MV

@@ -86,6 +86,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.blas import single_threaded
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
@@ -653,6 +654,7 @@ class TERun:
         return limit_margins(self.xmeas)
 
 
+@single_threaded
 def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = False,
            input_snr: float | None = None, idv: dict[int, float] | None = None,
            seed: int = 0, sample_h: float = SAMPLE_H, stop_on_trip: bool = True,
