@@ -214,6 +214,8 @@ class ControllerNode:
         #: samples whose controller step raised (the move was held); tracebacks are
         #: logged once per kind of failure, then counted (:class:`FailureLog`)
         self.failed_samples = 0
+        #: liveliness of the plant node (None until it is first seen)
+        self.plant_alive: bool | None = None
         self._failures = FailureLog(log)
         self._last_meas_seq = -1
         self.y_lower, self.y_upper = plausible_ranges(cfg, plant, grades)
@@ -343,6 +345,14 @@ class ControllerNode:
         if sample.kind == zenoh.SampleKind.PUT:
             with self._cond:  # a (re)started plant counts its samples from 0 again
                 self._last_meas_seq = -1
+                self.plant_alive = True
+        elif sample.kind == zenoh.SampleKind.DELETE:
+            # the plant's liveliness token is gone (its lease ran out): the plant holds
+            # its last move and regulatory layer; say so until it is back
+            with self._lock:
+                self.plant_alive = False
+                self.alarms.append(f"plant node lost at sample {self.k} (liveliness): "
+                                   "no measurements, the plant holds its last move")
 
     def _on_meas(self, sample) -> None:
         if self._accept(sample, time.perf_counter()):
@@ -567,6 +577,7 @@ class ControllerNode:
                 "failed_samples": self.failed_samples,
                 "dropped_measurements": self._dropped,
                 "plant_shutdown": self.plant_shutdown,
+                "plant_alive": self.plant_alive,
                 "grade": self.tm.grade,
                 "transition": None if active is None else active.view(self.t, self.budget.speed),
                 "alarms": list(self.alarms),

@@ -8,7 +8,11 @@ plant starts afresh, so by default a previous run's store and recording are
 renamed with a time stamp (``--resume`` keeps the store, e.g. to continue). ``up`` waits
 until each child prints ``ready``, then runs until Ctrl-C/SIGTERM or
 ``--duration`` wall seconds, and stops the children with SIGTERM (SIGKILL after
-a grace period). Children get the parent-death signal, so no orphan survives
+a grace period). It supervises them: a node that dies is restarted with a growing
+pause (:data:`RESTART_BACKOFF_S`, doubling), with an ``alarm:`` line, while the others
+keep running (the controller resumes from its store, bumplessly); a node that dies
+more than :data:`RESTART_LIMIT` times within :data:`RESTART_WINDOW_S` stops ``up``.
+Children get the parent-death signal, so no orphan survives
 even if ``up`` itself is killed.
 """
 
@@ -27,6 +31,12 @@ from services.output import CLIError
 __all__ = ["register", "run_up"]
 
 DEFAULT_UNIT = "te"
+#: Supervision: a node that dies is restarted after RESTART_BACKOFF_S, doubling with
+#: each restart; more than RESTART_LIMIT restarts of one node within RESTART_WINDOW_S
+#: stops ``up`` (exit 1).
+RESTART_BACKOFF_S = 1.0
+RESTART_LIMIT = 5
+RESTART_WINDOW_S = 600.0
 
 
 def register(sub) -> None:
@@ -50,6 +60,9 @@ def register(sub) -> None:
                    help="keep the controller's store of a previous run (default: the simulated "
                         "plant starts afresh, so the previous store and recording are moved "
                         "aside with a time stamp)")
+    p.add_argument("--restart-limit", type=int, default=RESTART_LIMIT,
+                   help=f"restarts of a node that dies, within {RESTART_WINDOW_S / 60:.0f} min, "
+                        f"before up gives up (default {RESTART_LIMIT}; 0: never restart)")
     p.set_defaults(func=run_up)
 
 
@@ -132,6 +145,8 @@ def run_up(args) -> int:
     load_unit_config(args.unit, args.unit_config)  # fail early on a bad unit/config
     if not 0 < args.port < 65536:
         raise CLIError(f"port: must be 1..65535, got {args.port}")
+    if args.restart_limit < 0:
+        raise CLIError(f"restart_limit: must be >= 0, got {args.restart_limit}")
     os.makedirs(args.state_dir, exist_ok=True)
     if not args.resume:
         for path in _move_aside(args.state_dir, args.unit):
@@ -148,6 +163,7 @@ def run_up(args) -> int:
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
     procs: list[subprocess.Popen] = []
+    nodes: dict[str, dict] = {}
 
     def start(role: str, argv: list[str], doing: str) -> None:
         print(f"starting the {role} node: {doing}", flush=True)
@@ -160,6 +176,8 @@ def run_up(args) -> int:
                   f"later starts load them from the cache", flush=True)
 
         print(_wait_ready(proc, role, deadline, progress), flush=True)
+        nodes.setdefault(role, {"argv": argv, "doing": doing, "restarts": []})["proc"] = proc
+        threading.Thread(target=_drain, args=(proc,), daemon=True).start()
 
     try:
         deadline = time.monotonic() + args.ready_timeout
@@ -171,18 +189,34 @@ def run_up(args) -> int:
         start("api", ["api", "--listen", p_api, "--connect", p_ctrl, "--connect", p_plant,
                       "--lease-ms", str(args.lease_ms), "--port", str(args.port)],
               f"REST on 127.0.0.1:{args.port}")
-        for p in procs:
-            threading.Thread(target=_drain, args=(p,), daemon=True).start()
         print(f"ssmpc up: unit {args.unit} at {args.speed:g}x, API http://127.0.0.1:{args.port}"
               f" (Ctrl-C to stop)", flush=True)
         t_end = None if args.duration is None else time.monotonic() + args.duration
         while not stop.is_set():
             if t_end is not None and time.monotonic() >= t_end:
                 break
-            dead = [p for p in procs if p.poll() is not None]
-            if dead:
-                raise CLIError(f"a node exited unexpectedly (code {dead[0].returncode}); "
-                               "stopping the others")
+            for role, node in nodes.items():
+                code = node["proc"].poll()
+                if code is None or stop.is_set():
+                    continue
+                # the others keep running (the plant keeps its regulatory layer and holds
+                # its valves); the dead node is restarted after a growing pause
+                now = time.monotonic()
+                node["restarts"] = [t for t in node["restarts"] if now - t < RESTART_WINDOW_S]
+                if len(node["restarts"]) >= args.restart_limit:
+                    raise CLIError(f"the {role} node exited {len(node['restarts']) + 1} times "
+                                   f"within "
+                                   f"{RESTART_WINDOW_S / 60:.0f} min (last code {code}); "
+                                   "stopping the others", code=1)
+                pause = RESTART_BACKOFF_S * 2 ** len(node["restarts"])
+                node["restarts"].append(now)
+                print(f"alarm: the {role} node exited (code {code}); restarting it in "
+                      f"{pause:g} s (restart {len(node['restarts'])} of at most "
+                      f"{args.restart_limit} in {RESTART_WINDOW_S / 60:.0f} min)", flush=True)
+                if stop.wait(pause):
+                    break
+                deadline = time.monotonic() + args.ready_timeout
+                start(role, node["argv"], node["doing"])
             stop.wait(0.2)
     finally:
         stop_children(procs)

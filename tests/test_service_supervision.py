@@ -1,0 +1,121 @@
+"""``ssmpc up`` supervises its nodes: a controller killed with SIGKILL is restarted
+(alarm line, backoff) while the plant keeps running; beyond the restart limit ``up``
+stops with an error. A lost plant is an alarm in the controller's status."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from services.io.zenoh_session import free_port
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(300)]
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _role_pids(pid: int) -> dict[str, int]:
+    out = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        for child in (task / "children").read_text().split():
+            argv = Path(f"/proc/{child}/cmdline").read_bytes().split(b"\0")
+            for role in (b"controller", b"plant", b"api"):
+                if role in argv[3:5]:
+                    out[role.decode()] = int(child)
+    return out
+
+
+class _Up:
+    def __init__(self, tmp_path, *extra):
+        self.port = free_port()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "up", "--unit", "cstr", "--speed", "20",
+             "--port", str(self.port), "--state-dir", str(tmp_path), "--lease-ms", "500",
+             *extra], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.lines: list[str] = []
+        self._t = threading.Thread(target=self._read, daemon=True)
+        self._t.start()
+
+    def _read(self):
+        for line in self.proc.stdout:
+            self.lines.append(line)
+
+    def wait_line(self, prefix: str, n: int = 1, timeout: float = 120.0) -> None:
+        t_end = time.monotonic() + timeout
+        while sum(ln.startswith(prefix) for ln in self.lines) < n:
+            assert self.proc.poll() is None or time.monotonic() < t_end, (
+                f"no {prefix!r}: {''.join(self.lines)}")
+            assert time.monotonic() < t_end, f"no {prefix!r}: {''.join(self.lines)}"
+            time.sleep(0.05)
+
+    def close(self):
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+
+
+def test_a_killed_controller_is_restarted_and_the_plant_keeps_running(tmp_path):
+    up = _Up(tmp_path)
+    try:
+        up.wait_line("ssmpc up:")
+        pids = _role_pids(up.proc.pid)
+        assert set(pids) == {"controller", "plant", "api"}
+        os.kill(pids["controller"], signal.SIGKILL)
+        up.wait_line("alarm: the controller node exited", timeout=30)
+        up.wait_line("ready controller", n=2, timeout=120)
+        after = _role_pids(up.proc.pid)
+        assert after["plant"] == pids["plant"] and after["api"] == pids["api"]
+        assert after["controller"] != pids["controller"]
+        with httpx.Client(base_url=f"http://127.0.0.1:{up.port}", timeout=10) as c:
+            t_end = time.monotonic() + 60
+            while time.monotonic() < t_end:
+                r = c.get("/api/v1/units/cstr/status")
+                if r.status_code == 200 and r.json()["sample"] > 0:
+                    break
+                time.sleep(0.2)
+            first = r.json()["sample"]
+            time.sleep(1.0)
+            assert c.get("/api/v1/units/cstr/status").json()["sample"] > first
+        # the controller's restart said so; the plant was never restarted
+        assert not any(ln.startswith("alarm: the plant") for ln in up.lines)
+        # a lost plant: an alarm in the controller's status within the lease
+        os.kill(after["plant"], signal.SIGSTOP)
+        try:
+            with httpx.Client(base_url=f"http://127.0.0.1:{up.port}", timeout=10) as c:
+                t_end = time.monotonic() + 20
+                while time.monotonic() < t_end:
+                    st = c.get("/api/v1/units/cstr/status").json()
+                    if st.get("plant_alive") is False:
+                        break
+                    time.sleep(0.2)
+                assert st["plant_alive"] is False
+                assert any("plant node lost" in a for a in st["alarms"])
+        finally:
+            os.kill(after["plant"], signal.SIGCONT)
+    finally:
+        up.close()
+
+
+def test_up_gives_up_beyond_its_restart_limit(tmp_path):
+    up = _Up(tmp_path, "--restart-limit", "1")
+    try:
+        up.wait_line("ssmpc up:")
+        os.kill(_role_pids(up.proc.pid)["controller"], signal.SIGKILL)
+        up.wait_line("ready controller", n=2, timeout=120)
+        os.kill(_role_pids(up.proc.pid)["controller"], signal.SIGKILL)
+        assert up.proc.wait(60) == 1
+        err = up.proc.stderr.read()  # the nodes' log lines, then up's own error line
+        assert err.splitlines()[-1].startswith("error: the controller node exited 2 times")
+        assert "Traceback" not in err
+    finally:
+        up.close()
