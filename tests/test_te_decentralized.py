@@ -242,3 +242,19 @@ def test_service_controller_follows_a_transition_and_holds_after_an_abort():
         if event == "aborted":
             held = dec.u[level]
     assert dec.u[level] == held < 75.0  # moved toward mode 2's 65 %, then held
+
+
+def test_plant_node_runner_applies_the_decentralized_moves():
+    from services.nodes.plant import make_runner
+    from services.registry import build_controller, load_unit_config
+
+    cfg = load_unit_config("te", strategy="decentralized")
+    plant = make_runner(cfg)
+    ctl = build_controller(cfg)
+    for k in range(300):  # 3 h
+        dec = ctl.step(k, plant.t, plant.y(), None)
+        ctl.finish_sample()
+        plant.advance(dec.u, cfg.sample_period_s)
+    assert not plant.shutdown
+    y = plant.y()
+    assert abs(y[7] - 75.0) < 2.0 and abs(y[6] - 2705.0) < 30.0  # reactor level, pressure

@@ -114,8 +114,9 @@ Measured (this port, ``run_te``, noise on, the plant's original generator seed;
     The published closed loop behaves the same as this port (its 48 h test data,
     fault at 8 h, d06_te.dat: 3000 kPa 5.95 h after the onset, here 5.75 h;
     d01_te.dat and d07_te.dat peak at 2821 and 2857 kPa, here 2830 and 2845 kPa at
-    mode 0). It has no override for a lost A feed (Ricker's 1996 structure has
-    one); as published it trips under IDV(6). A 48 h run takes 2-4 s.
+    mode 0). It has no override for a lost A feed (Ricker's 1996 structure lowers
+    the production on high pressure); as published it trips under IDV(6). A 48 h
+    run takes 2-4 s.
 """
 
 from __future__ import annotations
