@@ -13,6 +13,15 @@ controllers. The output is limited to 0-100 %; in velocity form a limited output
 does not wind up. The first execution takes ``e_{k-1} = e_k`` (no proportional kick).
 Set points are inputs (the MPC writes them); by default they are the noise-free
 measurements at the start, so closing the loops is bumpless.
+
+Two extensions carry published multiloop structures (Lyman & Georgakis 1995 as
+closed in Russell, Chiang & Braatz's ``temain_mod.f``): a loop without integral
+action (``ti_h = inf``, the velocity-form P law ``u_k = u_{k-1} + Kc (e_k - e_{k-1})``),
+and a :class:`CascadeLoop`, whose output is the set point of another loop in
+the same layer (no limits on a set point), and a :class:`ValveOverride` on a
+loop: a latched hysteresis that drives the loop's valve to a fixed opening while a
+second measurement is beyond a limit and restarts the loop when it is back. Loops
+run in the order given, each on the set point in force when it runs.
 """
 
 from __future__ import annotations
@@ -26,7 +35,62 @@ from numba import njit
 from plant_sim.base import PlantInputError
 from plant_sim.tennessee_eastman.simulator import NCOL, TESimulator, euler_run
 
-__all__ = ["PILoop", "TABLE_7_10", "RegulatoryLayer"]
+__all__ = ["PILoop", "CascadeLoop", "ValveOverride", "TABLE_7_10", "RegulatoryLayer"]
+
+
+@dataclass(frozen=True)
+class ValveOverride:
+    """Latched hysteresis override of one loop's valve on a second measurement.
+
+    While the watched measurement is at or above ``high`` (latched until it is at or
+    below ``release``) the valve is held at ``high_output``; at or below ``low``
+    (latched until at or above ``release``) at ``low_output``. On release the valve
+    is set to ``restart_output``, the loop's set point to ``restart_setpoint`` and
+    its previous error to 0, and the loop runs again from the next step.
+
+    Parameters
+    ----------
+    cv : int
+        Watched XMEAS number (1-based).
+    high, release, low : float
+        Limits in the watched measurement's units, ``low < release < high``.
+    restart_output : float
+        Valve opening on release, %.
+    restart_setpoint : float
+        The loop's set point on release (its CV units).
+    high_output, low_output : float
+        Valve openings while latched high / low, %.
+    """
+
+    cv: int
+    high: float
+    release: float
+    low: float
+    restart_output: float
+    restart_setpoint: float
+    high_output: float = 100.0
+    low_output: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 1 <= int(self.cv) <= 41:
+            raise PlantInputError(f"cv: XMEAS number must be 1..41, got {self.cv!r}")
+        vals = (self.high, self.release, self.low, self.restart_output,
+                self.restart_setpoint, self.high_output, self.low_output)
+        if not all(math.isfinite(v) for v in vals):
+            raise PlantInputError("override: every limit and output must be finite")
+        if not self.low < self.release < self.high:
+            raise PlantInputError(f"override: need low < release < high, got {self.low}, "
+                                  f"{self.release}, {self.high}")
+        for name in ("restart_output", "high_output", "low_output"):
+            if not 0.0 <= getattr(self, name) <= 100.0:
+                raise PlantInputError(f"{name}: a valve opening in 0-100 %, got "
+                                      f"{getattr(self, name)!r}")
+
+
+def _check_ti(ti_h) -> None:
+    if not (ti_h > 0 and not math.isnan(ti_h)):
+        raise PlantInputError(f"ti_h: integral time must be > 0 h (inf: no integral "
+                              f"action), got {ti_h!r}")
 
 
 @dataclass(frozen=True)
@@ -43,7 +107,9 @@ class PILoop:
     gain : float
         Controller gain, % of valve per unit of the CV.
     ti_h : float
-        Integral time (h, > 0).
+        Integral time (h, > 0); ``math.inf``: proportional only.
+    override : ValveOverride, optional
+        A hysteresis override of this loop's valve.
     """
 
     name: str
@@ -51,6 +117,7 @@ class PILoop:
     mv: int
     gain: float
     ti_h: float
+    override: ValveOverride | None = None
 
     def __post_init__(self) -> None:
         if not 1 <= int(self.cv) <= 41:
@@ -59,8 +126,40 @@ class PILoop:
             raise PlantInputError(f"mv: XMV number must be 1..12, got {self.mv!r}")
         if not math.isfinite(self.gain):
             raise PlantInputError(f"gain: must be finite, got {self.gain!r}")
-        if not (math.isfinite(self.ti_h) and self.ti_h > 0):
-            raise PlantInputError(f"ti_h: integral time must be > 0 h, got {self.ti_h!r}")
+        _check_ti(self.ti_h)
+
+
+@dataclass(frozen=True)
+class CascadeLoop:
+    """An outer loop of the layer: its output is another loop's set point.
+
+    Parameters
+    ----------
+    name : str
+    cv : int
+        Controlled XMEAS number (1-based).
+    inner : str
+        Name of the loop whose set point it writes.
+    gain : float
+        Controller gain, inner-loop CV units per unit of this CV.
+    ti_h : float
+        Integral time (h, > 0); ``math.inf``: proportional only.
+    """
+
+    name: str
+    cv: int
+    inner: str
+    gain: float
+    ti_h: float
+
+    def __post_init__(self) -> None:
+        if not 1 <= int(self.cv) <= 41:
+            raise PlantInputError(f"cv: XMEAS number must be 1..41, got {self.cv!r}")
+        if not math.isfinite(self.gain):
+            raise PlantInputError(f"gain: must be finite, got {self.gain!r}")
+        _check_ti(self.ti_h)
+        if self.inner == self.name:
+            raise PlantInputError(f"inner: loop {self.name!r} cannot write its own set point")
 
 
 #: Seed Table 7.10 (R7.11).
@@ -74,24 +173,53 @@ TABLE_7_10 = (
 
 @njit(cache=True)
 def _regulated_run(K, noise_on, dt, n_steps, rec_every, stop_on_trip, yy, xmv, idv, idv_on,
-                   idv_off, mem, work, xmeas, yp, rows, cv, mv, gain, ti, sp, e_prev, started):
+                   idv_off, mem, work, xmeas, yp, rows, cv, out, to_sp, gain, ti, sp,
+                   e_prev, started, ovr, ovr_on, ovr_state):
     no_t = np.zeros(0)
     no_v = np.zeros((0, 12))
     one_row = np.zeros((1, rows.shape[1]))
     n_rows = 0
     for s in range(n_steps):
         for j in range(cv.shape[0]):
+            if ovr_on[j]:
+                # ovr[j]: watched XMEAS index, high, release, low, high output,
+                # low output, restart output, restart set point
+                p = xmeas[int(ovr[j, 0])]
+                st = ovr_state[j]
+                held = -1.0
+                if p >= ovr[j, 1]:
+                    held, st = ovr[j, 4], 1
+                elif st == 1 and p >= ovr[j, 2]:
+                    held = ovr[j, 4]
+                elif st == 1:
+                    held, st = ovr[j, 6], 0
+                    sp[j], e_prev[j], started[j] = ovr[j, 7], 0.0, True
+                elif p <= ovr[j, 3]:
+                    held, st = ovr[j, 5], 2
+                elif st == 2 and p <= ovr[j, 2]:
+                    held = ovr[j, 5]
+                elif st == 2:
+                    held, st = ovr[j, 6], 0
+                    sp[j], e_prev[j], started[j] = ovr[j, 7], 0.0, True
+                ovr_state[j] = st
+                if held >= 0.0:
+                    xmv[out[j]] = held
+                    continue
             e = sp[j] - xmeas[cv[j]]
             if not started[j]:
                 e_prev[j] = e
                 started[j] = True
-            u = xmv[mv[j]] + gain[j] * ((e - e_prev[j]) + dt / ti[j] * e)
+            du = gain[j] * ((e - e_prev[j]) + dt / ti[j] * e)
+            e_prev[j] = e
+            if to_sp[j]:
+                sp[out[j]] += du
+                continue
+            u = xmv[out[j]] + du
             if u < 0.0:
                 u = 0.0
             elif u > 100.0:
                 u = 100.0
-            xmv[mv[j]] = u
-            e_prev[j] = e
+            xmv[out[j]] = u
         rec = rec_every if (rec_every > 0 and n_rows < rows.shape[0]) else 0
         target = one_row if rec > 0 else rows[:0]
         r, done = euler_run(K, noise_on, dt, 1, rec, stop_on_trip, yy, xmv, idv, idv_on,
@@ -111,8 +239,8 @@ class RegulatoryLayer:
     ----------
     sim : TESimulator
         The plant; the loops overwrite its XMVs of their MVs.
-    loops : sequence of PILoop
-        Default: seed Table 7.10.
+    loops : sequence of PILoop or CascadeLoop
+        Default: seed Table 7.10. Run in this order every step.
     setpoints : sequence of float, optional
         One per loop; default: the noise-free measurements at the plant's start.
     """
@@ -120,13 +248,37 @@ class RegulatoryLayer:
     def __init__(self, sim: TESimulator, loops=TABLE_7_10, setpoints=None) -> None:
         self.sim = sim
         self.loops = tuple(loops)
-        mvs = [lp.mv for lp in self.loops]
+        names = [lp.name for lp in self.loops]
+        if len(set(names)) != len(names):
+            raise PlantInputError("loops: two loops have the same name")
+        mvs = [lp.mv for lp in self.loops if isinstance(lp, PILoop)]
         if len(set(mvs)) != len(mvs):
             raise PlantInputError("loops: two loops drive the same XMV")
+        inners = [lp.inner for lp in self.loops if isinstance(lp, CascadeLoop)]
+        if len(set(inners)) != len(inners):
+            raise PlantInputError("loops: two cascade loops write the same set point")
+        for name in inners:
+            if name not in names:
+                raise PlantInputError(f"loops: cascade inner loop {name!r} is not in the layer")
+        #: indices of the loops whose set point a cascade loop of the layer writes
+        self.cascaded = tuple(names.index(n) for n in inners)
+        n = len(self.loops)
         self._cv = np.array([lp.cv - 1 for lp in self.loops], dtype=np.int64)
-        self._mv = np.array([lp.mv - 1 for lp in self.loops], dtype=np.int64)
+        self._to_sp = np.array([isinstance(lp, CascadeLoop) for lp in self.loops],
+                               dtype=np.bool_)
+        self._mv = np.array([names.index(lp.inner) if isinstance(lp, CascadeLoop)
+                             else lp.mv - 1 for lp in self.loops], dtype=np.int64)
         self._gain = np.array([lp.gain for lp in self.loops], dtype=float)
         self._ti = np.array([lp.ti_h for lp in self.loops], dtype=float)
+        self._ovr = np.zeros((n, 8))
+        self._ovr_on = np.zeros(n, dtype=np.bool_)
+        self._ovr_state = np.zeros(n, dtype=np.int64)
+        for j, lp in enumerate(self.loops):
+            o = getattr(lp, "override", None)
+            if o is not None:
+                self._ovr_on[j] = True
+                self._ovr[j] = (o.cv - 1, o.high, o.release, o.low, o.high_output,
+                                o.low_output, o.restart_output, o.restart_setpoint)
         if setpoints is None:
             self._sp = sim.initial_xmeas[self._cv].copy()
         else:
@@ -140,8 +292,16 @@ class RegulatoryLayer:
         """Set points, one per loop (CV units), a copy."""
         return self._sp.copy()
 
+    @property
+    def overrides_latched(self) -> tuple[int, ...]:
+        """Per loop: 0 free, 1 latched high, 2 latched low (:class:`ValveOverride`)."""
+        return tuple(int(v) for v in self._ovr_state)
+
     def set_setpoints(self, values) -> None:
         """Set all set points (one per loop).
+
+        A loop whose set point a cascade loop of the layer writes takes NaN to keep
+        the cascade's value (a finite value replaces it).
 
         Raises
         ------
@@ -151,10 +311,13 @@ class RegulatoryLayer:
         arr = np.asarray(values, dtype=float).reshape(-1)
         if arr.shape[0] != len(self.loops):
             raise PlantInputError(f"setpoints: expected {len(self.loops)}, got {arr.shape[0]}")
-        for lp, v in zip(self.loops, arr, strict=True):
-            if not math.isfinite(v):
+        keep = np.zeros(arr.shape[0], dtype=bool)
+        for j, (lp, v) in enumerate(zip(self.loops, arr, strict=True)):
+            if math.isnan(v) and j in self.cascaded:
+                keep[j] = True
+            elif not math.isfinite(v):
                 raise PlantInputError(f"setpoints: {lp.name} set point is not finite ({v})")
-        self._sp[:] = arr
+        self._sp[:] = np.where(keep, self._sp, arr)
 
     def run_steps(self, n: int, record_every: int = 0, stop_on_trip: bool = False) -> np.ndarray:
         """``n`` steps with the loops closed; rows as :meth:`TESimulator.run_steps`."""
@@ -166,6 +329,6 @@ class RegulatoryLayer:
         n_rows, _ = _regulated_run(
             sim._K, sim.settings.noise, sim.dt_h, n, int(record_every), stop_on_trip, sim.x,
             sim._xmv, sim._idv, sim._idv_on, sim._idv_off, sim._mem, sim._work, sim._xmeas,
-            sim._yp, rows, self._cv, self._mv, self._gain, self._ti, self._sp, self._e_prev,
-            self._started)
+            sim._yp, rows, self._cv, self._mv, self._to_sp, self._gain, self._ti, self._sp,
+            self._e_prev, self._started, self._ovr, self._ovr_on, self._ovr_state)
         return rows[:n_rows]

@@ -107,7 +107,7 @@ __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec"
 
 #: Supervisory sample period, h (36 s = 20 Euler steps of 1.8 s).
 SAMPLE_H = 0.01
-STRATEGIES = ("fixed", "ssmpc", "pi")
+STRATEGIES = ("fixed", "ssmpc", "pi", "decentralized")
 #: The five core handles: XMV numbers, None = reactor-temperature set point (R7.15).
 CORE_XMVS = (3, 4, None, None, 11)
 CORE_NAMES = ("XMV3", "XMV4", "Pr_sp", "Tr_sp", "XMV11")
@@ -583,6 +583,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
+    if strategy == "decentralized":  # temain_mod.f's loops, in their own module
+        from controller.units.te.decentralized import make_decentralized_controller
+        return make_decentralized_controller(plan, sample_h=sample_h, plant_dt_s=plant_dt_s)
     if plan is None:
         plan = TransitionPlan("mode0")
     steps = sample_h * 3600.0 / plant_dt_s

@@ -2,7 +2,9 @@
 
 The plant side runs the inner loops of the cascade (:data:`controller.units.te.control.
 INNER_LOOPS`) at the 1.8 s Euler step; the controller writes the free valves and one
-set point per loop (:func:`te_mv_names`). The grades are seed Table 7.3's rows
+set point per loop (:func:`te_mv_names`); under ``"decentralized"`` the loops are
+:data:`controller.units.te.decentralized.PLANT_LOOPS`, whose cascade loops write
+some set points themselves (those are not MVs). The grades are seed Table 7.3's rows
 (:mod:`controller.units.te.grades`) with the modes' steady valves.
 """
 
@@ -20,7 +22,7 @@ __all__ = ["TE_EULER_STEP_S", "TE_STRATEGIES", "TE_XMEAS", "check_config", "grad
 
 TE_EULER_STEP_S = 1.8
 
-TE_STRATEGIES = ("ssmpc", "fixed", "pi")
+TE_STRATEGIES = ("ssmpc", "fixed", "pi", "decentralized")
 
 TE_XMEAS = tuple(f"XMEAS{i}" for i in range(1, 42))
 
@@ -37,8 +39,21 @@ def te_structure(strategy: str = "pi") -> tuple[tuple, tuple[int, ...]]:
     The plant side runs these loops; the controller's MV vector is the written XMVs,
     then one set point per loop (:func:`te_mv_names`).
     """
-    spec = TEControlSpec(strategy, TE_EULER_STEP_S * 20 / 3600.0, 20)
+    if strategy == "decentralized":
+        from controller.units.te.decentralized import decentralized_spec
+
+        spec = decentralized_spec(TE_EULER_STEP_S * 20 / 3600.0, 20)
+    else:
+        spec = TEControlSpec(strategy, TE_EULER_STEP_S * 20 / 3600.0, 20)
     return tuple(spec.loops), tuple(spec.written_xmvs)
+
+
+def _written_loops(loops) -> tuple:
+    """The loops whose set point the supervisory controller writes: all but those a
+    plant-side cascade loop writes (:class:`plant_sim.tennessee_eastman.regulatory.
+    CascadeLoop`)."""
+    inner = {getattr(lp, "inner", None) for lp in loops}
+    return tuple(lp for lp in loops if lp.name not in inner)
 
 
 def te_mv_names(cfg) -> tuple[str, ...]:
@@ -46,7 +61,8 @@ def te_mv_names(cfg) -> tuple[str, ...]:
     if cfg.mvs:
         return tuple(cfg.mvs)
     loops, written = te_structure(cfg.strategy)
-    return tuple(f"XMV{i}" for i in written) + tuple(te_setpoint_name(lp) for lp in loops)
+    return tuple(f"XMV{i}" for i in written) + tuple(te_setpoint_name(lp)
+                                                     for lp in _written_loops(loops))
 
 
 def check_config(cfg) -> None:
@@ -54,8 +70,8 @@ def check_config(cfg) -> None:
         raise ValueError("cvs: the TE unit measures all 41 XMEAS (XMEAS1..XMEAS41, in order)")
     if cfg.mvs:
         loops, _ = te_structure(cfg.strategy)
-        sps = {te_setpoint_name(lp) for lp in loops}
-        owned = {f"XMV{lp.mv}" for lp in loops}
+        sps = {te_setpoint_name(lp) for lp in _written_loops(loops)}
+        owned = {f"XMV{lp.mv}" for lp in loops if hasattr(lp, "mv")}
         allowed = {f"XMV{i}" for i in range(1, 13)} | sps
         for name in cfg.mvs:
             if name in owned:
