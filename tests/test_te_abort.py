@@ -10,6 +10,7 @@ held, and its traceback is logged once, not every sample.
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -21,7 +22,7 @@ from controller.units.te.service import HeldPlan, TEServiceController
 from controller.units.te.structure import te_mv_names
 from services.registry import get_unit
 
-STRATEGIES = ("ssmpc", "fixed", "pi")
+STRATEGIES = ("ssmpc", "fixed", "pi", "decentralized")
 HOURS = 3600.0
 
 
@@ -40,7 +41,7 @@ def test_held_plan_answers_with_the_plans_shapes_and_holds_its_values():
 
 
 def _te_service(strategy):
-    cfg = get_unit("te")
+    cfg = replace(get_unit("te"), strategy=strategy)
     g = grade_setpoints(cfg, None)
     mvs = te_mv_names(cfg)
     return TEServiceController(strategy, "mode0", mvs, cfg.sample_period_s / HOURS,
@@ -71,6 +72,7 @@ def test_every_strategy_steps_after_an_abort_and_a_new_transition(strategy):
     again = run(2)
     # held references: the set points the controller writes no longer move with time
     sp = [i for i, n in enumerate(ctl.mvs) if n.endswith("_level_sp")]
+    assert sp
     np.testing.assert_allclose(held.u[sp], again.u[sp], rtol=0, atol=1e-9)
     ctl.on_transition("running", "mode3", k * dt)
     run(3)

@@ -108,9 +108,11 @@ def _te_variables(cfg, plant) -> tuple[VariableInfo, ...]:
             elif lp.cv == 7:
                 lo, hi = PR_LIMITS
             else:
-                lo, hi = ALARM_LIMITS.get(lp.cv, (0.0, 100.0))
+                lo, hi = ALARM_LIMITS.get(lp.cv, (var.lower, var.upper))
+            acts_on = (f"loop on XMV {lp.mv}" if hasattr(lp, "mv")
+                       else f"cascade to the {lp.inner} loop")
             out.append(VariableInfo(name, f"XMEAS {lp.cv} SP",
-                                    f"{var.description} set point (loop on XMV {lp.mv})",
+                                    f"{var.description} set point ({acts_on})",
                                     var.unit, "mv", lo, hi))
         else:
             i = int(name[3:])
