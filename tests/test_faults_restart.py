@@ -25,7 +25,11 @@ from services.store import UnitStore
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
 
-SPEED = 10.0
+# 25 ms samples, a 12.5 ms deadline. At 10x (2.5 ms) a 2-core machine with one core taken
+# by another job once made the restarted node's first published move 4.5 normal steps from
+# the held one: a missed sample's move is not published, yet the law goes on from it. That
+# is a gap of deadline misses, not of the lost checkpoints this file is about.
+SPEED = 2.0
 LOST_SAMPLES = 30  # samples whose checkpoints are lost at the kill
 
 

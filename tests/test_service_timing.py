@@ -152,7 +152,8 @@ def test_deadline_stats_percentiles_of_kept_samples():
 
 
 def test_watchdog_with_a_period_hint_wakes_only_at_deadlines():
-    period, budget = 0.02, 0.01
+    # a 1 ms step within a 50 ms budget: a loaded machine's oversleeps stay inside it
+    period, budget = 0.1, 0.05
     wd = Watchdog(period_hint_s=period)
     t0 = time.perf_counter() + 0.01
     fired_early = []
@@ -174,7 +175,7 @@ def test_watchdog_with_a_period_hint_wakes_only_at_deadlines():
     assert fired.wait(2.0)
     assert wd.disarm() is True
     assert at[0] >= deadline
-    assert wd.n_notified == n_before + 1  # it asked for the wake-up (prediction ~30 ms on)
+    assert wd.n_notified == n_before + 1  # it asked for the wake-up (prediction ~150 ms on)
     wd.close()
 
 

@@ -37,7 +37,9 @@ def _alive(pid):
 def test_up_transition_and_clean_shutdown(tmp_path):
     port = free_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "up", "--unit", "cstr", "--speed", "20",
+        # 5x: 10 ms samples with a 5 ms deadline for the controller (at 20x, on a 2-core
+        # machine with one core taken by another job, the transition once failed to settle)
+        [sys.executable, "-m", "services.cli", "up", "--unit", "cstr", "--speed", "5",
          "--port", str(port), "--state-dir", str(tmp_path), "--duration", "150"],
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
