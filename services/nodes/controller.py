@@ -214,6 +214,7 @@ class ControllerNode:
         #: samples whose controller step raised (the move was held); tracebacks are
         #: logged once per kind of failure, then counted (:class:`FailureLog`)
         self.failed_samples = 0
+        self._alarms_logged: set[str] = set()
         #: liveliness of the plant node (None until it is first seen)
         self.plant_alive: bool | None = None
         self._failures = FailureLog(log)
@@ -293,8 +294,6 @@ class ControllerNode:
         if wait:
             self._worker.wait()
 
-    #: Longest wall time telemetry stays buffered, s.
-    TELEMETRY_MAX_WALL_S = 1.0
     #: Shortest wall time between two published status messages, s.
     STATUS_MIN_WALL_S = 0.2
     #: A checkpoint is also due after this wall time (slow speeds: samples are far apart), s.
@@ -326,7 +325,11 @@ class ControllerNode:
         self._worker.wait()
 
     def _notify(self, tr, event: str) -> None:
-        """Tell a controller that follows its own plans (TE) about a transition event."""
+        """Tell a controller that follows its own plans (TE) about a transition event
+        (and the recording's event log)."""
+        if self.telemetry is not None:
+            self.telemetry.event(self.k, self.t, f"transition {tr.id} "
+                                 f"{tr.from_grade or '-'} -> {tr.grade}: {event}")
         hook = getattr(self.controller, "on_transition", None)
         if hook is not None:
             hook(event, tr.grade, self.t, duration_s=tr.duration_s)
@@ -728,6 +731,12 @@ class ControllerNode:
             self.last_decision = decision
             for alarm in decision.alarms:
                 self.alarms.append(alarm)
+            if self.telemetry is not None and decision.alarms:
+                # an alarm goes to the event log when it appears, not every sample it holds
+                new = [a for a in decision.alarms if a not in self._alarms_logged]
+                for alarm in new:
+                    self.telemetry.event(msg.seq, msg.t, alarm, "WARN")
+            self._alarms_logged = set(decision.alarms)
             finish = getattr(self.controller, "finish_sample", None)
             if callable(finish):  # the sample's bookkeeping, now that the move is out
                 try:
@@ -742,7 +751,7 @@ class ControllerNode:
                                       decision.solve_ms, self.stats.slack_ms(elapsed),
                                       auto_flush=False)
             now = time.perf_counter()
-            if full or now - self._last_flush > self.TELEMETRY_MAX_WALL_S:
+            if full or now - self._last_flush > self.telemetry.max_wall_s:
                 # in batches, but never more than a second behind (a live viewer)
                 self._last_flush = now
                 self._worker.submit(self.telemetry.flush)

@@ -227,6 +227,7 @@ def run_controller(args) -> int:
     from pathlib import Path
 
     from controller.units.config import build_plant, unit_info
+    from controller.units.variables import unit_variables
     from services.io.zenoh_session import open_session
     from services.nodes.controller import ControllerNode
     from services.store import UnitStore, default_store_path
@@ -234,7 +235,8 @@ def run_controller(args) -> int:
 
     _logging()
     cfg = _config(args)
-    info = unit_info(cfg, build_plant(cfg))
+    plant = build_plant(cfg)
+    info = unit_info(cfg, plant)
     stop = _stop_event(args.duration)
     store = UnitStore(default_store_path(cfg.unit, args.state_dir), cfg.unit)
     sink = None
@@ -247,7 +249,8 @@ def run_controller(args) -> int:
     recording_id = None if cp is None else cp["state"].get("recording_id")
     telemetry = TelemetryLogger(cfg.unit, info.cv_names, info.mv_names, sink,
                                 batch=cfg.telemetry_every, ref_names=cfg.track or None,
-                                recording_id=recording_id)
+                                recording_id=recording_id,
+                                variables=unit_variables(cfg, plant))
     session = open_session(session_settings(args))
     node = None
     try:
