@@ -84,3 +84,32 @@ def test_tight_temperature_loop_gives_hurwitz_models_r7_10():
         ref = bt.reduced.frequency_response(w)
         ours = Realization(A, B, C, None).frequency_response(w)
         assert np.max(np.abs(ours - ref)) <= FREQ_RTOL * np.max(np.abs(ref))
+
+
+TE_N40_RTOL = 1e-6  # the seed's order (R7.15), relative frequency-response error
+
+
+@pytest.fixture(scope="module")
+def ssm40():
+    return te_state_shared_model(dt=0.01, order=40, basis="orthonormal")
+
+
+def test_seed_order_n40_represented_in_orthonormal_basis(ssm40):
+    # R7.15: n = 40 per model, 2nm = 400; not representable in the companion basis
+    assert ssm40.order == 400 and ssm40.basis.kind == "orthonormal"
+    w = np.logspace(-3, 4, 71)
+    for j, mode in enumerate(TE_MODES):
+        red = te_reduced(mode, 40).reduced
+        A, B, C, _, _ = ssm40.continuous_form(j)
+        ref = Realization(red.A, red.B, red.C, None).frequency_response(w)
+        ours = Realization(A, B, C, None).frequency_response(w)
+        assert np.max(np.abs(ours - ref)) <= TE_N40_RTOL * np.max(np.abs(ref))
+    for j, mode in enumerate(TE_MODES):
+        cl = te_closed_loop(mode)
+        ssm40.initialize(cl.u_op, cl.y_op)
+        np.testing.assert_allclose(ssm40.estimates()[j], cl.y_op, rtol=1e-9)
+
+
+def test_te_basis_option_validated():
+    with pytest.raises(ValueError, match="basis"):
+        te_state_shared_model(dt=0.01, basis="monomial")
