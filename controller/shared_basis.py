@@ -289,6 +289,25 @@ class SharedBasis:
             return self.a.shape == other.a.shape and bool(np.all(self.a == other.a))
         return self.roots.shape == other.roots.shape and bool(np.all(self.roots == other.roots))
 
+    def from_companion(self) -> np.ndarray:
+        """T (n x n) with ``n_this = T n_companion`` for the same omega, ``T = K K_c^-1``
+        with K the Krylov matrix ``[g, F g, ..., F^(n-1) g]`` of each pair.
+
+        Exact in principle, ill conditioned like the companion basis itself: for the
+        coefficient readings of small models (n <= ~10, e.g. the SISO units' n = 2).
+        """
+        from controller.state_shared import companion_block
+
+        if self.kind == "companion":
+            return np.eye(self.n)
+        Fc, gc = companion_block(self.a)
+        K, Kc = np.empty((self.n, self.n)), np.empty((self.n, self.n))
+        K[:, 0], Kc[:, 0] = self.gb, gc
+        for i in range(1, self.n):
+            K[:, i] = self.Fb @ K[:, i - 1]
+            Kc[:, i] = Fc @ Kc[:, i - 1]
+        return np.linalg.solve(Kc.T, K.T).T
+
     def basis_functions(self, s: ArrayLike) -> np.ndarray:
         """``phi(s) = (sI - Fb)^-1 gb`` at complex points s, shape (len(s), n)."""
         s = np.atleast_1d(np.asarray(s, dtype=complex))

@@ -519,6 +519,19 @@ class StateSharedModel:
     def theta(self, j: int) -> np.ndarray:
         return self.model(j).theta
 
+    def coefficient_theta(self, j: int) -> np.ndarray:
+        """Model j's Theta in the companion coordinates of the same omega (eq. 3.16:
+        numerator coefficients and ``a - d``), for readings that need coefficients.
+
+        The very array of :meth:`theta` in the companion basis; otherwise
+        ``(I (x) T)' Theta`` with ``T = SharedBasis.from_companion()`` (small n only).
+        """
+        th = self.theta(j)
+        if self.basis.kind == "companion":
+            return th
+        T = self.basis.from_companion()
+        return np.kron(np.eye(self.m + self.p), T).T @ th
+
     def theta2_all(self) -> np.ndarray:
         """theta2 (= a - d, eq. 3.16) of every model, shape (k, n): the first output
         block's (all blocks hold the same vector for structured models). A read-only

@@ -177,3 +177,15 @@ def test_parameters_regressor_and_checkpoint_in_orthonormal_basis():
         StateSharedModel(SharedBasis.orthonormal(poles), 3, 0.1).restore(state)
     with pytest.raises(ValueError, match="basis"):
         StateSharedModel(basis.a, 3, 0.1).restore(state)
+
+
+def test_coefficient_theta_reads_the_companion_coefficients():
+    # a SISO model in the orthonormal basis reads back as the seed's eq. 3.8 coefficients
+    k1, k2, k3, k4 = 0.3, 0.3732, 1.1605, 0.2337  # H = (k1 s + k2)/(s^2 + k3 s + k4)
+    A = np.array([[0.0, 1.0], [-k4, -k3]])
+    B, C = np.array([[0.0], [1.0]]), np.array([[k2, k1]])
+    basis = SharedBasis.of((1.0, 1.0), "orthonormal")
+    spec = StateSharedModel.model_from_linear("M", A, B, C, [0.0], [0.0], basis)
+    ssm = StateSharedModel(basis, 1, 0.1, [spec])
+    np.testing.assert_allclose(ssm.coefficient_theta(0)[:, 0], [k2, k1, 1.0 - k4, 1.0 - k3],
+                               atol=1e-12)
