@@ -113,3 +113,26 @@ def test_seed_order_n40_represented_in_orthonormal_basis(ssm40):
 def test_te_basis_option_validated():
     with pytest.raises(ValueError, match="basis"):
         te_state_shared_model(dt=0.01, basis="monomial")
+
+
+def test_controller_models_in_orthonormal_basis_hold_and_represent():
+    # the TE controller's models (controller.units.te.models), omega at mode 0's poles
+    from controller.units.te.control import TEMPCOptions
+    from controller.units.te.models import MODEL_GRADES, closed_loop, reduced, state_shared_model
+
+    ssm = state_shared_model(0.01, adaptive=True, basis="orthonormal")
+    assert ssm.basis.kind == "orthonormal" and ssm.names == ["reinit", *MODEL_GRADES]
+    w = np.logspace(-3, 4, 71)
+    for j, g in enumerate(MODEL_GRADES, start=1):
+        r = reduced(g).reduced
+        A, B, C, _, _ = ssm.continuous_form(j)
+        ref = Realization(r.A, r.B, r.C, None).frequency_response(w)
+        ours = Realization(A, B, C, None).frequency_response(w)
+        assert np.max(np.abs(ours - ref)) <= TE_N40_RTOL * np.max(np.abs(ref))
+        _, u_op, y_op = closed_loop(g)
+        ssm.initialize(u_op, y_op)
+        np.testing.assert_allclose(ssm.estimates()[j], y_op, rtol=1e-9)
+    with pytest.raises(ValueError, match="basis"):
+        TEMPCOptions(basis="laguerre")
+    with pytest.raises(ValueError, match="model_order"):
+        TEMPCOptions(model_order=41)

@@ -465,6 +465,11 @@ class TEMPCOptions:
         Minimum dwell of a model, h.
     nls_gain : float
         Adaptive gain of the normalized least squares (1/h), strategy (b).
+    basis : {"companion", "orthonormal"}
+        Coordinates of the models' shared state (:mod:`controller.shared_basis`;
+        orthonormal: omega's roots at the mode-0 model's poles).
+    model_order : int
+        Reduced order n of every mode's model.
     target_weight : float or tuple of 5 float
         Weight (per (% or degC or kPa)^2) pulling each handle toward the grade's
         steady value (Ricker's optimum, along the plan's first-order path): the
@@ -491,8 +496,18 @@ class TEMPCOptions:
     index_dwell_h: float = 0.25
     nls_gain: float = 10.0
     target_weight: float | tuple = (1000.0, 1000.0, 10.0, 1000.0, 10.0)
+    basis: str = "companion"
+    model_order: int = 8
 
     def __post_init__(self) -> None:
+        from controller.shared_basis import BASES
+
+        if self.basis not in BASES:
+            raise ValueError(f"basis: must be one of {BASES}, got {self.basis!r}")
+        if (isinstance(self.model_order, bool) or not isinstance(self.model_order, int)
+                or not 2 <= self.model_order <= 40):
+            raise ValueError(f"model_order: must be an integer in 2..40, got "
+                             f"{self.model_order!r}")
         if len(self.output_scale) != 5 or min(self.output_scale) <= 0:
             raise ValueError("output_scale: need 5 positive values")
         if len(self.du_max) != 5 or min(self.du_max) <= 0:
@@ -526,7 +541,10 @@ def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | No
 
     opt = options or TEMPCOptions()
     adaptive = strategy == "ssmpc"
-    ssm = state_shared_model(sample_h, adaptive)
+    if opt.basis == "companion" and opt.model_order == 8:
+        ssm = state_shared_model(sample_h, adaptive)  # the tuned default, as it was
+    else:
+        ssm = state_shared_model(sample_h, adaptive, opt.model_order, basis=opt.basis)
     scale = np.asarray(opt.output_scale, dtype=float)
     w = opt.output_weight * (0.5 if adaptive else 1.0)
     lo, hi = _core_limits()
