@@ -470,6 +470,9 @@ class TEMPCOptions:
         orthonormal: omega's roots at the mode-0 model's poles).
     model_order : int
         Reduced order n of every mode's model.
+    index_errors : {"equation", "steady_output"}
+        What the switching index compares
+        (:attr:`controller.multimodel.MultiModelSettings.index_errors`).
     target_weight : float or tuple of 5 float
         Weight (per (% or degC or kPa)^2) pulling each handle toward the grade's
         steady value (Ricker's optimum, along the plan's first-order path): the
@@ -498,6 +501,7 @@ class TEMPCOptions:
     target_weight: float | tuple = (1000.0, 1000.0, 10.0, 1000.0, 10.0)
     basis: str = "companion"
     model_order: int = 8
+    index_errors: str = "equation"
 
     def __post_init__(self) -> None:
         from controller.shared_basis import BASES
@@ -565,7 +569,7 @@ def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | No
         nls=NLSSettings(gain=opt.nls_gain),
         index=IndexSettings(mu=1.0, nu=0.1, min_dwell=opt.index_dwell_h,
                             output_weights=tuple(1.0 / scale ** 2)),
-        u_min=tuple(lo), u_max=tuple(hi), param_margin=1.0)
+        u_min=tuple(lo), u_max=tuple(hi), param_margin=1.0, index_errors=opt.index_errors)
     core = MultiModelController(ssm, law, np.asarray(u0, dtype=float), mm, kinds=kinds,
                                 initial_model=0)
     return core, opt.P
