@@ -447,7 +447,7 @@ class HInfLaw:
     @staticmethod
     def _model_params(ssm, j: int) -> np.ndarray:
         n = ssm.n_deg
-        th = ssm.theta(j)[:, 0]
+        th = ssm.coefficient_theta(j)[:, 0]
         return np.concatenate((th[:n], th[n : 2 * n]))
 
     def _design_for(self, ssm, j: int, alarms: list[str]) -> DiscreteController | None:

@@ -146,7 +146,7 @@ class MRACLaw:
         n = ssm.n_deg
         if n != 2 or ssm.m != 1:
             raise ValueError("MRACLaw: needs a SISO state-shared model with n = 2")
-        th = ssm.theta(j)[:, 0]
+        th = ssm.coefficient_theta(j)[:, 0]
         num, den = siso_model_tf(th[:n], th[n:], ssm.a)
         kp = float(num[0])
         z = float(num[1] / num[0]) if kp != 0 else math.nan

@@ -138,6 +138,16 @@ class MultiModelSettings:
         model, O(dt) away from the continuous Theta that the fixed models carry
         (14.7 % in one parameter for the CSTR at dt = 0.05). The shared state
         itself and everything the control law reads are unchanged.
+    index_errors : {"equation", "steady_output"}
+        What the index (eq. 4.6) is fed. ``"equation"`` (default, the seed's): the
+        models' errors ``y - y_j`` as they are. These are equation errors,
+        ``(d_j/omega) (y - H_j u)`` up to transients, so at low frequency each
+        model's output error is weighted by ``d_j(0)/omega(0)`` = prod of its
+        poles over omega's: models whose poles are faster count more (on TE
+        mode 2's error counts 121 times mode 0's, whatever omega).
+        ``"steady_output"``: each model's errors divided by its own
+        ``d_j(0)/omega(0)``, read from Theta (``1 - theta2_j' n_ss``), so the index
+        compares the models' output errors at low frequency on one scale.
     """
 
     nls: NLSSettings = NLSSettings()
@@ -146,8 +156,12 @@ class MultiModelSettings:
     u_max: float | tuple[float, ...] | None = None
     param_margin: float | None = None
     y_hold: str = "foh"
+    index_errors: str = "equation"
 
     def __post_init__(self) -> None:
+        if self.index_errors not in ("equation", "steady_output"):
+            raise ValueError(f"index_errors: must be 'equation' or 'steady_output', got "
+                             f"{self.index_errors!r}")
         if self.y_hold not in ("zoh", "foh"):
             raise ValueError(f"y_hold: must be 'zoh' or 'foh', got {self.y_hold!r}")
         if self.param_margin is not None and not (
@@ -466,6 +480,8 @@ class MultiModelController:
                 if res.updated or res.reset:
                     self.ssm.set_params(j, est.p)
         # index (eq. 4.6) and switching
+        if self.settings.index_errors == "steady_output":
+            errors = errors * self._steady_output_scale()[:, None]
         J = self.index.update(errors)
         dec = self.switcher.step(J)
         # restart events of the adaptive kinds
@@ -603,6 +619,15 @@ class MultiModelController:
         self._aligned = True
 
     # -- persistence ---------------------------------------------------------------------
+    def _steady_output_scale(self) -> np.ndarray:
+        """omega(0)/d_j(0) per model (k,): 1 / |1 - theta2_j' n_ss|, n_ss the block's
+        steady state for a unit input; 1 where d_j(0) is (numerically) zero."""
+        ratio = 1.0 - self.ssm.theta2_all() @ self.ssm.basis.steady
+        out = np.ones(ratio.size)
+        ok = np.isfinite(ratio) & (np.abs(ratio) > 1e-12)
+        out[ok] = 1.0 / np.abs(ratio[ok])
+        return out
+
     def checkpoint(self) -> dict[str, Any]:
         """Everything for a bumpless restart, as plain JSON data (the last sample's
         bookkeeping is finished first)."""

@@ -33,22 +33,35 @@ cached). They differ by O(dt) in the n2 coupling.
 Coefficient vectors are **lowest power first**: ``a = (a1, ..., an)`` with a1
 the constant term, as printed in the seed.
 
-**Numerical limits (measured, double precision).** Theta holds polynomial
-coefficients and the shared state holds the signals ``s^k/omega(s) u``, so the
-representation itself, not only its computation, degrades with the degree n and
-with the spread R = |fastest pole| / |slowest pole| of the models and omega
-(time unit chosen so the poles are O(1)). Relative error of the state-shared
-frequency response against the model's own (m = 5, random stable models, omega
-with roots spread like the model's)::
+**Coordinates.** ``(F, G)`` may also be written in orthonormal coordinates
+(``basis="orthonormal"`` or a :class:`SharedBasis` from omega's roots; see
+:mod:`controller.shared_basis`): the same shared state up to an invertible
+change of coordinates, every model still a read-out Theta_j with the same
+block structure, so parameters, regressor, adaptation and prediction forms
+work unchanged. Coefficient-specific readings (``mfd_from_theta``, "theta2 =
+a - d") hold in the companion basis only.
 
-    R = 3:    n = 10: 3e-13   n = 20: 9e-9    n = 30: 2e-4    n = 40: 0.8
-    R = 10:   n = 10: 6e-12   n = 15: 6e-9    n = 20: 6e-6    n = 30: 34
-    R = 100:  n = 5: 1e-13    n = 10: 3e-8    n = 15: 3e-3    n = 20: 8e2
+**Numerical limits (measured, double precision).** In the companion basis Theta
+holds polynomial coefficients and the shared state the signals
+``s^k/omega(s) u``, so the representation itself, not only its computation,
+degrades with the degree n and with the spread R = |fastest pole| / |slowest
+pole| of the models and omega (time unit chosen so the poles are O(1)).
+Relative error of the state-shared frequency response against the model's own
+(m = 5, random stable models, omega with roots spread like the model's)::
 
-The seed's TE model (n = 40, order 400, R7.15) is therefore not representable
-to any useful accuracy in double precision; reduce each model by balanced
-truncation to an order of about 10 (Re criterion, eq. 3.22) and scale time so
-the retained poles are O(1).
+    companion    R = 3:    n = 10: 3e-13   n = 20: 9e-9    n = 30: 2e-4    n = 40: 0.8
+                 R = 10:   n = 10: 6e-12   n = 15: 6e-9    n = 20: 6e-6    n = 30: 34
+                 R = 100:  n = 5: 1e-13    n = 10: 3e-8    n = 15: 3e-3    n = 20: 8e2
+    orthonormal  R = 10:   n = 10: 1e-14   n = 20: 4e-14   n = 30: 1e-13   n = 40: 5e-13
+                 R = 100:  n = 10: 3e-13   n = 20: 6e-14   n = 30: 2e-13   n = 40: 5e-13
+                 R = 1000: n = 10: 1e-13   n = 20: 1e-13   n = 30: 3e-13   n = 40: 1e-12
+
+(re-measured on fresh draws: companion R = 10: 2e-11, 1e-8, 8e-6, 10;
+R = 100: 3e-12, 4e-8, 7e-3, 5e2; R = 1000: n = 10: 1e-4, n = 15: 2e3;
+``tests/test_state_shared_limits.py`` holds the stored companion table.)
+The seed's TE model (n = 40, order 400, R7.15) is not representable in the
+companion basis; in the orthonormal basis with omega's roots at one grade's
+poles it is, to 1e-11 (:mod:`controller.units.te.linear_models`).
 """
 
 from __future__ import annotations
@@ -63,6 +76,7 @@ from numpy.typing import ArrayLike
 
 from controller.linear.mfd import LeftMFD, left_mfd
 from controller.packing import pack_array, unpack_array
+from controller.shared_basis import BASES, SharedBasis, orthonormal_theta
 
 __all__ = [
     "companion_pair",
@@ -76,6 +90,8 @@ __all__ = [
     "PredictionForm",
     "StateSharedModel",
     "MODEL_KINDS",
+    "BASES",
+    "SharedBasis",
 ]
 
 MODEL_KINDS = ("fixed", "adaptive")
@@ -384,8 +400,10 @@ class StateSharedModel:
 
     Parameters
     ----------
-    a : array_like, shape (n,)
-        Designer polynomial ``omega`` (lowest power first), Hurwitz.
+    a : array_like, shape (n,), or SharedBasis
+        Designer polynomial ``omega`` (lowest power first), Hurwitz; or the
+        basis itself (:meth:`SharedBasis.orthonormal` from omega's roots, the
+        well-conditioned choice above n ~ 10).
     m : int
         Inputs = outputs (the seed's square case).
     dt : float
@@ -395,6 +413,9 @@ class StateSharedModel:
         Number of outputs when it differs from the number of inputs m (an
         extension of the seed: n1 has nm states driven by u, n2 has np states
         driven by y, Theta is n(m+p) x p). Default m.
+    basis : {"companion", "orthonormal"}
+        Coordinates of the shared state when ``a`` holds coefficients (see
+        :mod:`controller.shared_basis`); ignored when ``a`` is a SharedBasis.
 
     Attributes
     ----------
@@ -413,10 +434,11 @@ class StateSharedModel:
         ``2 n m`` (``n (m + p)``).
     """
 
-    def __init__(self, a: ArrayLike, m: int, dt: float,
-                 models: Sequence[ModelSpec] | None = None, *, p: int | None = None) -> None:
-        self.a = _hurwitz_coefficients(a)
-        self.a.setflags(write=False)
+    def __init__(self, a: ArrayLike | SharedBasis, m: int, dt: float,
+                 models: Sequence[ModelSpec] | None = None, *, p: int | None = None,
+                 basis: str = "companion") -> None:
+        self.basis = SharedBasis.of(a, basis)
+        self.a = self.basis.a
         self.m = _positive_int(m, "m")
         self.p = self.m if p is None else _positive_int(p, "p")
         try:
@@ -428,7 +450,7 @@ class StateSharedModel:
         self.dt = dt
         self.n_deg = self.a.size
         n, m, p = self.n_deg, self.m, self.p
-        self.Fb, self.gb = companion_block(self.a)
+        self.Fb, self.gb = self.basis.Fb, self.basis.gb
         self.F = np.kron(np.eye(m), self.Fb)
         self.G = np.kron(np.eye(m), self.gb[:, None])
         self.Fbd, self.gbd = _zoh_block(self.Fb, self.gb, dt)
@@ -496,6 +518,19 @@ class StateSharedModel:
 
     def theta(self, j: int) -> np.ndarray:
         return self.model(j).theta
+
+    def coefficient_theta(self, j: int) -> np.ndarray:
+        """Model j's Theta in the companion coordinates of the same omega (eq. 3.16:
+        numerator coefficients and ``a - d``), for readings that need coefficients.
+
+        The very array of :meth:`theta` in the companion basis; otherwise
+        ``(I (x) T)' Theta`` with ``T = SharedBasis.from_companion()`` (small n only).
+        """
+        th = self.theta(j)
+        if self.basis.kind == "companion":
+            return th
+        T = self.basis.from_companion()
+        return np.kron(np.eye(self.m + self.p), T).T @ th
 
     def theta2_all(self) -> np.ndarray:
         """theta2 (= a - d, eq. 3.16) of every model, shape (k, n): the first output
@@ -588,23 +623,33 @@ class StateSharedModel:
         self._slots[j] = _Slot(None, old.name, old.kind)
 
     @staticmethod
-    def model_from_linear(name: str, A, B, C, u_op: ArrayLike, y_op: ArrayLike, a: ArrayLike,
-                          kind: str = "fixed", *, pad_root: float | None = None,
-                          square: bool = True) -> ModelSpec:
+    def model_from_linear(name: str, A, B, C, u_op: ArrayLike, y_op: ArrayLike,
+                          a: ArrayLike | SharedBasis, kind: str = "fixed", *,
+                          pad_root: float | None = None, square: bool = True) -> ModelSpec:
         """A ModelSpec from a linearization about (u_op, y_op).
 
         ``(A, B, C)`` is the deviation model ``dx' = A dx + B du``, ``dy = C dx``
-        (D = 0). Theta follows from its left MFD (eq. 3.16) and the bias makes
-        the model hold about its own point: ``b = y_op - Theta^T n_ss(u_op, y_op)``.
+        (D = 0). With ``a`` omega's coefficients (companion basis) Theta follows
+        from its left MFD (eq. 3.16); with ``a`` an orthonormal
+        :class:`SharedBasis` it is solved for from the realization itself
+        (:func:`controller.shared_basis.orthonormal_theta`). The bias makes the
+        model hold about its own point: ``b = y_op - Theta^T n_ss(u_op, y_op)``.
         ``square=False`` admits p outputs != m inputs (see the ``p`` option).
         """
-        mfd = left_mfd(A, B, C)
-        theta = theta_from_mfd(mfd, a, pad_root=pad_root, square=square)
-        a = np.asarray(a, dtype=float).reshape(-1)
-        p, m = mfd.shape
+        basis = a if isinstance(a, SharedBasis) else None
+        if basis is not None and basis.kind == "orthonormal":
+            theta = orthonormal_theta(basis, A, B, C, pad_root=pad_root, square=square)
+            p = theta.shape[1]
+            m = theta.shape[0] // basis.n - p
+        else:
+            a = basis.a if basis is not None else a
+            mfd = left_mfd(A, B, C)
+            theta = theta_from_mfd(mfd, a, pad_root=pad_root, square=square)
+            basis = SharedBasis.companion(a)
+            p, m = mfd.shape
         u_op = _vector(u_op, m, "u_op")
         y_op = _vector(y_op, p, "y_op")
-        n_ss = _steady_state(a, u_op, y_op)
+        n_ss = _steady_state(basis, u_op, y_op)
         return ModelSpec(name, theta, y_op - theta.T @ n_ss, kind)
 
     # -- parameter vector -------------------------------------------------------------
@@ -664,7 +709,10 @@ class StateSharedModel:
         """Set n to the steady state for constant u and y (``F n1 + G u = 0`` etc.)."""
         uy = self._uy(u, y)
         self._Z[:] = 0.0
-        self._Z[:, 0] = uy / self.a[0]
+        if self.basis.kind == "companion":
+            self._Z[:, 0] = uy / self.a[0]
+        else:
+            self._Z[:, : self.n_deg] = np.outer(uy, self.basis.steady)
 
     def set_state(self, n: ArrayLike) -> None:
         """Overwrite the shared state, shape (2nm,)."""
@@ -758,7 +806,7 @@ class StateSharedModel:
         The model parameters are packed (:func:`controller.packing.pack_array`);
         plain lists, as older checkpoints hold them, are accepted by :meth:`restore`.
         """
-        return {
+        doc = {
             "a": self.a.tolist(),
             "m": self.m,
             "p": self.p,
@@ -770,6 +818,9 @@ class StateSharedModel:
                 for spec in (self.model(j) for j in range(self.k))
             ],
         }
+        if self.basis.kind != "companion":
+            doc["basis"] = self.basis.to_dict()
+        return doc
 
     def restore(self, state: dict) -> None:
         """Restore state and models from :meth:`checkpoint` (same a, m, dt required)."""
@@ -778,9 +829,16 @@ class StateSharedModel:
         for key in ("a", "m", "dt", "n", "models"):
             if key not in state:
                 raise ValueError(f"state: missing key {key!r}")
-        a = _vector(state["a"], None, "state.a")
-        if a.shape != self.a.shape or np.any(a != self.a):
-            raise ValueError("state.a: designer polynomial differs from this model's")
+        if self.basis.kind == "companion":
+            if "basis" in state and state["basis"].get("kind") != "companion":
+                raise ValueError("state.basis: the checkpoint's basis is not this model's "
+                                 "(companion)")
+            a = _vector(state["a"], None, "state.a")
+            if a.shape != self.a.shape or np.any(a != self.a):
+                raise ValueError("state.a: designer polynomial differs from this model's")
+        elif not self.basis.same_as(SharedBasis.from_dict(state.get("basis", {}))):
+            raise ValueError("state.basis: the checkpoint's basis (kind and omega's roots) "
+                             "differs from this model's")
         if state["m"] != self.m:
             raise ValueError(f"state.m: expected {self.m}, got {state['m']!r}")
         if state.get("p", state["m"]) != self.p:
@@ -799,15 +857,23 @@ class StateSharedModel:
     @classmethod
     def from_checkpoint(cls, state: dict) -> StateSharedModel:
         """A new model from :meth:`checkpoint` output."""
-        obj = cls(state["a"], state["m"], state["dt"], p=state.get("p"))
+        if not isinstance(state, dict) or "a" not in state:
+            raise ValueError("state: expected a dict from checkpoint()")
+        basis = SharedBasis.from_dict(state["basis"]) if "basis" in state else state["a"]
+        obj = cls(basis, state["m"], state["dt"], p=state.get("p"))
         obj.restore(state)
         return obj
 
 
-def _steady_state(a: np.ndarray, u: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Shared state in equilibrium with constant u and y: first entry of each block = v/a1."""
-    N = np.zeros((u.size + y.size, a.size))
-    N[:, 0] = np.concatenate((u, y)) / a[0]
+def _steady_state(basis: SharedBasis, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Shared state in equilibrium with constant u and y: ``-Fb^-1 gb v`` per block
+    (companion: first entry of each block = v/a1)."""
+    N = np.zeros((u.size + y.size, basis.n))
+    v = np.concatenate((u, y))
+    if basis.kind == "companion":
+        N[:, 0] = v / basis.a[0]
+    else:
+        N[:] = np.outer(v, basis.steady)
     return N.reshape(-1)
 
 

@@ -12,9 +12,11 @@ def test_bench_state_shared_json(capsys):
     doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert doc["bench"] == "state-shared" and doc["machine"]
     cases = {c["case"]: c for c in doc["cases"]}
-    te = cases["update+estimates te_n40_m5_k4"]
-    assert te["unit"] == "us" and te["n"] == 50 and te["order"] == 400
-    assert te["p99"] >= te["median"] > 0
+    for basis in ("companion", "orthonormal"):
+        te = cases[f"update+estimates te_n40_m5_k4 {basis}"]
+        assert te["unit"] == "us" and te["n"] == 50 and te["order"] == 400
+        assert te["basis"] == basis and te["p99"] >= te["median"] > 0
+        assert cases[f"prediction_form te_n40_m5 {basis}"]["order"] == 400
     assert "update+estimates siso_n2_m1_k4" in cases
 
 

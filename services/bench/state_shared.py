@@ -8,6 +8,13 @@ model, R7.15), two-phase reactor (n = 2, m = 3), SISO (n = 2, m = 1); with
 (:mod:`controller.units.te.linear_models`, n = 8). Thetas are
 random: the cost does not depend on their values. Also reported: building one
 model's prediction form (exact ZOH of the 400-state closed form) at TE size.
+
+Cases at TE size are named by the shared state's basis (``companion``: the
+seed's eq. 3.12-3.13; ``orthonormal``: :mod:`controller.shared_basis`) and carry
+it in the field ``basis``; the per-sample work has the same shape in both (one
+(m+p) x (n+1) by (n+1) x n product and one stacked read-out), so they should
+time alike. ``--te-model`` adds the real TE models: n = 8 in the companion
+basis and the seed's n = 40 in the orthonormal one.
 """
 
 from __future__ import annotations
@@ -16,16 +23,16 @@ import time
 
 import numpy as np
 
-from controller.state_shared import ModelSpec, StateSharedModel, designer_polynomial
+from controller.state_shared import ModelSpec, SharedBasis, StateSharedModel, designer_polynomial
 from services.bench._common import latency_case
 
 NAME = "state-shared"
 DESCRIPTION = "state-shared model: one update + all model estimates (TE size, SISO), in us"
 
-SIZES = {  # case -> (n, m, models)
-    "te_n40_m5_k4": (40, 5, 4),
-    "two_phase_n2_m3_k4": (2, 3, 4),
-    "siso_n2_m1_k4": (2, 1, 4),
+SIZES = {  # case -> (n, m, models, bases)
+    "te_n40_m5_k4": (40, 5, 4, ("companion", "orthonormal")),
+    "two_phase_n2_m3_k4": (2, 3, 4, ("companion",)),
+    "siso_n2_m1_k4": (2, 1, 4, ("companion",)),
 }
 
 
@@ -33,14 +40,17 @@ def add_arguments(parser) -> None:
     parser.add_argument("--samples", type=int, default=20000, help="timed calls per case")
     parser.add_argument("--seed", type=int, default=0, help="random seed for thetas and signals")
     parser.add_argument("--te-model", action="store_true",
-                        help="also time the real TE model (n = 8, modes 0/2/3 + adaptive; "
-                             "builds TE linearizations first, ~10 s)")
+                        help="also time the real TE models (n = 8 companion, n = 40 "
+                             "orthonormal; modes 0/2/3 + adaptive; builds TE linearizations "
+                             "first, ~20 s)")
 
 
-def build(n: int, m: int, k: int, rng: np.random.Generator, dt: float = 0.01) -> StateSharedModel:
+def build(n: int, m: int, k: int, rng: np.random.Generator, dt: float = 0.01,
+          basis: str = "companion") -> StateSharedModel:
     """A state-shared model of the given size with random thetas (first k-1 fixed)."""
     # roots spread over a decade: a Hurwitz degree-n polynomial without repeated roots
-    a = designer_polynomial(-np.geomspace(0.5, 5.0, n))
+    roots = -np.geomspace(0.5, 5.0, n)
+    a = designer_polynomial(roots) if basis == "companion" else SharedBasis.orthonormal(roots)
     ssm = StateSharedModel(a, m, dt)
     for j in range(k):
         kind = "adaptive" if j == k - 1 else "fixed"
@@ -71,25 +81,31 @@ def run(args) -> list[dict]:
         raise ValueError(f"samples: must be >= 1, got {args.samples}")
     rng = np.random.default_rng(args.seed)
     cases = []
-    for case, (n, m, k) in SIZES.items():
-        ssm = build(n, m, k, rng)
-        cases.append(latency_case(f"update+estimates {case}", _time_sample(ssm, args.samples, rng),
-                                  "us", n_deg=n, m=m, models=k, order=ssm.order))
+    for case, (n, m, k, bases) in SIZES.items():
+        for basis in bases:
+            ssm = build(n, m, k, rng, basis=basis)
+            name = f"update+estimates {case}" + (f" {basis}" if len(bases) > 1 else "")
+            cases.append(latency_case(name, _time_sample(ssm, args.samples, rng), "us",
+                                      n_deg=n, m=m, models=k, order=ssm.order, basis=basis))
     if getattr(args, "te_model", False):
         from controller.units.te.linear_models import te_state_shared_model
 
-        ssm = te_state_shared_model(dt=0.01)
-        cases.append(latency_case("update+estimates te_model_n8_m5_k4",
-                                  _time_sample(ssm, args.samples, rng), "us", n_deg=ssm.n_deg,
-                                  m=ssm.m, models=ssm.k, order=ssm.order))
-    n, m, k = SIZES["te_n40_m5_k4"]
-    ssm = build(n, m, k, rng)
+        for order, basis in ((8, "companion"), (40, "orthonormal")):
+            ssm = te_state_shared_model(dt=0.01, order=order, basis=basis)
+            cases.append(latency_case(f"update+estimates te_model_n{order}_m5_k4 {basis}",
+                                      _time_sample(ssm, args.samples, rng), "us",
+                                      n_deg=ssm.n_deg, m=ssm.m, models=ssm.k, order=ssm.order,
+                                      basis=basis))
+    n, m, k, bases = SIZES["te_n40_m5_k4"]
     reps = max(3, min(20, args.samples // 1000))
-    t = np.empty(reps)
-    for i in range(reps):
-        ssm.set_theta(0, ssm.theta(0))  # invalidates the cached prediction form
-        t0 = time.perf_counter_ns()
-        ssm.prediction_form(0)
-        t[i] = (time.perf_counter_ns() - t0) / 1e3
-    cases.append(latency_case("prediction_form te_n40_m5", t, "us", order=ssm.order))
+    for basis in bases:
+        ssm = build(n, m, k, rng, basis=basis)
+        t = np.empty(reps)
+        for i in range(reps):
+            ssm.set_theta(0, ssm.theta(0))  # invalidates the cached prediction form
+            t0 = time.perf_counter_ns()
+            ssm.prediction_form(0)
+            t[i] = (time.perf_counter_ns() - t0) / 1e3
+        cases.append(latency_case(f"prediction_form te_n40_m5 {basis}", t, "us",
+                                  order=ssm.order, basis=basis))
     return cases

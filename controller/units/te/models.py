@@ -31,6 +31,7 @@ from functools import lru_cache
 import numpy as np
 
 from controller.linear import Realization, balanced_truncation
+from controller.shared_basis import BASES, SharedBasis, roots_from_poles
 from controller.state_shared import ModelSpec, StateSharedModel, designer_polynomial
 
 __all__ = ["MODEL_GRADES", "ORDER", "DESIGNER_ROOTS", "closed_loop", "reduced",
@@ -100,7 +101,7 @@ def reduced(grade: str, order: int = ORDER):
 
 
 def state_shared_model(dt_h: float, adaptive: bool, order: int = ORDER,
-                       roots=DESIGNER_ROOTS) -> StateSharedModel:
+                       roots=None, basis: str = "companion") -> StateSharedModel:
     """State-shared model: fixed modes 0, 2, 3 (+ one adaptive slot "reinit" at mode 0,
     placed first).
 
@@ -110,10 +111,27 @@ def state_shared_model(dt_h: float, adaptive: bool, order: int = ORDER,
         Sample time, h.
     adaptive : bool
         Add the adaptive slot (strategy b).
+    order : int
+        n, the reduced order of every mode.
+    roots : sequence of complex, optional
+        omega's roots, 1/h. Default: :data:`DESIGNER_ROOTS` (companion basis); the
+        mode-0 model's poles (orthonormal basis,
+        :func:`controller.shared_basis.roots_from_poles`).
+    basis : {"companion", "orthonormal"}
+        Coordinates of the shared state (:mod:`controller.shared_basis`).
     """
-    a = designer_polynomial(roots)
-    if a.size != order:
-        raise ValueError(f"roots: expected {order} roots (the order), got {a.size}")
+    if basis not in BASES:
+        raise ValueError(f"basis: must be one of {BASES}, got {basis!r}")
+    if basis == "companion":
+        a = designer_polynomial(DESIGNER_ROOTS if roots is None else roots)
+        n_roots = a.size
+    else:
+        if roots is None:
+            roots = roots_from_poles(reduced(MODEL_GRADES[0], order).reduced.poles())
+        a = SharedBasis.orthonormal(roots)
+        n_roots = a.n
+    if n_roots != order:
+        raise ValueError(f"roots: expected {order} roots (the order), got {n_roots}")
     specs = []
     for g in MODEL_GRADES:
         _, u_op, y_op = closed_loop(g)
