@@ -117,8 +117,11 @@ def test_a_trip_ends_the_run_and_is_judged_by_its_fault_free_twin(tmp_path):
     # the trip is the process's and the controller's, not the services'
     assert trip["fault_free_twin_trip_hours"] == pytest.approx(trip["process_hours"], abs=0.5)
     assert trip["preventable"] is False
+    # the run ends at the trip, not after 12 h; the report's process time is read after the
+    # run's last REST calls, while the plant's clock goes on at 3600x (one wall second is
+    # 1 h: 0.54 h after the trip on a loaded 2-core machine)
     assert r["process_hours"] < 12.0 and r["process_hours"] == pytest.approx(
-        trip["process_hours"], abs=0.1)
+        trip["process_hours"], abs=1.5)
     assert r["records_lost"] == 0 and r["unhandled_errors"] == 0
 
 
