@@ -571,6 +571,10 @@ class _GuardedWrites(_guarded_writes_base()):
         for i, wv in enumerate(params.NodesToWrite):
             check = checks.get(wv.NodeId) if wv.AttributeId == ua.AttributeIds.Value else None
             bad = check(wv.Value) if check is not None else None
+            if check is None:  # say that a node does not exist (asyncua: access denied)
+                found = self._aspace.read_attribute_value(wv.NodeId, ua.AttributeIds.NodeId)
+                if found.StatusCode is not None and not found.StatusCode.is_good():
+                    bad = ua.StatusCodes.BadNodeIdUnknown
             if bad is not None:
                 results[i] = ua.StatusCode(bad)
             else:
