@@ -286,3 +286,19 @@ def test_controller_death_sheds_and_holds_then_returns_bumpless(loop):
         time.sleep(0.01)
     first = loop.plant.status()["u"]
     assert abs(first[0] - held["u"][0]) < 0.05 * 6.0  # within 5 % of the MV range
+
+
+def test_server_going_away_is_reported_by_the_link(loop):
+    """After the take-over: the plant's server stops; the link says so, the node lives."""
+    assert loop.link.wait_connected(10)
+    loop.stop_plant.set()
+    loop.plant_thread.join(5)
+    loop.server.close()
+    t_end = time.monotonic() + 15
+    while loop.link.connected.is_set() and time.monotonic() < t_end:
+        time.sleep(0.05)
+    assert not loop.link.connected.is_set()
+    while loop.link.last_error is None and time.monotonic() < t_end:
+        time.sleep(0.05)
+    assert loop.link.last_error is not None
+    assert loop.ctrl.status()["unit"] == "cstr"  # the controller node itself goes on

@@ -187,6 +187,7 @@ class ControllerOPCUALink:
             log.exception("OPC UA link of %s stopped", self.unit)
         finally:
             self.connected.clear()
+            _cancel_pending(loop)
             loop.close()
 
     async def _main(self) -> None:
@@ -360,3 +361,12 @@ class ControllerOPCUALink:
                 self.round_trip_s.append(time.perf_counter() - self._arrived)
                 if len(self.round_trip_s) > 20_000:
                     del self.round_trip_s[:10_000]
+
+
+def _cancel_pending(loop) -> None:
+    """Cancel the tasks asyncua leaves on a stopping loop (session time-outs ...)."""
+    tasks = [t for t in asyncio.all_tasks(loop) if not t.done()]
+    for t in tasks:
+        t.cancel()
+    if tasks:
+        loop.run_until_complete(asyncio.gather(*tasks, return_exceptions=True))

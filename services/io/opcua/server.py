@@ -175,6 +175,7 @@ class PlantOPCUAServer:
                 log.exception("OPC UA server of %s stopped", self.unit)
         finally:
             self._ready.set()
+            _cancel_pending(loop)
             loop.close()
 
     async def _main(self) -> None:
@@ -589,3 +590,12 @@ class _GuardedWrites(_guarded_writes_base()):
         except Exception:
             log.exception("a controller write could not be applied")
         return results
+
+
+def _cancel_pending(loop) -> None:
+    """Cancel the tasks asyncua leaves on a stopping loop (session time-outs ...)."""
+    tasks = [t for t in asyncio.all_tasks(loop) if not t.done()]
+    for t in tasks:
+        t.cancel()
+    if tasks:
+        loop.run_until_complete(asyncio.gather(*tasks, return_exceptions=True))
