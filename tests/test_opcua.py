@@ -302,3 +302,51 @@ def test_server_going_away_is_reported_by_the_link(loop):
         time.sleep(0.05)
     assert loop.link.last_error is not None
     assert loop.ctrl.status()["unit"] == "cstr"  # the controller node itself goes on
+
+
+def test_te_serves_its_valves_and_loop_setpoints(tmp_path):
+    """TE: the 41 XMEAS with Downs & Vogel's units, the free valves and the inner loops'
+    set points as Setpoints (no controller: the plant holds its start values)."""
+    cfg = get_unit("te")
+    settings = OPCUASettings(endpoint=f"opc.tcp://127.0.0.1:{free_port()}/ssmpc",
+                             cert_dir=str(tmp_path / "opcua"))
+    session = open_session(SessionSettings(lease_ms=1000))
+    server = PlantOPCUAServer(cfg, settings)
+    plant = PlantNode(cfg, session, speed=1.0, link=server)
+    stop = threading.Event()
+    th = threading.Thread(target=plant.run, args=(stop,), daemon=True)
+    th.start()
+
+    async def main():
+        d = settings.cert_dir
+        c = Client(settings.endpoint, timeout=10)
+        c.application_uri = "urn:ssmpc:operator"
+        await c.set_security(SecurityPolicyBasic256Sha256, f"{d}/operator.pem",
+                             f"{d}/operator-key.pem", server_certificate=f"{d}/plant.pem")
+        await c.load_client_certificate(f"{d}/operator.pem")
+        await c.load_private_key(f"{d}/operator-key.pem")
+        async with c:
+            ns = await c.get_namespace_index(NAMESPACE_URI)
+            meas = c.get_node(ua.NodeId("te.Measurements", ns))
+            sps = c.get_node(ua.NodeId("te.Setpoints", ns))
+            names = [(await n.read_browse_name()).Name for n in await meas.get_children()]
+            sp_names = [(await n.read_browse_name()).Name for n in await sps.get_children()]
+            p = await meas.get_child(f"{ns}:XMEAS7")
+            eu = await (await p.get_child("0:EngineeringUnits")).read_value()
+            value = await p.read_value()
+            state = await c.get_node(ua.NodeId("te.Status.WatchdogState", ns)).read_value()
+            return names, sp_names, eu, value, state
+
+    try:
+        names, sp_names, eu, value, state = _run(main())
+    finally:
+        stop.set()
+        th.join(10)
+        plant.close()
+        session.close()
+    assert names == [f"XMEAS{i}" for i in range(1, 42)]
+    assert eu.DisplayName.Text == "kPa gauge"  # Downs & Vogel Table 4: reactor pressure
+    assert 2600 < value < 2800  # base case ~2705 kPa gauge
+    assert {"reactor_pressure_sp", "reactor_level_sp"} <= set(sp_names)
+    assert any(n.startswith("XMV") for n in sp_names)
+    assert state == "shed"  # no controller has ever written a heartbeat
