@@ -126,3 +126,17 @@ def test_killed_controller_process_sheds_and_holds(tmp_path):
     # held: the plant samples on (its regulatory layer, if any, keeps running), moves fixed
     assert shed[-1][2] > shed[0][2]
     assert all(row[3] == shed[0][3] for row in shed)
+
+
+def test_bench_loop_reports_the_opcua_case(capsys):
+    import json
+
+    from services.cli import main
+
+    assert main(["bench", "loop", "--json", "--unit", "cstr", "--cases", "opcua",
+                 "--latency-seconds", "2"]) == 0
+    doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    (case,) = doc["cases"]
+    assert case["case"] == "opcua" and case["unit"] == "us" and case["n"] > 0
+    assert 0 < case["median"] <= case["p99"] <= case["max"]
+    assert case["sheds"] == 0 and "SignAndEncrypt" in case["link"]
