@@ -33,6 +33,9 @@ import logging
 import threading
 import time
 
+from asyncua import Client, ua
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
 from services.io.messages import Measurement, MessageError, MVMessage
 from services.io.opcua.certs import application_uri, load_certificates
 from services.io.opcua.namespace import node_name, unit_namespace
@@ -52,8 +55,6 @@ class LinkError(RuntimeError):
 
 def describe_error(exc: BaseException) -> str:
     """One line for an OPC UA failure: the status code's name and what it means here."""
-    from asyncua import ua
-
     if isinstance(exc, ua.UaStatusCodeError):
         code = type(exc).__name__
         hint = {"BadUserAccessDenied": "this identity may not do that",
@@ -211,9 +212,6 @@ class ControllerOPCUALink:
                 pass
 
     async def _connect(self):
-        from asyncua import Client, ua
-        from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
-
         p = self.paths
         client = Client(self.settings.endpoint, timeout=self.settings.timeout_s)
         client.application_uri = application_uri(self.identity)
@@ -228,8 +226,6 @@ class ControllerOPCUALink:
         return client
 
     async def _session(self) -> None:
-        from asyncua import ua
-
         client = await self._connect()
         lost = asyncio.Event()
 
@@ -294,8 +290,6 @@ class ControllerOPCUALink:
             await self._read_sample()
 
     async def _read_sample(self) -> None:
-        from asyncua import ua
-
         client = self._client
         if client is None:
             return
@@ -336,8 +330,6 @@ class ControllerOPCUALink:
         return True
 
     def _beat_values(self):
-        from asyncua import ua
-
         self._beat = (self._beat + 1) % 2**32
         return [ua.DataValue(ua.Variant("on", ua.VariantType.String)),
                 ua.DataValue(ua.Variant(self._beat, ua.VariantType.UInt32))]
@@ -347,8 +339,6 @@ class ControllerOPCUALink:
             self.counters["heartbeats"] += 1
 
     async def _write_move(self, msg: MVMessage) -> None:
-        from asyncua import ua
-
         D = ua.VariantType.Double
         dvs = [ua.DataValue(ua.Variant(float(x), D)) for x in msg.u]
         dvs += [ua.DataValue(ua.Variant(int(msg.meas_seq), ua.VariantType.Int64)),

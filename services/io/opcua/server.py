@@ -37,6 +37,14 @@ import math
 import threading
 import time
 
+from asyncua import Server, ua
+from asyncua.common.utils import ServiceError
+from asyncua.crypto.permission_rules import USER_TYPES, User, UserRole
+from asyncua.server.address_space import AttributeService
+from cryptography import x509
+from cryptography.hazmat.primitives.serialization import Encoding
+from cryptography.x509.oid import NameOID
+
 from services.io.messages import MVMessage
 from services.io.opcua.certs import application_uri, ensure_certificates
 from services.io.opcua.namespace import (
@@ -58,8 +66,6 @@ READERS = ("operator",)
 
 
 def _types():
-    from asyncua import ua
-
     return {"Double": (ua.VariantType.Double, ua.ObjectIds.Double, -1),
             "DoubleArray": (ua.VariantType.Double, ua.ObjectIds.Double, 1),
             "Int64": (ua.VariantType.Int64, ua.ObjectIds.Int64, -1),
@@ -179,8 +185,6 @@ class PlantOPCUAServer:
             loop.close()
 
     async def _main(self) -> None:
-        from asyncua import Server, ua
-
         self._stopping = asyncio.Event()
         server = Server()
         await server.init()
@@ -204,13 +208,9 @@ class PlantOPCUAServer:
             await self._watchdog_loop()
 
     def nid(self, folder: str, name: str = ""):
-        from asyncua import ua
-
         return ua.NodeId(node_name(self.unit, folder, name), self.idx)
 
     async def _build(self, server) -> None:
-        from asyncua import ua
-
         idx = self.idx
         types = _types()
         items = [_object_item(ua.NodeId(ua.ObjectIds.ObjectsFolder, 0),
@@ -263,8 +263,6 @@ class PlantOPCUAServer:
         self._state_id = self.nid("Status", "WatchdogState")
 
     def _setpoint_check(self, i: int):
-        from asyncua import ua
-
         lo, hi = self._range[i]
 
         def check(dv) -> int | None:
@@ -282,8 +280,6 @@ class PlantOPCUAServer:
 
     # -- measurements in -------------------------------------------------------------
     async def _update(self, msg, stamp) -> None:
-        from asyncua import ua
-
         if self._server is None:
             return
         write = self._server.iserver.aspace.write_attribute_value
@@ -307,8 +303,6 @@ class PlantOPCUAServer:
     def after_write(self, params, results, user) -> None:
         """A controller's Write has been applied item by item: feed the watchdog on a
         heartbeat; turn written set points into the plant's move."""
-        from asyncua import ua
-
         good = {wv.NodeId: wv.Value for wv, r in zip(params.NodesToWrite, results)
                 if r.is_good() and wv.AttributeId == ua.AttributeIds.Value}
         beat = self._beat_id in good
@@ -334,8 +328,6 @@ class PlantOPCUAServer:
         self.moves += 1
 
     def _set_state(self, state: str) -> None:
-        from asyncua import ua
-
         self.state = state
         if self._server is not None:
             asyncio.get_running_loop().create_task(self._server.iserver.aspace.write_attribute_value(
@@ -359,8 +351,6 @@ class PlantOPCUAServer:
 
 
 def _mode_check(dv) -> int | None:
-    from asyncua import ua
-
     v = dv.Value
     if v is None or v.VariantType != ua.VariantType.String:
         return ua.StatusCodes.BadTypeMismatch
@@ -368,8 +358,6 @@ def _mode_check(dv) -> int | None:
 
 
 def _sample_check(dv) -> int | None:
-    from asyncua import ua
-
     v = dv.Value
     if v is None or v.VariantType != ua.VariantType.Int64:
         return ua.StatusCodes.BadTypeMismatch
@@ -385,8 +373,6 @@ async def _add(server, items) -> None:
 
 
 def _object_item(parent, nid, qname, description, typedef):
-    from asyncua import ua
-
     item = ua.AddNodesItem()
     item.RequestedNewNodeId = nid
     item.BrowseName = qname
@@ -403,8 +389,6 @@ def _object_item(parent, nid, qname, description, typedef):
 
 
 def _variable_item(parent, nid, qname, description, value, kind, writable, typedef):
-    from asyncua import ua
-
     vt, dtype, rank = kind
     item = ua.AddNodesItem()
     item.RequestedNewNodeId = nid
@@ -432,8 +416,6 @@ def _variable_item(parent, nid, qname, description, value, kind, writable, typed
 
 
 def _property_item(parent, nid, name, value, dtype):
-    from asyncua import ua
-
     item = ua.AddNodesItem()
     item.RequestedNewNodeId = nid
     item.BrowseName = ua.QualifiedName(name, 0)
@@ -459,9 +441,6 @@ class _Roles:
     allowed) all but Write, Call and the node-management services."""
 
     def __init__(self, allow_anonymous: bool) -> None:
-        from asyncua import ua
-        from asyncua.crypto.permission_rules import USER_TYPES
-
         writes = {ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary),
                   ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary),
                   ua.NodeId(ua.ObjectIds.HistoryUpdateRequest_Encoding_DefaultBinary)}
@@ -487,8 +466,6 @@ class _Users:
         self.token_cert: bytes | None = None  # set by the wrapped verify_x509_token
 
     def get_user(self, iserver, username=None, password=None, certificate=None):
-        from asyncua.crypto.permission_rules import User, UserRole
-
         token, self.token_cert = self.token_cert, None
         if certificate is None or token is None or certificate is not token:
             return User(role=UserRole.Anonymous)  # no X.509 token: at most read-only
@@ -500,9 +477,6 @@ class _Users:
 
 def _issued_cn(ca, der: bytes) -> str | None:
     """The CN of a DER certificate issued by ``ca`` and valid now, else None."""
-    from cryptography import x509
-    from cryptography.x509.oid import NameOID
-
     try:
         cert = x509.load_der_x509_certificate(der)
         cert.verify_directly_issued_by(ca)
@@ -517,11 +491,6 @@ def _issued_cn(ca, der: bytes) -> str | None:
 
 def _install_identities(server, paths) -> None:
     """Client certificates must come from the link's CA; the X.509 token names the user."""
-    from asyncua import ua
-    from asyncua.common.utils import ServiceError
-    from cryptography import x509
-    from cryptography.hazmat.primitives.serialization import Encoding
-
     ca = x509.load_pem_x509_certificate(paths.ca.read_bytes())
 
     async def validate(cert, app_description) -> None:
@@ -542,8 +511,6 @@ def _install_identities(server, paths) -> None:
 
 
 def _guarded_writes_base():
-    from asyncua.server.address_space import AttributeService
-
     return AttributeService
 
 
@@ -556,9 +523,6 @@ class _GuardedWrites(_guarded_writes_base()):
         self._link = link
 
     async def write(self, params, user=None):
-        from asyncua import ua
-        from asyncua.crypto.permission_rules import User, UserRole
-
         user = user if user is not None else User(role=UserRole.Admin)
         if user.role == UserRole.Admin:  # the server itself
             return await super().write(params, user)
