@@ -71,3 +71,16 @@ def test_certificates_carry_the_application_uri(tmp_path):
         assert f"urn:ssmpc:{identity}" in san.get_values_for_type(x509.UniformResourceIdentifier)
         ku = cert.extensions.get_extension_for_class(x509.KeyUsage).value
         assert ku.digital_signature and ku.key_encipherment and ku.data_encipherment
+
+
+def test_an_endpoint_in_use_is_a_clear_error(capsys, tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        assert main(["opcua", "--unit", "cstr", "--endpoint", f"opc.tcp://127.0.0.1:{port}",
+                     "--state-dir", str(tmp_path), "--duration", "5"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: endpoint: cannot serve") and "in use" in err
