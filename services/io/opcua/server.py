@@ -11,7 +11,9 @@ An ``asyncua`` server (OPC 10000-4 services, the address space of
   :class:`~services.io.messages.MVMessage` from the plant's expected sender, handed
   to :meth:`PlantNode.submit_mv`: the same validation and the same zero-order hold
   at the sample boundary as a move over Zenoh;
-- the watchdog: no ``ControllerHeartbeat`` write for ``watchdog_s`` wall seconds →
+- while shed, ``Setpoints`` track the moves the plant holds (output tracking), so a
+  controller that writes only some of them leaves the others where they are;
+- the watchdog: no new ``ControllerHeartbeat`` value for ``watchdog_s`` wall seconds →
   ``WatchdogState`` = ``shed``: no move is taken until a heartbeat comes again, so
   the plant holds its valves while its regulatory layer runs on (ABB 800xA link
   time-out, DeltaV's handshake). A returning controller takes the held move from
@@ -105,6 +107,7 @@ class PlantOPCUAServer:
         self.refused = {"identity": 0, "type": 0, "range": 0}
         self.last_beat: float | None = None  # time.monotonic of the last heartbeat
         self._seq = 0
+        self._last_beat_value = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
@@ -222,12 +225,14 @@ class PlantOPCUAServer:
                                       ua.ObjectIds.FolderType))
         await _add(server, items)
         items = []
+        start = {"Measurements": [float(y) for y in self.node.runner.y()],
+                 "Setpoints": [float(u) for u in self.node.runner.u]}
         for folder, variables, writable in (("Measurements", self.measurements, False),
                                             ("Setpoints", self.setpoints, True)):
-            for v in variables:
+            for v, x in zip(variables, start[folder]):
                 nid = self.nid(folder, v.name)
                 items.append(_variable_item(self.nid(folder), nid, ua.QualifiedName(v.name, idx),
-                                            v.description, 0.0, types["Double"], writable,
+                                            v.description, x, types["Double"], writable,
                                             ua.ObjectIds.AnalogItemType))
         for name, kind, description in PLANT_STATUS + CONTROLLER_STATUS:
             writable = (name, kind, description) in CONTROLLER_STATUS
@@ -297,6 +302,10 @@ class PlantOPCUAServer:
         await write(self.nid("Status", "ProcessTime"), value, dv(float(msg.t), D))
         await write(self.nid("Status", "Shutdown"), value,
                     dv(bool(msg.shutdown), ua.VariantType.Boolean))
+        if self.state != "ok":  # no controller: the set points track the held moves, so
+            # that a controller writing only some of them leaves the others where they are
+            for nid, u in zip(self._setpoint_ids, msg.u):
+                await write(nid, value, dv(float(u), D))
         await write(self.nid("Status", "Sample"), value, dv(int(msg.seq), ua.VariantType.Int64))
 
     # -- moves out -------------------------------------------------------------------
@@ -305,8 +314,9 @@ class PlantOPCUAServer:
         heartbeat; turn written set points into the plant's move."""
         good = {wv.NodeId: wv.Value for wv, r in zip(params.NodesToWrite, results)
                 if r.is_good() and wv.AttributeId == ua.AttributeIds.Value}
-        beat = self._beat_id in good
-        if beat:
+        beat = self._beat_id in good and good[self._beat_id].Value.Value != self._last_beat_value
+        if beat:  # a heartbeat is a counter that moves: a stuck writer is no heartbeat
+            self._last_beat_value = good[self._beat_id].Value.Value
             self.last_beat = time.monotonic()
             if self.state != "ok":
                 log.warning("controller heartbeat of %s back: moves taken again", self.unit)
