@@ -30,6 +30,13 @@ jitter
     1 ms boundaries for ``--jitter-seconds`` (before and after the speed ladder),
     µs of oversleep, p50/p99/max and the count above 1 and 2 ms. A rung's misses
     are not the loop's when a plain sleeper on the idle machine stalls as long.
+opcua
+    The ``latency`` case with the controller linked by OPC UA (``ssmpc opcua`` and
+    ``ssmpc controller --plant-io opcua``, Basic256Sha256 / SignAndEncrypt on
+    loopback): per sample the server updates the measurements, the client is
+    notified of the new sample, reads it in one Read, the controller steps and the
+    moves and heartbeat go back in one Write; µs, p50/p99 from the plant node's
+    record, beside the Zenoh ``latency`` case of the same run.
 rest
     ``GET /api/v1/units/<unit>/status`` on the api node (uvicorn → Zenoh query
     → controller → back), µs, over a kept-alive HTTP connection, with the loop
@@ -59,7 +66,8 @@ from services.nodes.plant import HELD_CAUSES, held_cause
 from services.timing import MISS_CAUSES, miss_cause
 
 NAME = "loop"
-DESCRIPTION = "closed loop over Zenoh: highest speed at zero misses, loop latency, REST latency"
+DESCRIPTION = ("closed loop over Zenoh: highest speed at zero misses, loop latency (Zenoh and "
+               "OPC UA links), REST latency")
 
 TE_SAMPLE_PERIOD_S = 36.0
 
@@ -89,8 +97,8 @@ def add_arguments(parser) -> None:
                              "as ssmpc up does; default: off")
     parser.add_argument("--jitter-seconds", type=float, default=5.0,
                         help="wall seconds of each scheduling-jitter probe")
-    parser.add_argument("--cases", default="jitter,speed,latency,rest",
-                        help="comma-separated subset of jitter, speed, latency, rest")
+    parser.add_argument("--cases", default="jitter,speed,latency,opcua,rest",
+                        help="comma-separated subset of jitter, speed, latency, opcua, rest")
 
 
 class _Nodes:
@@ -99,7 +107,7 @@ class _Nodes:
     def __init__(self, unit: str, speed: float, lockstep: bool, api: bool, state_dir: str,
                  rt_priority: int | None = None, unit_config: str | None = None,
                  busy_poll: bool = False, telemetry: bool = False,
-                 plant_busy_poll: bool = False):
+                 plant_busy_poll: bool = False, io: str = "zenoh"):
         from services.io.zenoh_session import free_port
         from services.nodes.supervisor import _spawn, _wait_ready
 
@@ -114,17 +122,28 @@ class _Nodes:
         if unit_config is not None:
             common += ["--unit-config", unit_config]
         deadline = time.monotonic() + 120
+        ctrl = (["controller", *common, "--listen", ep_c, "--state-dir", state_dir]
+                + ([] if telemetry else ["--no-telemetry"])
+                + (["--busy-poll"] if busy_poll else []))
+        plant = (["plant", *common, "--listen", ep_p] + (["--lockstep"] if lockstep else [])
+                 + (["--busy-poll"] if plant_busy_poll else []))
         try:
-            c = _spawn(["controller", *common, "--listen", ep_c, "--state-dir", state_dir]
-                       + ([] if telemetry else ["--no-telemetry"])
-                       + (["--busy-poll"] if busy_poll else []))
-            self.procs.append(c)
-            _wait_ready(c, "controller", deadline)
-            p = _spawn(["plant", *common, "--listen", ep_p, "--connect", ep_c]
-                       + (["--lockstep"] if lockstep else [])
-                       + (["--busy-poll"] if plant_busy_poll else []))
-            self.procs.append(p)
-            _wait_ready(p, "plant", deadline)
+            if io == "opcua":  # the plant serves, the controller connects: plant first
+                link = ["--opcua-endpoint", f"opc.tcp://127.0.0.1:{free_port()}/ssmpc",
+                        "--opcua-cert-dir", f"{state_dir}/opcua"]
+                p = _spawn(["opcua", *plant[1:], *link])
+                self.procs.append(p)
+                _wait_ready(p, "plant", deadline)
+                c = _spawn([*ctrl, "--connect", ep_p, "--plant-io", "opcua", *link])
+                self.procs.append(c)
+                _wait_ready(c, "controller", deadline)
+            else:
+                c = _spawn(ctrl)
+                self.procs.append(c)
+                _wait_ready(c, "controller", deadline)
+                p = _spawn([*plant, "--connect", ep_c])
+                self.procs.append(p)
+                _wait_ready(p, "plant", deadline)
             if api:
                 a = _spawn(["api", "--listen", ep_a, "--connect", ep_c, "--connect", ep_p,
                             "--port", str(self.port)])
@@ -293,16 +312,17 @@ def speed_case(args, state_dir: str) -> dict:
             "te_equivalent_speed": TE_SAMPLE_PERIOD_S / wall_period}
 
 
-def latency_case_run(args, state_dir: str) -> dict:
-    """Lock-step loop (as fast as it goes): the plant's record of meas -> MV times."""
+def latency_case_run(args, state_dir: str, io: str = "zenoh") -> dict:
+    """Lock-step loop (as fast as it goes): the plant's record of meas -> MV times, with
+    the controller linked by Zenoh (case ``latency``) or OPC UA (case ``opcua``)."""
     from services.io import keys
     from services.registry import load_unit_config
 
     cfg = load_unit_config(args.unit, args.unit_config)
     nodes = _Nodes(args.unit, 1.0, lockstep=True, api=False, state_dir=state_dir,
                    rt_priority=args.rt_priority, unit_config=args.unit_config,
-                   busy_poll=args.busy_poll, telemetry=args.telemetry,
-                   plant_busy_poll=args.plant_busy_poll)
+                   busy_poll=args.busy_poll and io == "zenoh", telemetry=args.telemetry,
+                   plant_busy_poll=args.plant_busy_poll, io=io)
     s = _client_session(nodes)
     try:
         _wait_running(s, args.unit)
@@ -313,9 +333,15 @@ def latency_case_run(args, state_dir: str) -> dict:
         s.close()
         nodes.close()
     lat = ps["loop_latency"]
+    if lat is None:
+        raise RuntimeError(f"the {io} loop answered no sample in {args.latency_seconds:g} s")
     rate = ps["samples"] / args.latency_seconds
-    return {"case": "latency", "unit": "us", "median": lat["p50_us"], "p99": lat["p99_us"],
-            "max": lat["max_us"], "n": lat["n"], "plant_unit": args.unit, "mode": "lockstep",
+    extra = {} if io == "zenoh" else {
+        "link": "OPC UA Basic256Sha256/SignAndEncrypt, loopback",
+        "lockstep_timeouts": ps["lockstep_timeouts"], "sheds": ps["link"]["sheds"]}
+    return {"case": "latency" if io == "zenoh" else io, "unit": "us", **extra,
+            "median": lat["p50_us"], "p99": lat["p99_us"], "max": lat["max_us"], "n": lat["n"],
+            "plant_unit": args.unit, "mode": "lockstep",
             "samples_per_wall_s": rate, "lockstep_speed": rate * cfg.sample_period_s,
             "te_equivalent_speed": rate * TE_SAMPLE_PERIOD_S,
             "sample_period_s": cfg.sample_period_s, "rt_priority": args.rt_priority,
@@ -469,7 +495,7 @@ def jitter_case(args, when: str) -> dict:
 
 def run(args) -> list[dict]:
     cases = {c.strip() for c in args.cases.split(",") if c.strip()}
-    unknown = cases - {"jitter", "speed", "latency", "rest"}
+    unknown = cases - {"jitter", "speed", "latency", "opcua", "rest"}
     if unknown:
         raise ValueError(f"cases: unknown case(s) {', '.join(sorted(unknown))}")
     if "jitter" in cases and not (args.jitter_seconds > 0):
@@ -484,6 +510,8 @@ def run(args) -> list[dict]:
                 out.append(jitter_case(args, "after the speed ladder"))
         if "latency" in cases:
             out.append(latency_case_run(args, state_dir))
+        if "opcua" in cases:
+            out.append(latency_case_run(args, state_dir, io="opcua"))
         if "rest" in cases:
             out.append(rest_case_run(args, state_dir))
     return out

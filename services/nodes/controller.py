@@ -169,12 +169,19 @@ class ControllerNode:
         Default: built from ``cfg``.
     horizon : int
         Reference rows passed to the controller (its prediction horizon P).
+    plant_link : optional
+        The plant link when it is not Zenoh (the OPC UA client of
+        :class:`services.io.opcua.client.ControllerOPCUALink`): ``subscribe(callback)``
+        delivers measurements as Zenoh samples, ``put(bytes)`` takes the moves,
+        ``undeclare()``. Commands, status and liveliness stay on Zenoh.
     """
 
     def __init__(self, cfg: UnitConfig, session, store: UnitStore,
                  telemetry: TelemetryLogger | None = None, *, speed: float = 1.0,
                  sender: str | None = None, controller=None, horizon: int = 1,
-                 busy_poll: bool = False) -> None:
+                 busy_poll: bool = False, plant_link=None) -> None:
+        if plant_link is not None and busy_poll:
+            raise ValueError("busy_poll: polls a Zenoh channel; not with another plant link")
         self.cfg = cfg
         self.session = session
         self.store = store
@@ -243,12 +250,14 @@ class ControllerNode:
         self._align_pending = True
         self._restore()
         self._watchdog = Watchdog(period_hint_s=self.budget.wall_period_s)
-        self._mv_pub = declare_loop_publisher(session, keys.mv(cfg.unit))
+        self._mv_pub = plant_link if plant_link is not None else declare_loop_publisher(
+            session, keys.mv(cfg.unit))
         self._status_pub = session.declare_publisher(keys.status(cfg.unit))
         self.busy_poll = bool(busy_poll)
-        self._sub = declare_loop_subscriber(  # busy polling: run() polls the channel
-            session, keys.meas(cfg.unit), self._on_meas,
-            poll_queue=self.POLL_QUEUE if self.busy_poll else None)
+        self._sub = plant_link.subscribe(self._on_meas) if plant_link is not None \
+            else declare_loop_subscriber(  # busy polling: run() polls the channel
+                session, keys.meas(cfg.unit), self._on_meas,
+                poll_queue=self.POLL_QUEUE if self.busy_poll else None)
         self._qry = session.declare_queryable(keys.cmd_all(cfg.unit), self._on_query)
         self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "controller"))
         self._plant_live = session.liveliness().declare_subscriber(

@@ -237,6 +237,19 @@ def _percentiles_us(values_s) -> dict | None:
     return {"p50_us": s["p50"], "p99_us": s["p99"], "max_us": s["max"], "n": s["n"]}
 
 
+class _LinkSample:
+    """A payload from a plant link, shaped as a Zenoh sample (``payload.to_bytes()``)."""
+
+    __slots__ = ("payload", "_data")
+
+    def __init__(self, data: bytes) -> None:
+        self._data = data
+        self.payload = self
+
+    def to_bytes(self) -> bytes:
+        return self._data
+
+
 @dataclass
 class PlantCounters:
     samples: int = 0
@@ -264,6 +277,11 @@ class PlantNode:
         Longest wait for an MV in lock-step mode (then the last MV holds).
     runner : optional
         A prepared plant runner (default :class:`ODERunner` of the unit's plant).
+    link : optional
+        A second plant link beside Zenoh (the OPC UA server of
+        :class:`services.io.opcua.server.PlantOPCUAServer`): ``attach(node)`` at start,
+        ``publish(measurement)`` every sample, ``status()``, ``close()``; it hands moves
+        in through :meth:`submit_mv`.
     """
 
     #: How many of the latest held samples keep their record (see ``_note_held``).
@@ -278,7 +296,7 @@ class PlantNode:
     def __init__(self, cfg: UnitConfig, session, *, speed: float = 1.0,
                  expected_sender: str | None = None, lockstep: bool = False,
                  lockstep_timeout_s: float = 2.0, runner=None,
-                 busy_poll: bool = False) -> None:
+                 busy_poll: bool = False, link=None) -> None:
         self.cfg = cfg
         self.session = session
         self.budget = TimingBudget(cfg.sample_period_s, speed, cfg.budget_fraction)
@@ -315,6 +333,9 @@ class PlantNode:
         self.controller_alive = False
         self._live = session.liveliness().declare_subscriber(
             keys.alive(cfg.unit, "controller"), self._on_controller_liveliness, history=True)
+        self.link = link
+        if link is not None:
+            link.attach(self)
 
     # -- Zenoh callbacks ---------------------------------------------------------------
     def _on_mv(self, sample) -> None:
@@ -343,6 +364,10 @@ class PlantNode:
                 record["answered_s"] = now
             self._pending = msg
             self._cond.notify_all()
+
+    def submit_mv(self, payload: bytes) -> None:
+        """An MV message from the plant link (OPC UA): the same checks as over Zenoh."""
+        self._on_mv(_LinkSample(payload))
 
     def _on_query(self, query) -> None:
         try:
@@ -423,7 +448,8 @@ class PlantNode:
                     "lockstep_timeouts": c.lockstep_timeouts, "speed": self.budget.speed,
                     "busy_poll": self.busy_poll,
                     "shutdown": bool(self.runner.shutdown),
-                    "controller_alive": self.controller_alive}
+                    "controller_alive": self.controller_alive,
+                    "link": None if self.link is None else self.link.status()}
 
     # -- loop ------------------------------------------------------------------------------
     def _publish(self) -> None:
@@ -434,6 +460,8 @@ class PlantNode:
         with self._cond:
             self._published_at = time.perf_counter()
         self._pub.put(msg.to_bytes())
+        if self.link is not None:
+            self.link.publish(msg)
         self.counters.samples += 1
 
     def _poll_mv(self) -> None:
@@ -540,6 +568,8 @@ class PlantNode:
             self._publish()
 
     def close(self) -> None:
+        if self.link is not None:
+            self.link.close()
         for ent in (self._live, self._token, self._qry, self._sub, self._pub):
             try:
                 ent.undeclare()

@@ -1,4 +1,9 @@
-"""``ssmpc plant|controller|api``: one node alone, on the embedded default or a Zenoh mesh.
+"""``ssmpc plant|controller|api|opcua``: one node alone, on the embedded default or a Zenoh mesh.
+
+``ssmpc opcua`` is the plant node serving its unit over OPC UA as well
+(:mod:`services.io.opcua.server`, a simulated DCS); ``ssmpc controller --plant-io
+opcua`` reads measurements and writes moves over OPC UA instead of Zenoh
+(:mod:`services.io.opcua.client`). Commands, status and liveliness stay on Zenoh.
 
 Each node opens its own Zenoh session (``--zenoh-config FILE`` or the embedded
 default: peer mode, loopback, multicast scouting off; ``--listen`` and
@@ -17,7 +22,8 @@ import time
 
 from services.output import CLIError
 
-__all__ = ["register", "add_mesh_arguments", "session_settings"]
+__all__ = ["register", "add_mesh_arguments", "add_opcua_arguments", "opcua_settings",
+           "session_settings"]
 
 
 def add_mesh_arguments(p) -> None:
@@ -42,6 +48,52 @@ def session_settings(args):
                            lease_ms=args.lease_ms)
 
 
+def add_opcua_arguments(p, *, server: bool) -> None:
+    from services.io.opcua.settings import DEFAULT_ENDPOINT
+
+    g = p.add_argument_group("OPC UA link")
+    g.add_argument("--opcua-endpoint", "--endpoint", dest="opcua_endpoint",
+                   default=DEFAULT_ENDPOINT, metavar="URL",
+                   help=f"opc.tcp://HOST:PORT[/path] (default {DEFAULT_ENDPOINT})")
+    g.add_argument("--opcua-cert-dir", default=None, metavar="DIR",
+                   help="CA and certificates (default <state-dir>/opcua; the server makes "
+                        "them on its first start, owner-only)")
+    g.add_argument("--watchdog", type=float, default=5.0, metavar="S",
+                   help="plant sheds (holds the valves) after S wall seconds without a "
+                        "controller heartbeat (default 5)")
+    if server:
+        g.add_argument("--allow-anonymous", action="store_true",
+                       help="offer the anonymous identity (read-only; default off)")
+    else:
+        g.add_argument("--heartbeat", type=float, default=1.0, metavar="S",
+                       help="longest wall time between heartbeats (default 1; also one per "
+                            "move)")
+
+
+def opcua_settings(args):
+    """:class:`~services.io.opcua.settings.OPCUASettings` of the parsed arguments."""
+    from pathlib import Path
+
+    from services.io.opcua.settings import OPCUASettings
+
+    cert_dir = args.opcua_cert_dir or str(Path(getattr(args, "state_dir", ".")) / "opcua")
+    kw = {"endpoint": args.opcua_endpoint, "cert_dir": cert_dir, "watchdog_s": args.watchdog}
+    if hasattr(args, "heartbeat"):
+        kw["heartbeat_s"] = args.heartbeat
+    if hasattr(args, "allow_anonymous"):
+        kw["allow_anonymous"] = args.allow_anonymous
+    try:
+        return OPCUASettings(**kw)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from exc
+
+
+def _quiet_asyncua() -> None:
+    # asyncua logs expected events (revised parameters, a peer gone) as warnings and
+    # errors; the link logs what matters itself
+    logging.getLogger("asyncua").setLevel(logging.CRITICAL)
+
+
 def _add_unit_arguments(p) -> None:
     p.add_argument("--unit", default="te", help="unit name (see services.registry; default te)")
     p.add_argument("--unit-config", metavar="FILE", help="JSON overrides of the unit config")
@@ -53,8 +105,7 @@ def _add_unit_arguments(p) -> None:
                    help="run the node under SCHED_FIFO with this priority 1..99 (Linux)")
 
 
-def register(sub) -> None:
-    p = sub.add_parser("plant", help="run a unit's plant node (scaled real time on Zenoh)")
+def _add_plant_arguments(p) -> None:
     _add_unit_arguments(p)
     add_mesh_arguments(p)
     p.add_argument("--lockstep", action="store_true",
@@ -69,7 +120,20 @@ def register(sub) -> None:
                    help="keep the sample boundaries by polling instead of sleeping (a "
                         "wake-up can come ms late on a VM), at the cost of one CPU at "
                         "100%% (docs/realtime.md)")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("plant", help="run a unit's plant node (scaled real time on Zenoh)")
+    _add_plant_arguments(p)
     p.set_defaults(func=run_plant)
+
+    p = sub.add_parser("opcua", help="run a unit's plant as an OPC UA server (a simulated "
+                                     "DCS), its commands on Zenoh")
+    _add_plant_arguments(p)
+    p.add_argument("--state-dir", default=".",
+                   help="directory of the OPC UA certificates (<dir>/opcua; default .)")
+    add_opcua_arguments(p, server=True)
+    p.set_defaults(func=run_opcua)
 
     p = sub.add_parser("controller", help="run a unit's controller node")
     _add_unit_arguments(p)
@@ -85,6 +149,10 @@ def register(sub) -> None:
     p.add_argument("--busy-poll", action="store_true",
                    help="poll for measurements without sleeping: the step starts from warm "
                         "caches, at the cost of one CPU at 100%% (docs/realtime.md)")
+    p.add_argument("--plant-io", choices=["zenoh", "opcua"], default="zenoh",
+                   help="how measurements and moves travel (default zenoh); commands, "
+                        "status and the api stay on Zenoh")
+    add_opcua_arguments(p, server=False)
     p.set_defaults(func=run_controller)
 
     p = sub.add_parser("api", help="run the REST api node (FastAPI on uvicorn)")
@@ -172,6 +240,7 @@ def _ready(role: str, unit: str, **extra) -> None:
 
 
 def _config(args):
+    """The unit's validated config (exit 2 on a bad speed, unit or override file)."""
     from services.registry import load_unit_config
 
     if args.speed is None or not args.speed > 0:
@@ -179,11 +248,27 @@ def _config(args):
     return load_unit_config(args.unit, args.unit_config)
 
 
-def run_plant(args) -> int:
+def run_opcua(args) -> int:
+    """``ssmpc opcua``: the plant node with its OPC UA server."""
+    from services.io.opcua.server import PlantOPCUAServer
+
+    _logging()
+    _quiet_asyncua()
+    cfg = _config(args)
+    settings = opcua_settings(args)
+    try:
+        link = PlantOPCUAServer(cfg, settings)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from exc
+    return run_plant(args, link=link)
+
+
+def run_plant(args, link=None) -> int:
     from services.io.zenoh_session import open_session
     from services.nodes.plant import PlantNode, make_runner
 
-    _logging()
+    if link is None:
+        _logging()
     cfg = _config(args)
     if (args.noise or args.idv) and cfg.plant != "te":
         raise CLIError("noise/idv: only the TE plant has them; use the plant's "
@@ -197,12 +282,16 @@ def run_plant(args) -> int:
     session = open_session(session_settings(args))
     node = None
     try:
-        node = PlantNode(cfg, session, speed=args.speed, expected_sender=args.sender,
-                         lockstep=args.lockstep, lockstep_timeout_s=args.lockstep_timeout,
-                         runner=runner, busy_poll=args.busy_poll)
+        try:
+            node = PlantNode(cfg, session, speed=args.speed, expected_sender=args.sender,
+                             lockstep=args.lockstep, lockstep_timeout_s=args.lockstep_timeout,
+                             runner=runner, busy_poll=args.busy_poll, link=link)
+        except ValueError as exc:  # the link could not serve (endpoint in use ...)
+            raise CLIError(str(exc)) from exc
         _realtime_tuning(args.rt_priority)
         _warn_busy_poll_under_fifo("plant", args)
-        _ready("plant", cfg.unit, zid=session.zid())
+        extra = {} if link is None else {"opcua": link.settings.endpoint}
+        _ready("plant", cfg.unit, zid=session.zid(), **extra)
         node.run(stop)
     finally:
         if node is not None:
@@ -235,6 +324,17 @@ def run_controller(args) -> int:
 
     _logging()
     cfg = _config(args)
+    link = None
+    if args.plant_io == "opcua":
+        from services.io.opcua.client import ControllerOPCUALink
+
+        if args.busy_poll:
+            raise CLIError("busy_poll: polls the Zenoh channel; not with --plant-io opcua")
+        _quiet_asyncua()
+        try:
+            link = ControllerOPCUALink(cfg, opcua_settings(args))
+        except ValueError as exc:
+            raise CLIError(str(exc)) from exc
     plant = build_plant(cfg)
     info = unit_info(cfg, plant)
     stop = _stop_event(args.duration)
@@ -255,7 +355,7 @@ def run_controller(args) -> int:
     node = None
     try:
         node = ControllerNode(cfg, session, store, telemetry, speed=args.speed,
-                              sender=args.sender, busy_poll=args.busy_poll)
+                              sender=args.sender, busy_poll=args.busy_poll, plant_link=link)
         _realtime_tuning(args.rt_priority)
         _warn_busy_poll_under_fifo("controller", args)
         _ready("controller", cfg.unit, zid=session.zid(), store=store.path)

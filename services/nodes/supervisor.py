@@ -14,6 +14,11 @@ keep running (the controller resumes from its store, bumplessly); a node that di
 more than :data:`RESTART_LIMIT` times within :data:`RESTART_WINDOW_S` stops ``up``.
 Children get the parent-death signal, so no orphan survives
 even if ``up`` itself is killed.
+
+``--io opcua``: the plant runs as ``ssmpc opcua`` (its OPC UA server on
+``--opcua-endpoint``, a simulated DCS) and the controller as ``ssmpc controller
+--plant-io opcua``; the certificates are made in ``<state-dir>/opcua`` before either
+starts, and the plant starts first (the controller connects to it).
 """
 
 from __future__ import annotations
@@ -63,6 +68,15 @@ def register(sub) -> None:
     p.add_argument("--restart-limit", type=int, default=RESTART_LIMIT,
                    help=f"restarts of a node that dies, within {RESTART_WINDOW_S / 60:.0f} min, "
                         f"before up gives up (default {RESTART_LIMIT}; 0: never restart)")
+    p.add_argument("--io", choices=["zenoh", "opcua"], default="zenoh",
+                   help="plant link of the controller (default zenoh; opcua: the plant "
+                        "serves OPC UA as a DCS would)")
+    from services.io.opcua.settings import DEFAULT_ENDPOINT
+
+    p.add_argument("--opcua-endpoint", default=DEFAULT_ENDPOINT, metavar="URL",
+                   help=f"with --io opcua: the plant's endpoint (default {DEFAULT_ENDPOINT})")
+    p.add_argument("--watchdog", type=float, default=5.0, metavar="S",
+                   help="with --io opcua: the plant sheds after S s without a heartbeat")
     p.set_defaults(func=run_up)
 
 
@@ -148,6 +162,20 @@ def run_up(args) -> int:
     if args.restart_limit < 0:
         raise CLIError(f"restart_limit: must be >= 0, got {args.restart_limit}")
     os.makedirs(args.state_dir, exist_ok=True)
+    opcua = []
+    if args.io == "opcua":
+        from services.io.opcua.certs import ensure_certificates
+        from services.io.opcua.settings import OPCUASettings
+
+        cert_dir = os.path.join(args.state_dir, "opcua")
+        try:
+            OPCUASettings(endpoint=args.opcua_endpoint, cert_dir=cert_dir,
+                          watchdog_s=args.watchdog)
+            ensure_certificates(cert_dir)
+        except ValueError as exc:
+            raise CLIError(str(exc)) from exc
+        opcua = ["--opcua-endpoint", args.opcua_endpoint, "--opcua-cert-dir", cert_dir,
+                 "--watchdog", repr(float(args.watchdog))]
     if not args.resume:
         for path in _move_aside(args.state_dir, args.unit):
             print(f"previous run kept as {path}", flush=True)
@@ -181,11 +209,20 @@ def run_up(args) -> int:
 
     try:
         deadline = time.monotonic() + args.ready_timeout
-        start("controller", ["controller", *common, "--listen", p_ctrl, "--state-dir",
-                             args.state_dir] + (["--busy-poll"] if args.busy_poll else []),
-              f"models, controller and store in {args.state_dir}")
-        start("plant", ["plant", *common, "--listen", p_plant, "--connect", p_ctrl]
-              + (["--lockstep"] if args.lockstep else []), f"the {args.unit} simulation")
+        controller = (["controller", *common, "--listen", p_ctrl, "--state-dir", args.state_dir]
+                      + (["--busy-poll"] if args.busy_poll else []))
+        plant = (["opcua" if opcua else "plant", *common, "--listen", p_plant]
+                 + ([] if opcua else ["--connect", p_ctrl])
+                 + (["--lockstep"] if args.lockstep else []) + opcua)
+        if opcua:  # the controller connects to the plant (its server, its mesh): plant first
+            start("plant", plant, f"the {args.unit} simulation, OPC UA on "
+                                  f"{args.opcua_endpoint}")
+            start("controller", [*controller, "--connect", p_plant, "--plant-io", "opcua",
+                                 *opcua],
+                  f"models, controller and store in {args.state_dir}, linked by OPC UA")
+        else:
+            start("controller", controller, f"models, controller and store in {args.state_dir}")
+            start("plant", plant, f"the {args.unit} simulation")
         start("api", ["api", "--listen", p_api, "--connect", p_ctrl, "--connect", p_plant,
                       "--lease-ms", str(args.lease_ms), "--port", str(args.port)],
               f"REST on 127.0.0.1:{args.port}")
