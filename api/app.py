@@ -1,4 +1,4 @@
-"""FastAPI app of the api node: the v1 REST contract of DESIGN.md over Zenoh queries.
+"""FastAPI app of the api node: the v1 REST contract (README, "Using it") over Zenoh queries.
 
 =========================================  ===========================================
 ``GET /health``                            liveness of the api node

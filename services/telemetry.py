@@ -1,6 +1,6 @@
 """Rerun telemetry of a controller node: a trend display an operator reads at a glance.
 
-Entity paths (DESIGN.md, "Telemetry")::
+Entity paths (what viewers and scripts rely on)::
 
     <unit>/cv/<name>             measured controlled variables (engineering units)
     <unit>/ref/<name>            their references

@@ -1,5 +1,5 @@
 """The status's ``variables``: one entry per CV, MV and DV with tag, unit, limits and the
-limit a value sits at (DESIGN.md, REST contract), offline and over the real nodes."""
+limit a value sits at (the REST status contract), offline and over the real nodes."""
 
 from __future__ import annotations
 

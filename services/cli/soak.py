@@ -1,6 +1,6 @@
 """``ssmpc soak``: a long closed-loop run with random transitions, IDVs and injected faults.
 
-Writes the report of DESIGN.md (``--report F``, atomically) and prints it as the
+Writes the soak report (docs/soak.md) (``--report F``, atomically) and prints it as the
 last stdout line. The fault grammar is in :mod:`services.soak.faults`; the layout and
 the counting rules in :mod:`services.soak.run`.
 """

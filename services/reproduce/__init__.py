@@ -1,7 +1,7 @@
 """Seed-result reproduction records for ``ssmpc reproduce ID``.
 
 A study function takes a :class:`StudyContext` and returns a
-:class:`ReproduceResult`; its JSON form is the DESIGN.md shape
+:class:`ReproduceResult`; its JSON form (what scripts rely on) is
 ``{"id", "rows": [{"name", "unit", "seed", "ours"}], "verdict", "why", "figures"}``.
 """
 

@@ -24,7 +24,7 @@ grade transitions through the REST API with the token (some aborted with
 DELETE), random IDVs through the plant's command query, unauthorized and
 malformed writes (which must be refused), and the fault schedule. At the end it
 reads the transition history (REST, and the SQLite store) and writes the report
-of DESIGN.md.
+(docs/soak.md).
 
 Report (``soak --report F``): ``process_hours``, ``transitions`` (requested,
 settled, aborted, failed), ``shutdowns`` (time, reason, IDVs on, preventable),
@@ -82,7 +82,7 @@ __all__ = ["SoakSettings", "Soak", "run_soak", "REPORT_KEYS"]
 
 log = logging.getLogger("ssmpc.soak")
 
-#: Keys of the report that DESIGN.md fixes.
+#: Keys of the report (docs/soak.md); scripts rely on them.
 REPORT_KEYS = ("process_hours", "transitions", "shutdowns", "deadline_misses", "fallback_moves",
                "restarts", "bumpless_resumes", "records_lost", "unhandled_errors",
                "faults_injected")
