@@ -601,9 +601,9 @@ class ControllerNode:
             }
 
     def _variables_view(self) -> list[dict]:
-        """The ``variables`` of the status (the REST status contract): each CV, MV and DV with its value,
-        target (a tracked CV's reference), limits and the limit it sits at. Call with
-        the lock held."""
+        """The ``variables`` of the status (the REST status contract): each CV, MV and DV
+        with its value, target (a tracked CV's reference), limits and the limit it sits
+        at. Call with the lock held."""
         values = {"cv": dict(zip(self.info.cv_names, self.y)),
                   "mv": dict(zip(self.info.mv_names, self.u_last))}
         targets = dict(zip(self.track_names, self.r))
