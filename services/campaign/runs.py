@@ -4,7 +4,8 @@ TE: :func:`controller.units.te.control.run_te` (the original plant at its 1.8 s
 Euler step, the regulatory layer of seed Table 7.10, the supervisory controller
 of the strategy every 36 s), stopped at the first interlock trip. The campaign
 seed ``s`` seeds the plant's own generator (measurement noise and the random
-IDVs) with :func:`te_plant_seed` and the controller side's input noise.
+IDVs) with :func:`controller.units.te.control.plant_seed_for` and the
+controller side's input noise.
 
 Unit plants: the service's own pieces without the network: the plant node's
 integrator (:class:`services.nodes.plant.ODERunner`), the controller node's
@@ -30,12 +31,11 @@ import numpy as np
 
 from services.campaign import metrics
 from services.campaign.identity import RunSpec
+from services.cluster import single_threaded_process
 
-__all__ = ["RunOutcome", "execute", "ensure_warm", "te_plant_seed", "single_threaded_process",
-           "base_row", "failed_metrics"]
+__all__ = ["RunOutcome", "execute", "ensure_warm", "base_row", "failed_metrics"]
 
 _WARM: set[tuple[str, str]] = set()
-_LIMITED = False
 
 
 @dataclass(frozen=True)
@@ -50,32 +50,6 @@ class RunOutcome:
     series: dict
 
 
-def single_threaded_process() -> None:
-    """BLAS and OpenMP pools of this process limited to one thread (threadpoolctl), once.
-
-    The worker processes are one per core; a BLAS pool per worker would oversubscribe
-    the cores with spinning threads.
-    """
-    global _LIMITED
-    if _LIMITED:
-        return
-    import scipy.linalg  # noqa: F401  (load the BLAS scipy uses before limiting it)
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(limits=1)
-    _LIMITED = True
-
-
-def te_plant_seed(seed: int) -> float:
-    """Start value of the TE plant's generator for campaign seed ``seed``.
-
-    An odd integer in [1, 2^32) drawn from NumPy's SeedSequence of ``seed``, so that
-    neighbouring seeds give unrelated noise from the first draw on.
-    """
-    word = int(np.random.SeedSequence(int(seed)).generate_state(1, np.uint32)[0])
-    return float(word | 1)
-
-
 def _te_plan(case):
     from controller.units.te.grades import Leg, TransitionPlan
 
@@ -83,14 +57,14 @@ def _te_plan(case):
 
 
 def _run_te(run: RunSpec, hours: float | None = None) -> RunOutcome:
-    from controller.units.te.control import run_te
+    from controller.units.te.control import plant_seed_for, run_te
 
     case = run.case
     idv = {e.idv: e.on_h for e in case.idvs}
     idv_off = {e.idv: e.off_h for e in case.idvs if e.off_h is not None}
     r = run_te(run.strategy, _te_plan(case), case.hours if hours is None else hours,
                noise=case.noise, idv=idv, idv_off=idv_off, seed=run.seed,
-               plant_seed=te_plant_seed(run.seed))
+               plant_seed=plant_seed_for(run.seed))
     sd = r.shutdown
     trip = None if sd is None else metrics.trip_record(sd.time_h, sd.reason)
     last_leg = None if not case.legs else (case.legs[-1].at_h, case.legs[-1].grade)

@@ -103,8 +103,8 @@ A_FEED_LOOP = next(lp for lp in PI_BASELINE_LOOPS if lp.cv == 23)
 
 __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec",
            "TEController", "make_te_controller", "make_mpc_core", "TEMPCOptions", "TERun",
-           "run_te", "RatioSettings", "TR_LIMITS", "PR_LIMITS", "PRESSURE_LOOP",
-           "ALARM_LIMITS"]
+           "run_te", "plant_seed_for", "RatioSettings", "TR_LIMITS", "PR_LIMITS",
+           "PRESSURE_LOOP", "ALARM_LIMITS"]
 
 #: Supervisory sample period, h (36 s = 20 Euler steps of 1.8 s).
 SAMPLE_H = 0.01
@@ -664,6 +664,17 @@ class TERun:
         return limit_margins(self.xmeas)
 
 
+def plant_seed_for(seed: int) -> float:
+    """Start value of the TE plant's generator for a run's noise seed ``seed``.
+
+    An odd integer in [1, 2^32) drawn from NumPy's SeedSequence of ``seed``, so that
+    neighbouring seeds give unrelated noise from the first draw on (start values
+    that differ by a little would give first draws that differ by a little).
+    """
+    word = int(np.random.SeedSequence(int(seed)).generate_state(1, np.uint32)[0])
+    return float(word | 1)
+
+
 def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = False,
            input_snr: float | None = None, idv: dict[int, float] | None = None,
            seed: int = 0, sample_h: float = SAMPLE_H, stop_on_trip: bool = True,
@@ -691,7 +702,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     plant_seed : float, optional
         Start value of the plant's own generator (measurement noise and random
         disturbances, :class:`plant_sim.tennessee_eastman.SimSettings` ``seed``);
-        default the original seed.
+        default the original seed (:func:`plant_seed_for` makes one per noise seed).
     """
     from plant_sim.tennessee_eastman import TESimulator
 
