@@ -79,7 +79,8 @@ class Progress:
         self.done += 1
         self.trips += int(bool(row.get("tripped")))
         self.errors += int(bool(row.get("error")))
-        self._draw(final=False)
+        if self.done < self.total:  # the last one is drawn by finish()
+            self._draw(final=False)
 
     def start(self) -> None:
         self._draw(final=False, force=True)
