@@ -326,3 +326,34 @@ def test_a_unit_plant_campaign_runs_its_registry_controller(tmp_path, capsys):
     assert ss["peak_pressure_kpa"] is None and ss["mean_cost_usd_h"] is None
     assert set(ss["active_model_share"]) >= {"M1", "M2"} and pi["active_model_share"] == {}
     assert sum(ss["active_model_share"].values()) == pytest.approx(1.0)
+
+
+def test_a_campaign_stopped_with_ctrl_c_keeps_its_finished_runs(tmp_path):
+    spec = {"unit": "te", "hours": 20, "seeds": list(range(1, 9)), "strategies": ["plan"],
+            "cases": [{"name": "0-2", "start": "mode0",
+                       "legs": [{"at_h": 1.0, "grade": "mode2"}]}]}
+    path = _write(tmp_path / "s.json", spec)
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "services.cli", "campaign", path, "--out", str(out),
+           "--workers", "1", "--json"]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and len(list(out.glob("runs/*.npz"))) < 2:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    finished = len(list(out.glob("runs/*.npz")))
+    assert f"interrupted: {finished} finished runs kept" in err
+    assert 2 <= finished < 8, "the campaign ended before it was stopped: make the runs longer"
+    assert not list(out.rglob("*.part"))
+    saved = json.loads((out / "results.json").read_text())
+    assert len(saved["runs"]) == finished
+    again = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True,
+                           timeout=300)
+    assert again.returncode == 0, again.stderr
+    doc = json.loads(again.stdout.strip().splitlines()[-1])
+    assert doc["summary"]["skipped"] == finished
+    assert doc["summary"]["executed"] == 8 - finished

@@ -11,6 +11,7 @@ finished runs are kept in ``--out`` and skipped by the next start).
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from services.output import CLIError, emit_json
@@ -78,6 +79,12 @@ def _run(args) -> int:
         doc = run_campaign(spec, args.out, scheduler=args.scheduler, workers=args.workers)
     except ConnectionError as exc:
         raise CLIError(str(exc)) from None
+    except KeyboardInterrupt:
+        if args.out:
+            kept = len(list((Path(args.out) / "runs").glob("*.npz")))
+            print(f"\ninterrupted: {kept} finished runs kept in {args.out}; the same command "
+                  f"goes on from there", file=sys.stderr)
+        return 130
     if not args.json:
         s = doc["summary"]
         print(f"campaign {doc['campaign']}: {s['runs']} runs ({s['executed']} run now, "
