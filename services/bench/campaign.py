@@ -85,6 +85,10 @@ def run(args) -> list[dict]:
     parallel = []
     with open_client(None, workers) as (client, _):
         client.run(_warm, args.strategy)
+        # and one untimed short task per worker through the task path
+        warm_jobs = [(args.strategy, 0.05, 10_000 + i) for i in range(workers)]
+        for _ in gather(client, _te_run, warm_jobs, key=lambda j: f"te-warm-{j[2]}"):
+            pass
         load = os.getloadavg()[0]
         for _ in range(repeats):
             t0 = time.perf_counter()

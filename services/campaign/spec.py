@@ -317,6 +317,8 @@ def parse_spec(data, default_name: str = "campaign") -> CampaignSpec:
         raise SpecError(f"unit: unknown unit {unit!r}; known: {', '.join(units)}")
     hours = _number(data["hours"], "hours", strict=True) if "hours" in data else None
     noise = _bool(data["noise"], "noise") if "noise" in data else False
+    if noise and unit != "te":
+        raise SpecError(f"noise: measurement noise is available for te only, not for unit {unit}")
     seeds = _seeds(data["seeds"], "seeds") if "seeds" in data else (1,)
     if "strategies" not in data:
         raise SpecError("strategies: required")
