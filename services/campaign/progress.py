@@ -83,7 +83,8 @@ class Progress:
             self._draw(final=False)
 
     def start(self) -> None:
-        self._draw(final=False, force=True)
+        if self.done < self.total:
+            self._draw(final=False, force=True)
 
     def finish(self) -> None:
         self._draw(final=True, force=True)
