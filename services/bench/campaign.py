@@ -12,12 +12,13 @@ campaign's series do. Cases:
   processes (:mod:`services.cluster`: one thread each, BLAS single-threaded),
   gathered as they finish.
 
-Each case is repeated ``--repeats`` times; the median is the rate (runs/s).
-Warm-up is not timed: this process and every worker make one short run of the
-strategy first (numba kernels from the cache, models built), and the cluster is
-started before. "workers N" carries ``speedup`` (its median over the serial
-median); both carry the 1-minute load average at their start: on a shared
-machine other processes take cores from the workers.
+Each case is repeated ``--repeats`` times, a serial pass and a parallel pass in
+turn (on a shared machine both then meet the same load); the median is the rate
+(runs/s). Warm-up is not timed: this process and every worker make one short run
+of the strategy first (numba kernels from the cache, models built), and the
+cluster is started before. "workers N" carries ``speedup`` (its median over the
+serial median); both carry the mean 1-minute load average at the passes' starts:
+other processes on the machine take cores from the workers.
 """
 
 from __future__ import annotations
@@ -73,30 +74,37 @@ def run(args) -> list[dict]:
     jobs = [(args.strategy, hours, seed) for seed in range(1, n + 1)]
     common = {"runs": n, "hours": hours, "strategy": args.strategy, "cores": os.cpu_count()}
 
-    _warm(args.strategy)
-    serial, load = [], os.getloadavg()[0]
-    for _ in range(repeats):
+    def timed(run_all) -> float:
         t0 = time.perf_counter()
+        run_all()
+        return n / (time.perf_counter() - t0)
+
+    def serial_pass() -> None:
         for job in jobs:
             _te_run(job)
-        serial.append(n / (time.perf_counter() - t0))
-    cases = [rate_case("serial", serial, "runs/s", load_avg_1min=round(load, 2), **common)]
 
-    parallel = []
+    _warm(args.strategy)
+    serial, parallel, loads = [], [], []
     with open_client(None, workers) as (client, _):
         client.run(_warm, args.strategy)
         # and one untimed short task per worker through the task path
         warm_jobs = [(args.strategy, 0.05, 10_000 + i) for i in range(workers)]
         for _ in gather(client, _te_run, warm_jobs, key=lambda j: f"te-warm-{j[2]}"):
             pass
-        load = os.getloadavg()[0]
-        for _ in range(repeats):
-            t0 = time.perf_counter()
+
+        def parallel_pass() -> None:
             for job, _result, error in gather(client, _te_run, jobs, key=lambda j: f"te-{j[2]}"):
                 if error is not None:
                     raise CLIError(f"run {job}: {type(error).__name__}: {error}", code=1)
-            parallel.append(n / (time.perf_counter() - t0))
-    case = rate_case(f"workers {workers}", parallel, "runs/s", load_avg_1min=round(load, 2),
+
+        # serial and parallel passes alternate, so that both meet the same load
+        for _ in range(repeats):
+            loads.append(os.getloadavg()[0])
+            serial.append(timed(serial_pass))
+            parallel.append(timed(parallel_pass))
+    load = round(float(sum(loads) / len(loads)), 2)
+    cases = [rate_case("serial", serial, "runs/s", load_avg_1min=load, **common)]
+    case = rate_case(f"workers {workers}", parallel, "runs/s", load_avg_1min=load,
                      workers=workers, **common)
     case["speedup"] = round(case["median"] / cases[0]["median"], 3)
     cases.append(case)
