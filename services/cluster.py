@@ -78,14 +78,18 @@ def open_client(scheduler: str | None = None, workers: int | None = None,
     ConnectionError
         The scheduler cannot be reached (message names ``scheduler``).
     """
+    import dask
     from distributed import Client, LocalCluster
 
     if scheduler is None:
         n = int(workers or os.cpu_count() or 1)
         for var in THREAD_ENV:
             os.environ.setdefault(var, "1")
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+        # no dashboard: the workers' statistical profiler (a stack sample every 10 ms,
+        # taken under the interpreter lock) would have no one to show its samples to
+        with dask.config.set({"distributed.worker.profile.enabled": False}):
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
         client = Client(cluster)
         try:
             client.register_plugin(SingleThreadedWorker())
