@@ -17,14 +17,20 @@ turn (on a shared machine both then meet the same load); the median is the rate
 (runs/s). Warm-up is not timed: this process and every worker make one short run
 of the strategy first (numba kernels from the cache, models built), and the
 cluster is started before. "workers N" carries ``speedup`` (its median over the
-serial median); both carry the mean 1-minute load average at the passes' starts:
-other processes on the machine take cores from the workers.
+serial median); both carry the mean 1-minute load average at the passes' starts,
+the CPU seconds per run (of the process that ran it: a worker's includes its
+event loop meanwhile) and ``cores_used``, the CPU seconds of the runs over the
+pass's wall time. On a shared machine other processes take cores from the
+workers: equal CPU per run with ``cores_used`` near 1 says the machine gave the
+pass one core, not that the workers got in each other's way.
 """
 
 from __future__ import annotations
 
 import os
 import time
+
+import numpy as np
 
 NAME = "campaign"
 DESCRIPTION = ("campaign throughput: TE closed-loop runs per wall second, serially and over "
@@ -40,13 +46,15 @@ def add_arguments(parser) -> None:
 
 
 def _te_run(job: tuple[str, float, int]):
-    """One run (a task): ``(strategy, hours, seed)`` -> its TERun."""
+    """One run (a task): ``(strategy, hours, seed)`` -> (its TERun, CPU s of its process)."""
     from controller.units.te.control import plant_seed_for, run_te
     from controller.units.te.grades import Leg, TransitionPlan
 
     strategy, hours, seed = job
-    return run_te(strategy, TransitionPlan("mode0", (Leg(0.5, "mode2"),)), hours, noise=True,
-                  seed=seed, plant_seed=plant_seed_for(seed))
+    cpu = time.process_time()
+    run = run_te(strategy, TransitionPlan("mode0", (Leg(0.5, "mode2"),)), hours, noise=True,
+                 seed=seed, plant_seed=plant_seed_for(seed))
+    return run, time.process_time() - cpu
 
 
 def _warm(strategy: str) -> None:
@@ -74,14 +82,19 @@ def run(args) -> list[dict]:
     jobs = [(args.strategy, hours, seed) for seed in range(1, n + 1)]
     common = {"runs": n, "hours": hours, "strategy": args.strategy, "cores": os.cpu_count()}
 
-    def timed(run_all) -> float:
-        t0 = time.perf_counter()
-        run_all()
-        return n / (time.perf_counter() - t0)
+    cpu = {"serial": [], "workers": []}
+    used = {"serial": [], "workers": []}
 
-    def serial_pass() -> None:
-        for job in jobs:
-            _te_run(job)
+    def timed(run_all, kind: str) -> float:
+        t0 = time.perf_counter()
+        cpu_s = run_all()
+        wall = time.perf_counter() - t0
+        cpu[kind].extend(cpu_s)
+        used[kind].append(sum(cpu_s) / wall)
+        return n / wall
+
+    def serial_pass() -> list[float]:
+        return [_te_run(job)[1] for job in jobs]
 
     _warm(args.strategy)
     serial, parallel, loads = [], [], []
@@ -92,20 +105,29 @@ def run(args) -> list[dict]:
         for _ in gather(client, _te_run, warm_jobs, key=lambda j: f"te-warm-{j[2]}"):
             pass
 
-        def parallel_pass() -> None:
-            for job, _result, error in gather(client, _te_run, jobs, key=lambda j: f"te-{j[2]}"):
+        def parallel_pass() -> list[float]:
+            out = []
+            for job, result, error in gather(client, _te_run, jobs, key=lambda j: f"te-{j[2]}"):
                 if error is not None:
                     raise CLIError(f"run {job}: {type(error).__name__}: {error}", code=1)
+                out.append(result[1])
+            return out
 
         # serial and parallel passes alternate, so that both meet the same load
         for _ in range(repeats):
             loads.append(os.getloadavg()[0])
-            serial.append(timed(serial_pass))
-            parallel.append(timed(parallel_pass))
+            serial.append(timed(serial_pass, "serial"))
+            parallel.append(timed(parallel_pass, "workers"))
     load = round(float(sum(loads) / len(loads)), 2)
-    cases = [rate_case("serial", serial, "runs/s", load_avg_1min=load, **common)]
+
+    def cpu_fields(kind: str) -> dict:
+        return {"cpu_s_per_run": round(float(np.median(cpu[kind])), 4),
+                "cores_used": round(float(np.median(used[kind])), 3)}
+
+    cases = [rate_case("serial", serial, "runs/s", load_avg_1min=load, **common,
+                       **cpu_fields("serial"))]
     case = rate_case(f"workers {workers}", parallel, "runs/s", load_avg_1min=load,
-                     workers=workers, **common)
+                     workers=workers, **common, **cpu_fields("workers"))
     case["speedup"] = round(case["median"] / cases[0]["median"], 3)
     cases.append(case)
     return cases
