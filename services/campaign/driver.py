@@ -13,6 +13,21 @@ Results
     directory at once, so an interrupted campaign keeps every run that finished. A
     task that raises (or whose worker dies) becomes a row with its ``error``; the
     campaign goes on.
+
+Measured (``ssmpc bench campaign``, 3-h TE runs of the ``ssmpc`` strategy, this
+2-core VM shared with other work at a load average of about 5)
+
+    ===========  ========  ================  ==========
+    case         runs/s    CPU s per run     cores used
+    ===========  ========  ================  ==========
+    serial       1.86      0.30              0.58
+    workers 2    1.86      0.34              0.67
+    ===========  ========  ================  ==========
+
+A run costs the same CPU in a worker as in one process (0.29-0.41 s either way,
+one worker beside the serial loop); the rate is bounded by the cores the machine
+gives, not by Dask. A worker's first run of a strategy also pays its warm-up:
+5-20 s for the MPC strategies (models built), under 1 s for ``pi`` and ``plan``.
 """
 
 from __future__ import annotations
