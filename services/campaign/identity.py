@@ -16,7 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import asdict, dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 from services.campaign.spec import CampaignSpec, Case
 
@@ -69,7 +69,7 @@ class RunSpec:
                 "strategy": self.strategy, "seed": self.seed, "hours": self.case.hours,
                 "noise": self.case.noise, "settings": run_settings(self.unit)}
 
-    @property
+    @cached_property
     def run_id(self) -> str:
         text = json.dumps(self.identity_document(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()[:16]
