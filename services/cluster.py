@@ -132,13 +132,17 @@ def gather(client, fn: Callable, items: Iterable, key: Callable[[object], str] =
         fut = client.submit(fn, item, key=f"{key(item)}-{token}", pure=False)
         futures.append(fut)
         by_key[fut.key] = item
-    finished = as_completed(futures)
+    # the results come with the futures (fetched on the client's event loop as each
+    # task ends; a result() call per future costs a round trip to that loop)
+    finished = as_completed(futures, with_results=True, raise_errors=False)
     futures = []  # as_completed holds them until each is yielded
-    for fut in finished:
+    for fut, result in finished:
         item = by_key.pop(fut.key)
-        try:
-            result, error = fut.result(), None
-        except Exception as exc:  # the task raised, or its worker died
-            result, error = None, exc
+        if fut.status == "error":  # the task raised, or its worker died: (type, exc, tb)
+            result, error = None, result[1]
+        elif isinstance(result, BaseException):  # cancelled
+            result, error = None, result
+        else:
+            error = None
         fut.release()
         yield item, result, error
