@@ -4,8 +4,8 @@ TE: :func:`controller.units.te.control.run_te` (the original plant at its 1.8 s
 Euler step, the regulatory layer of seed Table 7.10, the supervisory controller
 of the strategy every 36 s), stopped at the first interlock trip. The campaign
 seed ``s`` seeds the plant's own generator (measurement noise and the random
-IDVs) with :func:`controller.units.te.control.plant_seed_for` and the
-controller side's input noise.
+IDVs) with :func:`controller.units.te.control.plant_seed_for` (campaigns add no
+input noise on the valve commands).
 
 Unit plants: the service's own pieces without the network: the plant node's
 integrator (:class:`services.nodes.plant.ODERunner`), the controller node's
