@@ -381,3 +381,17 @@ def test_a_campaign_stopped_with_ctrl_c_keeps_its_finished_runs(tmp_path):
     doc = json.loads(again.stdout.strip().splitlines()[-1])
     assert doc["summary"]["skipped"] == finished
     assert doc["summary"]["executed"] == 8 - finished
+
+
+def test_bench_campaign_reports_serial_and_workers_cases(capsys):
+    code = main(["bench", "campaign", "--runs", "2", "--hours", "0.2", "--repeats", "1",
+                 "--workers", "1", "--strategy", "plan", "--json"])
+    assert code == 0
+    doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert doc["bench"] == "campaign"
+    serial, workers = doc["cases"]
+    assert serial["case"] == "serial" and workers["case"] == "workers 1"
+    for c in (serial, workers):
+        assert c["unit"] == "runs/s" and c["n"] == 1 and c["median"] > 0
+        assert c["cpu_s_per_run"] > 0 and c["cores_used"] > 0
+    assert main(["bench", "campaign", "--workers", "0", "--json"]) == 2
