@@ -15,13 +15,13 @@ Results
     campaign goes on.
 
 Measured (``ssmpc bench campaign``, 3-h TE runs of the ``ssmpc`` strategy, this
-2-core VM shared with other work at a load average of about 5)
+2-core VM shared with other work at a load average of 5.3, 8 runs x 5 repeats)
 
     ===========  ========  ================  ==========
     case         runs/s    CPU s per run     cores used
     ===========  ========  ================  ==========
-    serial       1.86      0.30              0.58
-    workers 2    1.86      0.34              0.67
+    serial       2.30      0.29              0.57
+    workers 2    2.22      0.32              0.67
     ===========  ========  ================  ==========
 
 A run costs the same CPU in a worker as in one process (0.29-0.41 s either way,
