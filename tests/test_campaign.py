@@ -30,12 +30,14 @@ REPO = Path(__file__).resolve().parents[1]
 METRICS = ("tripped", "trip", "time_to_grade_h", "peak_pressure_kpa", "mean_cost_usd_h",
            "final_cost_usd_h", "transition_cost_usd", "active_model_share")
 
+# 0 -> 1 is reached within the run (a small grade change); IDV(6) from mode 2
+# can trip the plant: the comparison covers grade times and trips alike
 TE_SPEC = {
-    "unit": "te", "hours": 2, "noise": True, "seeds": [3],
+    "unit": "te", "hours": 3, "noise": True, "seeds": [3],
     "strategies": ["ssmpc", "pi", "plan"],
     "cases": [
-        {"name": "0-2", "start": "mode0", "legs": [{"at_h": 0.5, "grade": "mode2"}]},
-        {"name": "idv1", "start": "mode0", "idvs": [{"idv": 1, "on_h": 0.5, "off_h": 1.5}]},
+        {"name": "0-1", "start": "mode0", "legs": [{"at_h": 0.5, "grade": "mode1"}]},
+        {"name": "idv6", "start": "mode2", "idvs": [{"idv": 6, "on_h": 0.2, "off_h": 2.8}]},
     ],
 }
 
@@ -167,10 +169,10 @@ def test_a_run_identity_changes_with_what_makes_the_run_different():
     base = parse_spec(TE_SPEC, "te")
     ids = {(r.case.name, r.strategy): r.run_id for r in plan_runs(base)}
     renamed = json.loads(json.dumps(TE_SPEC))
-    renamed["cases"][0]["name"] = "zero-to-two"
+    renamed["cases"][0]["name"] = "zero-to-one"
     assert sorted(r.run_id for r in plan_runs(parse_spec(renamed))) == sorted(ids.values())
     for patch in (lambda s: s["cases"][0]["legs"][0].update(at_h=0.6),
-                  lambda s: s["cases"][0].update(hours=3),
+                  lambda s: s["cases"][0].update(hours=4),
                   lambda s: s["cases"][0].update(noise=False),
                   lambda s: s["cases"][0].update(seeds=[4]),
                   lambda s: s["cases"][0].update(idvs=[{"idv": 8, "on_h": 1.0}])):
@@ -178,7 +180,7 @@ def test_a_run_identity_changes_with_what_makes_the_run_different():
         patch(changed)
         new = {(r.case.name, r.strategy): r.run_id for r in plan_runs(parse_spec(changed))}
         for key, rid in new.items():
-            assert (rid != ids[key]) == (key[0] == "0-2"), key
+            assert (rid != ids[key]) == (key[0] == "0-1"), key
 
 
 # -- the campaign on Dask ---------------------------------------------------------------------
@@ -186,17 +188,20 @@ def test_local_cluster_gives_the_metrics_of_the_runs_made_one_by_one(local_campa
                                                                      serial_rows):
     doc, out, err = local_campaign
     assert doc["workers"] == 2
-    assert doc["summary"] == {"runs": 6, "tripped": 0, "errors": 0, "executed": 6,
+    trips = sum(r["tripped"] for r in serial_rows.values())
+    assert doc["summary"] == {"runs": 6, "tripped": trips, "errors": 0, "executed": 6,
                               "skipped": 0}
     got = _by_run(doc)
     assert set(got) == set(serial_rows)
     for key, row in serial_rows.items():
         assert row["error"] is None
         _assert_same_metrics(got[key], row)
+    # the comparison saw a grade reached (and its cost), not only empty metrics
+    assert any(r["time_to_grade_h"] is not None for r in serial_rows.values())
     # the MPC strategy reports its models; the others none
-    assert set(got[("0-2", "ssmpc", 3)]["active_model_share"]) == {"reinit", "mode0", "mode2",
+    assert set(got[("0-1", "ssmpc", 3)]["active_model_share"]) == {"reinit", "mode0", "mode2",
                                                                    "mode3"}
-    assert got[("0-2", "pi", 3)]["active_model_share"] == {}
+    assert got[("0-1", "pi", 3)]["active_model_share"] == {}
     assert "6/6 runs" in err and "ETA" in err
 
 
@@ -210,7 +215,7 @@ def test_the_results_directory_holds_the_document_the_runs_and_the_report(local_
     with np.load(out / "runs" / f"{row['run']}.npz") as z:
         assert json.loads(str(z["row"][()]))["case"] == row["case"]
         t = z["t_h"]
-        assert t.shape == (200,) and z["xmeas"].shape == (200, 41)
+        assert t.shape == (300,) and z["xmeas"].shape == (300, 41)
         assert t[1] - t[0] == pytest.approx(0.01)
         assert float(np.max(z["xmeas"][:, 6])) == pytest.approx(row["peak_pressure_kpa"])
     png = (out / "report.png").read_bytes()
@@ -315,7 +320,9 @@ def test_a_run_that_raises_is_a_row_with_its_error_and_the_campaign_goes_on(tmp_
         return real(run, hours)
 
     monkeypatch.setattr(runs, "_loop", broken)
-    spec = dict(TE_SPEC, strategies=["pi", "plan"], hours=1.0, noise=False)
+    spec = dict(TE_SPEC, strategies=["pi", "plan"], hours=1.0, noise=False,
+                cases=[dict(TE_SPEC["cases"][0]), {"name": "idv6", "start": "mode2",
+                                                   "idvs": [{"idv": 6, "on_h": 0.2}]}])
     path = _write(tmp_path / "s.json", spec)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
                       dashboard_address=None) as cluster:
@@ -323,8 +330,8 @@ def test_a_run_that_raises_is_a_row_with_its_error_and_the_campaign_goes_on(tmp_
                                    "--out", str(tmp_path / "out"), "--json")
         assert code == 1
         rows = _by_run(doc)
-        assert rows[("0-2", "plan", 3)]["error"] == "RuntimeError: solver exploded"
-        assert rows[("0-2", "pi", 3)]["error"] is None
+        assert rows[("0-1", "plan", 3)]["error"] == "RuntimeError: solver exploded"
+        assert rows[("0-1", "pi", 3)]["error"] is None
         assert doc["summary"]["errors"] == 2 and "2 errors" in err
         # failed runs are not kept as finished: the next start runs them again
         monkeypatch.setattr(runs, "_loop", real)
