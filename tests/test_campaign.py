@@ -359,7 +359,7 @@ def test_a_unit_plant_campaign_runs_its_registry_controller(tmp_path, capsys):
     assert sum(ss["active_model_share"].values()) == pytest.approx(1.0)
 
 
-def test_a_campaign_stopped_with_ctrl_c_keeps_its_finished_runs(tmp_path):
+def test_a_campaign_stopped_with_ctrl_c_keeps_its_finished_runs(tmp_path, capsys):
     spec = {"unit": "te", "hours": 20, "seeds": list(range(1, 9)), "strategies": ["plan"],
             "cases": [{"name": "0-2", "start": "mode0",
                        "legs": [{"at_h": 1.0, "grade": "mode2"}]}]}
@@ -382,10 +382,8 @@ def test_a_campaign_stopped_with_ctrl_c_keeps_its_finished_runs(tmp_path):
     assert not list(out.rglob("*.part"))
     saved = json.loads((out / "results.json").read_text())
     assert len(saved["runs"]) == finished
-    again = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True,
-                           timeout=300)
-    assert again.returncode == 0, again.stderr
-    doc = json.loads(again.stdout.strip().splitlines()[-1])
+    code, doc, err = _campaign(capsys, path, "--out", str(out), "--workers", "1", "--json")
+    assert code == 0, err
     assert doc["summary"]["skipped"] == finished
     assert doc["summary"]["executed"] == 8 - finished
 
