@@ -79,6 +79,8 @@ def _run(args) -> int:
         doc = run_campaign(spec, args.out, scheduler=args.scheduler, workers=args.workers)
     except ConnectionError as exc:
         raise CLIError(str(exc)) from None
+    except OSError as exc:  # the results directory cannot be written (full, read-only)
+        raise CLIError(f"out: cannot write the results: {exc}", code=1) from None
     except KeyboardInterrupt:
         if args.out:
             kept = len(list((Path(args.out) / "runs").glob("*.npz")))
