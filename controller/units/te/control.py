@@ -19,7 +19,9 @@ Layers (seed Fig. 7.2)
          strategy ``"fixed"`` (a): MPC with three fixed models (modes 0, 2, 3)
          switched by the performance index (§7.5-7.6); strategy ``"ssmpc"`` (b):
          the same three plus a re-initialized adaptive model (§7.7); ``"pi"``: the
-         decentralized baseline of :mod:`controller.units.te.pi_baseline`. The MPC's
+         decentralized baseline of :mod:`controller.units.te.pi_baseline`; ``"plan"``:
+         the grade plan's feedforward alone (the five handles follow the plan's
+         values, no feedback core), the reference a feedback core has to beat. The MPC's
          input targets follow the grade plan (:class:`TEMPCOptions`), trimmed by an
          outer production loop (XMEAS 17 -> A+C feed);
        - a high-pressure override cuts the A+C feed above 2900 kPa (all strategies).
@@ -117,12 +119,12 @@ A_FEED_LOOP = next(lp for lp in PI_BASELINE_LOOPS if lp.cv == 23)
 
 __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec",
            "TEController", "make_te_controller", "make_mpc_core", "TEMPCOptions", "TERun",
-           "run_te", "RatioSettings", "TR_LIMITS", "PR_LIMITS", "PRESSURE_LOOP",
-           "ALARM_LIMITS"]
+           "run_te", "plant_seed_for", "RatioSettings", "TR_LIMITS", "PR_LIMITS",
+           "PRESSURE_LOOP", "ALARM_LIMITS"]
 
 #: Supervisory sample period, h (36 s = 20 Euler steps of 1.8 s).
 SAMPLE_H = 0.01
-STRATEGIES = ("fixed", "ssmpc", "pi", "decentralized")
+STRATEGIES = ("fixed", "ssmpc", "pi", "decentralized", "plan")
 #: The five core handles: XMV numbers, None = reactor-temperature set point (R7.15).
 CORE_XMVS = (3, 4, None, None, 11)
 CORE_NAMES = ("XMV3", "XMV4", "Pr_sp", "Tr_sp", "XMV11")
@@ -198,11 +200,12 @@ class TEController:
 
     Parameters
     ----------
-    strategy : {"fixed", "ssmpc", "pi"}
+    strategy : {"fixed", "ssmpc", "pi", "plan"}
     plan : TransitionPlan
-    core : object
+    core : object or None
         For "pi" a :class:`VelocityPI`; for the MPC strategies a
-        :class:`controller.multimodel.MultiModelController` on the five handles.
+        :class:`controller.multimodel.MultiModelController` on the five handles;
+        None for "plan" (the handles follow :meth:`_core_ff`).
     ratio : RatioSettings
     sample_h : float
     horizon : int
@@ -270,7 +273,7 @@ class TEController:
         """The plan at one sample: XMEAS references at ``t`` and over the horizon
         ((horizon + 1, 41); one row for the PI strategy), valve references at ``t`` and
         at the horizon's end ((2, 12)) and the D share of the D+E feed at ``t``."""
-        n_ahead = self.horizon if self.strategy != "pi" else 0
+        n_ahead = self.horizon if self.strategy not in ("pi", "plan") else 0
         ym_all = self.plan.xmeas_ref(t + self.sample_h * np.arange(n_ahead + 1))
         xv_all = self.plan.xmv_ref(np.array([t, t + n_ahead * self.sample_h]))
         return ym_all, xv_all, self.plan.d_fraction_ref(t)
@@ -377,6 +380,9 @@ class TEController:
         if self.strategy == "pi":
             core_u = self.core.step(xmeas, ym, ff)
             status, fallback, active, J, names = "solved", False, -1, np.zeros(0), ()
+        elif self.strategy == "plan":
+            core_u = ff
+            status, fallback, active, J, names = "solved", False, -1, np.zeros(0), ()
         else:
             yc = xmeas[_CORE_CV_INDEX]
             refs = ym_all[1:, _CORE_CV_INDEX]
@@ -427,12 +433,14 @@ class TEController:
         return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,
                 "override": self.override, "a_trim": self.a_trim, "e_a_prev": self.e_a_prev,
                 "p_trim": self.p_trim, "e_p_prev": self.e_p_prev,
-                "core": self.core.checkpoint(), "n_samples": self.n_samples,
+                "core": None if self.core is None else self.core.checkpoint(),
+                "n_samples": self.n_samples,
                 "t_last": self._t_last}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
-        self.core.restore(state["core"])
+        if self.core is not None:
+            self.core.restore(state["core"])
         self.n_samples = int(state.get("n_samples", 0))
         t_last = state.get("t_last")
         self._t_last = None if t_last is None else float(t_last)
@@ -606,8 +614,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
 
     Parameters
     ----------
-    strategy : {"fixed", "ssmpc", "pi"}
-        (a) fixed models + MPC, (b) state-shared MPC, or the PI baseline.
+    strategy : {"fixed", "ssmpc", "pi", "plan"}
+        (a) fixed models + MPC, (b) state-shared MPC, the PI baseline, or the
+        grade plan's feedforward alone.
     plan : TransitionPlan, optional
         Grade references; default: hold mode 0.
     sample_h : float
@@ -638,6 +647,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
     if strategy == "pi":
         core = VelocityPI(PI_BASELINE_LOOPS, sample_h, lo, hi)
         horizon = 1
+    elif strategy == "plan":
+        core, horizon = None, 1
     else:
         xv, ym = plan.xmv_ref(0.0), plan.xmeas_ref(0.0)
         u0 = np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
@@ -699,16 +710,28 @@ class TERun:
         return limit_margins(self.xmeas)
 
 
+def plant_seed_for(seed: int) -> float:
+    """Start value of the TE plant's generator for a run's noise seed ``seed``.
+
+    An odd integer in [1, 2^32) drawn from NumPy's SeedSequence of ``seed``, so that
+    neighbouring seeds give unrelated noise from the first draw on (start values
+    that differ by a little would give first draws that differ by a little).
+    """
+    word = int(np.random.SeedSequence(int(seed)).generate_state(1, np.uint32)[0])
+    return float(word | 1)
+
+
 @single_threaded
 def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = False,
            input_snr: float | None = None, idv: dict[int, float] | None = None,
            seed: int = 0, sample_h: float = SAMPLE_H, stop_on_trip: bool = True,
+           idv_off: dict[int, float] | None = None, plant_seed: float | None = None,
            **options) -> TERun:
     """Closed-loop run of the TE cascade from the plan's start grade.
 
     Parameters
     ----------
-    strategy : {"fixed", "ssmpc", "pi"}
+    strategy : {"fixed", "ssmpc", "pi", "plan"}
     plan : TransitionPlan
     hours : float
         Length, h.
@@ -720,15 +743,24 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     idv : dict, optional
         IDV number -> switch-on time (h).
     seed : int
-        Seed of the input noise; the plant's generator keeps the original seed.
+        Seed of the input noise.
+    idv_off : dict, optional
+        IDV number -> switch-off time (h), for IDVs of ``idv``.
+    plant_seed : float, optional
+        Start value of the plant's own generator (measurement noise and random
+        disturbances, :class:`plant_sim.tennessee_eastman.SimSettings` ``seed``);
+        default the original seed (:func:`plant_seed_for` makes one per noise seed).
     """
     from plant_sim.tennessee_eastman import TESimulator
 
     ctl, spec = make_te_controller(strategy, plan, sample_h=sample_h, **options)
     mode = plan.start[4:]
-    sim = TESimulator(noise=noise, mode="base" if mode == "0" else mode)
+    seeded = {} if plant_seed is None else {"seed": float(plant_seed)}
+    sim = TESimulator(noise=noise, mode="base" if mode == "0" else mode, **seeded)
     for k_idv, t_on in (idv or {}).items():
         sim.set_idv(int(k_idv), True, at_h=float(t_on))
+    for k_idv, t_off in (idv_off or {}).items():
+        sim.set_idv(int(k_idv), False, at_h=float(t_off))
     reg = RegulatoryLayer(sim, loops=spec.loops)
     rng = np.random.default_rng(seed)
     n = int(round(hours / spec.sample_h))
@@ -779,4 +811,5 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     return TERun(strategy, T[:m], X[:m], U[:m], S[:m], R[:m], cost[:m], act[:m], ms[:m],
                  sim.shutdown, names, tuple(alarms), fallbacks, time.perf_counter() - w0,
                  {"sample_h": spec.sample_h, "noise": noise, "input_snr": input_snr,
-                  "idv": dict(idv or {})}, slack[:m])
+                  "idv": dict(idv or {}), "idv_off": dict(idv_off or {}),
+                  "plant_seed": plant_seed}, slack[:m])

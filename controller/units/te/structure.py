@@ -22,7 +22,7 @@ __all__ = ["TE_EULER_STEP_S", "TE_STRATEGIES", "TE_XMEAS", "check_config", "grad
 
 TE_EULER_STEP_S = 1.8
 
-TE_STRATEGIES = ("ssmpc", "fixed", "pi", "decentralized")
+TE_STRATEGIES = ("ssmpc", "fixed", "pi", "decentralized", "plan")
 
 TE_XMEAS = tuple(f"XMEAS{i}" for i in range(1, 42))
 

@@ -1,0 +1,133 @@
+"""``ssmpc bench campaign``: campaign throughput, runs per wall second, serial and on Dask.
+
+The work is what a TE campaign run does: ``--runs`` closed-loop runs
+(:func:`controller.units.te.control.run_te`) of ``--hours`` process hours,
+strategy ``--strategy`` (default the product's ``ssmpc``), mode 0 -> 2 requested
+at 0.5 h, measurement noise on, one noise seed per run (the same work on
+different data); each run's full record comes back to the caller, as a
+campaign's series do. Cases:
+
+- "serial": the runs one after another in this process;
+- "workers N": the same runs as one Dask task each on a local cluster of N worker
+  processes (:mod:`services.cluster`: one thread each, BLAS single-threaded),
+  gathered as they finish.
+
+Each case is repeated ``--repeats`` times, a serial pass and a parallel pass in
+turn (on a shared machine both then meet the same load); the median is the rate
+(runs/s). Warm-up is not timed: this process and every worker make one short run
+of the strategy first (numba kernels from the cache, models built), and the
+cluster is started before. "workers N" carries ``speedup`` (its median over the
+serial median); both carry the mean 1-minute load average at the passes' starts,
+the CPU seconds per run (of the process that ran it: a worker's includes its
+event loop meanwhile) and ``cores_used``, the CPU seconds of the runs over the
+pass's wall time. On a shared machine other processes take cores from the
+workers: equal CPU per run with ``cores_used`` near 1 says the machine gave the
+pass one core, not that the workers got in each other's way.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+NAME = "campaign"
+DESCRIPTION = ("campaign throughput: TE closed-loop runs per wall second, serially and over "
+               "N Dask worker processes")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--runs", type=int, default=8, help="runs per repeat (>= 1)")
+    parser.add_argument("--hours", type=float, default=3.0, help="process hours per run")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes (>= 1)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed repeats per case (>= 1)")
+    parser.add_argument("--strategy", default="ssmpc", help="ssmpc, fixed, pi or plan")
+
+
+def _te_run(job: tuple[str, float, int]):
+    """One run (a task): ``(strategy, hours, seed)`` -> (its TERun, CPU s of its process)."""
+    from controller.units.te.control import plant_seed_for, run_te
+    from controller.units.te.grades import Leg, TransitionPlan
+
+    strategy, hours, seed = job
+    cpu = time.process_time()
+    run = run_te(strategy, TransitionPlan("mode0", (Leg(0.5, "mode2"),)), hours, noise=True,
+                 seed=seed, plant_seed=plant_seed_for(seed))
+    return run, time.process_time() - cpu
+
+
+def _warm(strategy: str) -> None:
+    from services.cluster import single_threaded_process
+
+    single_threaded_process()
+    _te_run((strategy, 0.05, 0))
+
+
+def run(args) -> list[dict]:
+    from controller.units.te.control import STRATEGIES
+    from services.bench._common import rate_case
+    from services.cluster import gather, open_client
+    from services.output import CLIError
+
+    n, hours = int(args.runs), float(args.hours)
+    workers, repeats = int(args.workers), int(args.repeats)
+    for name, v in (("runs", n), ("workers", workers), ("repeats", repeats)):
+        if v < 1:
+            raise CLIError(f"{name}: need at least 1, got {v}")
+    if not 0.1 <= hours <= 200.0:
+        raise CLIError(f"hours: must be in [0.1, 200], got {hours}")
+    if args.strategy not in STRATEGIES:
+        raise CLIError(f"strategy: unknown {args.strategy!r}; known: {', '.join(STRATEGIES)}")
+    jobs = [(args.strategy, hours, seed) for seed in range(1, n + 1)]
+    common = {"runs": n, "hours": hours, "strategy": args.strategy, "cores": os.cpu_count()}
+
+    cpu = {"serial": [], "workers": []}
+    used = {"serial": [], "workers": []}
+
+    def timed(run_all, kind: str) -> float:
+        t0 = time.perf_counter()
+        cpu_s = run_all()
+        wall = time.perf_counter() - t0
+        cpu[kind].extend(cpu_s)
+        used[kind].append(sum(cpu_s) / wall)
+        return n / wall
+
+    def serial_pass() -> list[float]:
+        return [_te_run(job)[1] for job in jobs]
+
+    _warm(args.strategy)
+    serial, parallel, loads = [], [], []
+    with open_client(None, workers) as (client, _):
+        client.run(_warm, args.strategy)
+        # and one untimed short task per worker through the task path
+        warm_jobs = [(args.strategy, 0.05, 10_000 + i) for i in range(workers)]
+        for _ in gather(client, _te_run, warm_jobs, key=lambda j: f"te-warm-{j[2]}"):
+            pass
+
+        def parallel_pass() -> list[float]:
+            out = []
+            for job, result, error in gather(client, _te_run, jobs, key=lambda j: f"te-{j[2]}"):
+                if error is not None:
+                    raise CLIError(f"run {job}: {type(error).__name__}: {error}", code=1)
+                out.append(result[1])
+            return out
+
+        # serial and parallel passes alternate, so that both meet the same load
+        for _ in range(repeats):
+            loads.append(os.getloadavg()[0])
+            serial.append(timed(serial_pass, "serial"))
+            parallel.append(timed(parallel_pass, "workers"))
+    load = round(float(sum(loads) / len(loads)), 2)
+
+    def cpu_fields(kind: str) -> dict:
+        return {"cpu_s_per_run": round(float(np.median(cpu[kind])), 4),
+                "cores_used": round(float(np.median(used[kind])), 3)}
+
+    cases = [rate_case("serial", serial, "runs/s", load_avg_1min=load, **common,
+                       **cpu_fields("serial"))]
+    case = rate_case(f"workers {workers}", parallel, "runs/s", load_avg_1min=load,
+                     workers=workers, **common, **cpu_fields("workers"))
+    case["speedup"] = round(case["median"] / cases[0]["median"], 3)
+    cases.append(case)
+    return cases

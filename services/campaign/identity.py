@@ -1,0 +1,81 @@
+"""Run identity: a hash of everything that makes one campaign run different.
+
+A run is (unit, case contents, strategy, seed, hours, noise) plus the settings of
+the code that runs it: for TE the supervisory sample, the plant's Euler step, the
+MPC tuning (:class:`controller.units.te.control.TEMPCOptions`), the ratio loop
+(:class:`~controller.units.te.control.RatioSettings`) and the grade references'
+time constants; for a unit plant its registry configuration
+(:class:`controller.units.config.UnitConfig`). :data:`RUN_FORMAT` names the run
+and metrics code; it changes when they change what a run produces. The identity is
+the SHA-256 of the canonical JSON (sorted keys, no spaces) of all that, first 16
+hex digits: a case renamed keeps its runs, a case whose legs move gets new ones.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+from functools import cached_property, lru_cache
+
+from services.campaign.spec import CampaignSpec, Case
+
+__all__ = ["RUN_FORMAT", "RunSpec", "plan_runs", "run_settings"]
+
+#: Version of what a run computes and records (bump when runs.py or metrics.py change it).
+RUN_FORMAT = "campaign-run-1"
+
+
+@lru_cache(maxsize=8)
+def _settings_json(unit: str) -> str:
+    if unit == "te":
+        from controller.units.te.control import SAMPLE_H, RatioSettings, TEMPCOptions
+        from controller.units.te.grades import TAU_DEFAULT_H
+
+        s = {"sample_h": SAMPLE_H, "plant_dt_s": 1.8, "mpc": asdict(TEMPCOptions()),
+             "ratio": asdict(RatioSettings()), "tau_h": dict(TAU_DEFAULT_H)}
+    else:
+        from services.registry import get_unit
+
+        s = {"unit_config": asdict(get_unit(unit))}
+    return json.dumps(s, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def run_settings(unit: str) -> dict:
+    """The code-relevant settings of a unit's runs (part of every run's identity)."""
+    return json.loads(_settings_json(unit))
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a campaign: a case, a strategy and a seed of one unit."""
+
+    unit: str
+    case: Case
+    strategy: str
+    seed: int
+
+    @property
+    def hours(self) -> float:
+        return self.case.hours
+
+    @property
+    def noise(self) -> bool:
+        return self.case.noise
+
+    def identity_document(self) -> dict:
+        """Everything the identity hashes."""
+        return {"format": RUN_FORMAT, "unit": self.unit, "case": self.case.contents(),
+                "strategy": self.strategy, "seed": self.seed, "hours": self.case.hours,
+                "noise": self.case.noise, "settings": run_settings(self.unit)}
+
+    @cached_property
+    def run_id(self) -> str:
+        text = json.dumps(self.identity_document(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def plan_runs(spec: CampaignSpec) -> list[RunSpec]:
+    """The runs of a spec, case by case, strategy by strategy, seed by seed."""
+    return [RunSpec(spec.unit, case, strategy, seed)
+            for case in spec.cases for strategy in spec.strategies for seed in case.seeds]

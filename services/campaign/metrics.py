@@ -1,0 +1,192 @@
+"""The metrics of one campaign run (DESIGN.md "Campaigns"), from its sampled series.
+
+Pure functions of arrays; every run of a campaign is scored here and nowhere else.
+Samples are taken to hold over their period ``dt`` (zero-order hold), so an
+integral is the rectangle sum ``sum_k rate_k dt`` over the samples in the window.
+
+- ``tripped`` / ``trip``: the plant's first interlock trip ``{"at_h", "reason"}``.
+- ``time_to_grade_h``: hours from the start of the last leg until every grade
+  signal stays within its band of the new grade's value to the end of the run
+  (TE: G in product, XMEAS 40, ±1 mol %, and the product flow, XMEAS 17, ±5 %; a
+  unit plant: its tracked CVs within the service's settle band); ``None`` when
+  the last sample is outside, when the run tripped, and for cases without legs.
+  0 when every sample from the leg on is inside.
+- ``peak_pressure_kpa``: largest reactor pressure (XMEAS 7, kPa gauge) sampled.
+- ``mean_cost_usd_h``: mean operating cost (Downs & Vogel, $/h) over the run;
+  ``final_cost_usd_h``: its mean over the last hour of the run (the whole run if
+  shorter), less noisy than the last sample alone.
+- ``transition_cost_usd``: the cost integrated from the start of the last leg to
+  the leg start + ``time_to_grade_h``, or to the end of the run when the grade is
+  not reached; ``None`` without legs.
+- ``active_model_share``: fraction of the samples each model was active, by model
+  name; ``{}`` for strategies without models (active index < 0).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["trip_record", "time_to_grade_h", "integrate_rate", "active_model_share",
+           "final_mean", "te_grade_targets", "te_metrics", "unit_metrics",
+           "TE_G_BAND_MOL", "TE_FLOW_BAND_REL", "FINAL_WINDOW_H"]
+
+#: Band on G in product, mol % (XMEAS 40).
+TE_G_BAND_MOL = 1.0
+#: Band on the product flow, relative (XMEAS 17).
+TE_FLOW_BAND_REL = 0.05
+#: Window of ``final_cost_usd_h``, h.
+FINAL_WINDOW_H = 1.0
+
+
+def trip_record(at_h: float | None, reason: str | None) -> dict | None:
+    """``{"at_h": h, "reason": text}``, or None when the plant did not trip."""
+    if at_h is None:
+        return None
+    return {"at_h": float(at_h), "reason": str(reason)}
+
+
+def time_to_grade_h(t, signals, targets, bands, t_leg: float) -> float | None:
+    """Time from ``t_leg`` until all signals stay within their bands to the end (h).
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Sample times, h.
+    signals : array_like, shape (K, m)
+        The grade signals.
+    targets, bands : array_like, shape (m,)
+        The new grade's values and the half-widths of the bands (signal units).
+    t_leg : float
+        Start of the last leg, h.
+
+    Returns
+    -------
+    float or None
+        ``t_j - t_leg`` for the first sample ``j`` (at or after ``t_leg``) from
+        which every later sample is inside; None if the last sample is outside or
+        no sample is at or after ``t_leg``.
+    """
+    t = np.asarray(t, dtype=float)
+    s = np.asarray(signals, dtype=float).reshape(t.size, -1)
+    after = t >= t_leg
+    if not after.any():
+        return None
+    t, s = t[after], s[after]
+    outside = np.any(~(np.abs(s - np.asarray(targets, float)) <= np.asarray(bands, float)),
+                     axis=1)
+    if outside[-1]:
+        return None
+    idx = np.flatnonzero(outside)
+    first = 0 if idx.size == 0 else int(idx[-1]) + 1
+    return float(t[first] - t_leg)
+
+
+def integrate_rate(t, rate, dt: float, t_from: float, t_to: float) -> float:
+    """Rectangle sum of ``rate`` over the samples with ``t_from <= t_k < t_to`` (rate x h)."""
+    t = np.asarray(t, dtype=float)
+    r = np.asarray(rate, dtype=float)
+    mask = (t >= t_from) & (t < t_to)
+    return float(np.sum(r[mask]) * dt)
+
+
+def final_mean(t, values, dt: float, window_h: float = FINAL_WINDOW_H) -> float | None:
+    """Mean of ``values`` over the samples of the run's last ``window_h`` hours."""
+    t = np.asarray(t, dtype=float)
+    v = np.asarray(values, dtype=float)
+    if t.size == 0:
+        return None
+    end = t[-1] + dt
+    mask = t >= end - window_h - 1e-9
+    return float(np.mean(v[mask]))
+
+
+def active_model_share(active, model_names) -> dict[str, float]:
+    """Fraction of samples each model was active (index into ``model_names``; < 0: none)."""
+    a = np.asarray(active, dtype=int)
+    names = tuple(model_names)
+    if a.size == 0 or not names or np.all(a < 0):
+        return {}
+    return {name: float(np.count_nonzero(a == j)) / a.size for j, name in enumerate(names)}
+
+
+def te_grade_targets(grade_name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Targets and bands of the TE grade signals (G mol %, product flow) of a grade."""
+    from controller.units.te.grades import grade
+
+    g = grade(grade_name)
+    flow = float(g.xmeas[16])
+    return (np.array([g.g_mol, flow]),
+            np.array([TE_G_BAND_MOL, TE_FLOW_BAND_REL * abs(flow)]))
+
+
+def _common(t, dt, cost, last_leg, signals, targets, bands, tripped) -> dict:
+    if last_leg is None or tripped:
+        ttg = None
+    else:
+        ttg = time_to_grade_h(t, signals, targets, bands, last_leg)
+    out: dict = {"time_to_grade_h": ttg}
+    if cost is None:
+        out.update(mean_cost_usd_h=None, final_cost_usd_h=None, transition_cost_usd=None)
+        return out
+    t = np.asarray(t, dtype=float)
+    out["mean_cost_usd_h"] = float(np.mean(cost)) if t.size else None
+    out["final_cost_usd_h"] = final_mean(t, cost, dt)
+    if last_leg is None or t.size == 0:
+        out["transition_cost_usd"] = None
+    else:
+        t_to = last_leg + ttg if ttg is not None else float(t[-1]) + dt
+        out["transition_cost_usd"] = integrate_rate(t, cost, dt, last_leg, t_to)
+    return out
+
+
+def te_metrics(t, xmeas, cost, active, model_names, dt: float,
+               last_leg: tuple[float, str] | None, trip: dict | None) -> dict:
+    """The metrics of a TE run.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Sample times, h.
+    xmeas : array_like, shape (K, 41)
+        XMEAS 1-41.
+    cost : array_like, shape (K,)
+        Operating cost, $/h.
+    active : array_like of int, shape (K,)
+    model_names : sequence of str
+    dt : float
+        Sample period, h.
+    last_leg : (t_h, grade) or None
+    trip : dict or None
+        :func:`trip_record`.
+    """
+    x = np.asarray(xmeas, dtype=float).reshape(-1, 41)
+    tripped = trip is not None
+    if last_leg is None:
+        sig, targets, bands, t_leg = None, None, None, None
+    else:
+        t_leg = float(last_leg[0])
+        targets, bands = te_grade_targets(last_leg[1])
+        sig = x[:, [39, 16]]
+    out = {"tripped": tripped, "trip": trip,
+           "peak_pressure_kpa": float(np.max(x[:, 6])) if x.shape[0] else None}
+    out.update(_common(t, dt, np.asarray(cost, dtype=float), t_leg, sig, targets, bands,
+                       tripped))
+    out["active_model_share"] = active_model_share(active, model_names)
+    return {k: out[k] for k in _ORDER}
+
+
+def unit_metrics(t, y, active, model_names, dt: float, last_leg_h: float | None,
+                 targets=None, bands=None) -> dict:
+    """The metrics of a unit-plant run (no interlocks, no cost, no reactor pressure).
+
+    ``t`` in h, ``y`` (K, m) the tracked CVs, ``targets``/``bands`` (m,) of the last
+    leg's grade (the service's settle rule).
+    """
+    out = {"tripped": False, "trip": None, "peak_pressure_kpa": None}
+    out.update(_common(t, dt, None, last_leg_h, y, targets, bands, False))
+    out["active_model_share"] = active_model_share(active, model_names)
+    return {k: out[k] for k in _ORDER}
+
+
+_ORDER = ("tripped", "trip", "time_to_grade_h", "peak_pressure_kpa", "mean_cost_usd_h",
+          "final_cost_usd_h", "transition_cost_usd", "active_model_share")

@@ -1,0 +1,113 @@
+"""Campaign metrics against small series whose answers are worked out by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from services.campaign import metrics
+
+# seed Table 7.3 (R7.3), mode 2: G in product (row 40) 11.66 mol %, product flow
+# (row 17) 22.73 m3/h; the flow band is 5 % of it
+MODE2_G, MODE2_FLOW = 11.66, 22.73
+
+
+def test_time_to_grade_counts_from_the_leg_to_the_last_exit_of_the_band():
+    t = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    g = [50.0, 50.0, 52.0, 54.5, 55.2, 54.9]  # inside |g - 55| <= 1 from t = 3 on
+    flow = [20.0] * 6
+    ttg = metrics.time_to_grade_h(t, np.c_[g, flow], [55.0, 20.0], [1.0, 1.0], t_leg=1.0)
+    assert ttg == pytest.approx(2.0)  # 3 h - 1 h
+    # the flow leaves its band at t = 4: inside for good only from t = 5
+    flow[4] = 21.5
+    ttg = metrics.time_to_grade_h(t, np.c_[g, flow], [55.0, 20.0], [1.0, 1.0], t_leg=1.0)
+    assert ttg == pytest.approx(4.0)
+
+
+def test_time_to_grade_is_none_when_the_last_sample_is_outside():
+    t = [0.0, 1.0, 2.0]
+    g = [55.0, 55.0, 57.0]
+    assert metrics.time_to_grade_h(t, np.c_[g], [55.0], [1.0], t_leg=0.0) is None
+
+
+def test_time_to_grade_only_looks_at_samples_from_the_leg_on():
+    # outside before the leg, inside from the first sample after it (at 1.0, leg at 0.5)
+    t = [0.0, 1.0, 2.0]
+    g = [0.0, 55.0, 55.5]
+    assert metrics.time_to_grade_h(t, np.c_[g], [55.0], [1.0], t_leg=0.5) == pytest.approx(0.5)
+
+
+def test_a_nan_sample_is_outside_the_band():
+    t = [0.0, 1.0, 2.0, 3.0]
+    g = [55.0, np.nan, 55.0, 55.0]
+    assert metrics.time_to_grade_h(t, np.c_[g], [55.0], [1.0], t_leg=0.0) == pytest.approx(2.0)
+
+
+def test_integrate_rate_is_the_rectangle_sum_over_the_window():
+    t = [0.0, 0.5, 1.0, 1.5]
+    cost = [100.0, 200.0, 300.0, 400.0]
+    # samples at 0.5 and 1.0 are in [0.5, 1.5): (200 + 300) $/h x 0.5 h
+    assert metrics.integrate_rate(t, cost, 0.5, 0.5, 1.5) == pytest.approx(250.0)
+
+
+def test_final_mean_is_the_mean_of_the_last_hour():
+    t = np.arange(8) * 0.25          # 2 h at 15 min
+    v = [1, 1, 1, 1, 2, 4, 6, 8]
+    assert metrics.final_mean(t, v, 0.25) == pytest.approx(5.0)   # (2 + 4 + 6 + 8) / 4
+    # a run shorter than the window: the whole run
+    assert metrics.final_mean(t[:2], v[:2], 0.25) == pytest.approx(1.0)
+
+
+def test_active_model_share_by_name():
+    share = metrics.active_model_share([0, 0, 1, 2, 1, 1, 0, 0], ("mode0", "mode2", "reinit"))
+    assert share == pytest.approx({"mode0": 4 / 8, "mode2": 3 / 8, "reinit": 1 / 8})
+    assert metrics.active_model_share([-1, -1], ()) == {}
+
+
+def _te_series():
+    """Six samples 0.5 h apart, the leg to mode 2 at 1.0 h, in the grade from 1.5 h."""
+    t = np.arange(6) * 0.5
+    x = np.zeros((6, 41))
+    x[:, 6] = [2700, 2750, 2900, 2800, 2790, 2780]            # reactor pressure, kPa
+    x[:, 39] = [53.7, 40.0, 20.0, MODE2_G + 0.9, MODE2_G - 0.5, MODE2_G]
+    x[:, 16] = [22.9, 22.9, 22.0, 22.0, 23.5, MODE2_FLOW]      # band 22.73 +- 1.1365
+    cost = np.array([100.0, 110.0, 120.0, 130.0, 140.0, 150.0])
+    active = np.array([1, 1, 0, 0, 0, 2])
+    return t, x, cost, active
+
+
+def test_te_metrics_of_a_transition_by_hand():
+    t, x, cost, active = _te_series()
+    m = metrics.te_metrics(t, x, cost, active, ("reinit", "mode0", "mode2"), 0.5,
+                           (1.0, "mode2"), None)
+    assert m["tripped"] is False and m["trip"] is None
+    assert m["time_to_grade_h"] == pytest.approx(0.5)      # inside from 1.5 h, leg at 1.0
+    assert m["peak_pressure_kpa"] == pytest.approx(2900.0)
+    assert m["mean_cost_usd_h"] == pytest.approx(125.0)
+    assert m["final_cost_usd_h"] == pytest.approx(145.0)   # last hour: 140 and 150
+    assert m["transition_cost_usd"] == pytest.approx(60.0)  # 120 $/h x 0.5 h (t = 1.0)
+    assert m["active_model_share"] == pytest.approx({"reinit": 3 / 6, "mode0": 2 / 6,
+                                                     "mode2": 1 / 6})
+    assert list(m) == ["tripped", "trip", "time_to_grade_h", "peak_pressure_kpa",
+                       "mean_cost_usd_h", "final_cost_usd_h", "transition_cost_usd",
+                       "active_model_share"]
+
+
+def test_te_metrics_of_a_tripped_run_integrate_the_cost_to_the_end():
+    t, x, cost, active = _te_series()
+    trip = metrics.trip_record(2.6, "reactor pressure high")
+    m = metrics.te_metrics(t, x, cost, active, ("reinit", "mode0", "mode2"), 0.5,
+                           (1.0, "mode2"), trip)
+    assert m["tripped"] is True
+    assert m["trip"] == {"at_h": 2.6, "reason": "reactor pressure high"}
+    assert m["time_to_grade_h"] is None
+    # samples at 1.0, 1.5, 2.0, 2.5 h: (120 + 130 + 140 + 150) x 0.5
+    assert m["transition_cost_usd"] == pytest.approx(270.0)
+
+
+def test_te_metrics_without_legs_have_no_grade_time_nor_transition_cost():
+    t, x, cost, active = _te_series()
+    m = metrics.te_metrics(t, x, cost, -np.ones(6, int), (), 0.5, None, None)
+    assert m["time_to_grade_h"] is None and m["transition_cost_usd"] is None
+    assert m["active_model_share"] == {}
+    assert m["mean_cost_usd_h"] == pytest.approx(125.0)
