@@ -140,7 +140,7 @@ def test_an_unreadable_or_malformed_spec_file_is_an_error(tmp_path, capsys):
     assert code == 2 and err.startswith("error: spec: ")
 
 
-#: The spec of DESIGN.md "Campaigns", as printed there.
+#: The campaign spec of the design brief, as printed there (docs/campaigns.md).
 DESIGN_SPEC = {
     "unit": "te", "hours": 48, "noise": True, "seeds": [1, 2, 3],
     "strategies": ["ssmpc", "fixed", "pi", "plan", "decentralized"],
