@@ -1,4 +1,4 @@
-"""Seed chapter 6 through the CLI (R6.1-R6.3, R6.5, R6.6) against the catalogue's checks."""
+"""Seed chapter 6 through the CLI (R6.0-R6.6) against the catalogue's checks."""
 
 from __future__ import annotations
 
@@ -56,7 +56,9 @@ def test_r6_3_inferred_yA3_within_8_h(capsys):
 
 def test_r6_5_calcium_linearization(capsys):
     doc = reproduce(capsys, "R6.5")
-    assert doc["verdict"] == "reproduced"
+    # The flux parameters were fitted to the printed models: a match is calibrated.
+    assert doc["verdict"] == "calibrated" and "fit" in doc["why"]
+    assert all(r["name"].find("printed") < 0 for r in doc["rows"])  # no seed-vs-seed rows
     assert row(doc, "pole-zero pair removed")["ours"] == pytest.approx(-10.605, rel=0.01)
     assert row(doc, "order after minimal realization")["ours"] == 4
     for i, v in enumerate((1.265, 0.500, 0.289), start=1):
@@ -111,3 +113,44 @@ def test_r6_2_noisy_transition_reports_every_reading_without_pressure_violation(
         doc, "no noise, no filter (R6.1): F4 settles")["ours"]
     # "achieves its set point" read as first reach: F4 within the seed's 8 ± 1 h
     assert abs(row(doc, "std = change/10 (normal): F4 first within")["ours"] - 8.0) <= 1.0
+
+
+def test_r6_4_inferring_ya3_costs_f4_little(capsys):
+    """Table 6.1's numbers are lost; its claim (inference costs little) on our runs."""
+    doc = reproduce(capsys, "R6.4")
+    assert all(r["seed"] is None for r in doc["rows"])
+    measured = row(doc, "SSE reference vs measured F4, yA3 measured")["ours"]
+    inferred = row(doc, "SSE reference vs measured F4, yA3 inferred")["ours"]
+    assert 0 < inferred <= 2.0 * measured
+    assert doc["verdict"] == "reproduced"
+
+
+IDENTITY_ATOL = 1e-9  # R6.0: the seed's identities hold to round-off
+
+
+def test_r6_0_formulation_identities_hold_on_a_small_case(capsys):
+    doc = reproduce(capsys, "R6.0")
+    for prefix in ("ZOH: max |Φ", "ZOH: max |Ψ", "prediction S_x x_a + S_u ΔU",
+                   "unconstrained QP optimum vs DMC", "constrained solution: rate-limit",
+                   "constrained solution: input-limit", "Hessian change between two samples"):
+        r = row(doc, prefix)
+        assert r["seed"] == 0.0
+        assert abs(r["ours"]) <= IDENTITY_ATOL, prefix
+    # the rate limit is active in the constrained case (else the violation row is idle)
+    assert row(doc, "constrained solution: largest |Δu| / du_max")["ours"] == pytest.approx(
+        1.0, abs=1e-6)
+    assert row(doc, "Hessian relative change when the model switches")["ours"] > 1e-3
+    assert doc["verdict"] == "reproduced"
+
+
+def test_r6_0_dmc_reference_differs_from_a_wrong_prediction():
+    """The DMC reference is sensitive: a model with a perturbed Φ gives another optimum."""
+    from controller.linear import zoh_matrices
+    from services.reproduce import ch6_formulation as f
+
+    Phi, Gamma = zoh_matrices(f.A_CASE, f.B_CASE, f.DT)
+    x, u = np.array([0.3, -0.2]), np.array([0.1, 0.0])
+    R = np.ones((f.P, 2))
+    good = f._dmc_optimum(Phi, Gamma, f.C_CASE, x, u, R, np.ones(2), np.ones(2))
+    bad = f._dmc_optimum(Phi * 1.01, Gamma, f.C_CASE, x, u, R, np.ones(2), np.ones(2))
+    assert np.max(np.abs(good - bad)) > 1e-4

@@ -23,8 +23,8 @@ def reproduce(capsys, rid, *extra):
     doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert set(doc) == {"id", "rows", "verdict", "why", "figures"}
     assert doc["id"] == rid
-    assert doc["verdict"] in ("reproduced", "beaten", "differs")
-    if doc["verdict"] == "differs":
+    assert doc["verdict"] in ("reproduced", "beaten", "differs", "calibrated")
+    if doc["verdict"] in ("differs", "calibrated"):
         assert len(doc["why"]) > 20
     for r in doc["rows"]:
         assert set(r) == {"name", "unit", "seed", "ours"}
@@ -73,7 +73,9 @@ def test_r3_1_reactor_eigenvalues(capsys):
             assert row["seed"] == ev
             assert row["ours"] == pytest.approx(ev, rel=EIG_REL)
         assert rows[f"{op} rank of controllability matrix"]["ours"] == 4
-    assert doc["verdict"] == "reproduced"
+    # OPII's point was fitted to these eigenvalues: the match proves the fit.
+    assert doc["verdict"] == "calibrated"
+    assert "fitting" in doc["why"] and "OPII" in doc["why"]
 
 
 def test_r3_2_reactor_truncation_catalogue_checks(capsys):

@@ -3,6 +3,17 @@
 A study function takes a :class:`StudyContext` and returns a
 :class:`ReproduceResult`; its JSON form (what scripts rely on) is
 ``{"id", "rows": [{"name", "unit", "seed", "ours"}], "verdict", "why", "figures"}``.
+
+Verdicts (:data:`VERDICTS`) judge the seed's claim on what our run computed:
+
+- ``reproduced``: our computation gives the printed number within the tolerance the
+  ``why`` states.
+- ``beaten``: ours is better than the printed number on the seed's own measure.
+- ``differs``: outside the tolerance (the ``why`` says by how much and why).
+- ``calibrated``: the match is the target of a fit (e.g. plant parameters
+  reconstructed by fitting the printed models), so it proves the fit, not the
+  method; the ``why`` says what was fitted to what. A fitted result that misses its
+  own target is ``differs``.
 """
 
 from __future__ import annotations
@@ -15,7 +26,7 @@ from pathlib import Path
 
 __all__ = ["Row", "ReproduceResult", "StudyContext", "discover_studies", "VERDICTS"]
 
-VERDICTS = ("reproduced", "beaten", "differs")
+VERDICTS = ("reproduced", "beaten", "differs", "calibrated")
 
 
 @dataclass(frozen=True)
@@ -42,8 +53,8 @@ class ReproduceResult:
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
             raise ValueError(f"verdict must be one of {VERDICTS}, got {self.verdict!r}")
-        if self.verdict == "differs" and not self.why:
-            raise ValueError("a 'differs' verdict needs a why")
+        if self.verdict in ("differs", "calibrated") and not self.why:
+            raise ValueError(f"a {self.verdict!r} verdict needs a why")
 
     def as_dict(self) -> dict:
         return {

@@ -363,9 +363,11 @@ R31_SEED = {"OPI": (-3.6077, -1.2647, -0.0745, -0.0659),
 
 
 def r3_1(ctx: StudyContext) -> ReproduceResult:
+    """OPI is Ricker's base case (not fitted); OPII's point was fitted to the printed
+    OPII eigenvalues, so the OPII rows prove the fit: verdict ``calibrated``."""
     import control
 
-    rows, ok, worst = [], True, ("", 0.0)
+    rows, ok, worst = [], True, {"OPI": 0.0, "OPII": 0.0}
     for op, seed_ev in R31_SEED.items():
         mod = reactor_models(op)
         ev = np.sort(np.linalg.eigvals(mod.full.A).real)
@@ -373,20 +375,24 @@ def r3_1(ctx: StudyContext) -> ReproduceResult:
             rows.append(Row(f"{op} eigenvalue {i + 1}", "1/h", s, float(o)))
             rel = abs(o - s) / abs(s)
             ok &= rel <= 0.02
-            if rel > worst[1]:
-                worst = (f"{op} eigenvalue {s}", rel)
+            worst[op] = max(worst[op], float(rel))
         rc = np.linalg.matrix_rank(control.ctrb(mod.full.A, mod.full.B))
         ro = np.linalg.matrix_rank(control.obsv(mod.full.A, mod.full.C))
         rows.append(Row(f"{op} rank of controllability matrix", "-", 4.0, float(rc)))
         rows.append(Row(f"{op} rank of observability matrix", "-", 4.0, float(ro)))
         ok &= rc == 4 and ro == 4
-    why_not = (f"largest deviation {100 * worst[1]:.1f} % ({worst[0]}); see the module notes "
-               "on the flow inputs and the fitted OPII")
-    why_ok = (f"all eigenvalues within 2 % (largest deviation {100 * worst[1]:.2f} %), ranks 4; "
-              "with the flows F1, F2, F3 as inputs (flow-controlled purge) OPI matches to 4 "
-              "digits, OPII (P 2850 kPa, yA3 63 %, F4 130 kmol/h, x4bar of OPI) was fitted "
-              "to the printed eigenvalues")
-    verdict, why = _verdict(ok, why_ok, why_not)
+    dev = (f"largest deviation OPI {100 * worst['OPI']:.2f} %, OPII {100 * worst['OPII']:.2f} %"
+           " (tolerance 2 %)")
+    if ok:
+        verdict = "calibrated"
+        why = (f"all eigenvalues within 2 % ({dev}), ranks 4. OPII's operating point (P 2850 "
+               "kPa, yA3 63 %, F4 130 kmol/h, x4bar of OPI; Table 3.1 is lost) was found by "
+               "fitting these printed OPII eigenvalues with the flow-input model, so the OPII "
+               "rows prove the fit, not the method. OPI (Ricker's base case, flows F1, F2, F3 "
+               "as inputs, flow-controlled purge) is not fitted and matches on its own")
+    else:
+        verdict = "differs"
+        why = f"{dev}; see the module notes on the flow inputs and the fitted OPII"
     return ReproduceResult("R3.1", rows, verdict, why)
 
 
@@ -703,9 +709,15 @@ def r3_7(ctx: StudyContext) -> ReproduceResult:
                         float(rc)))
     ok = worst <= 0.02 and all(r.ours == r.seed for r in rows if "order" in r.name
                                 or "rank" in r.name)
-    verdict, why = _verdict(ok, "eigenvalues within 2 %, minimal order 4",
-                            f"minimal order 4 and rank 4 as printed, but eigenvalues up to "
-                            f"{100 * worst:.0f} % off: {CA_WHY}")
+    # The calcium fluxes were fitted to these printed fast and slow eigenvalues (among
+    # other printed numbers): a match proves the fit (calibrated), a miss is 'differs'.
+    fitted = ("the fluxes of plant_sim.calcium were fitted to the printed fast and slow "
+              "eigenvalues of these minimal models (docs/calcium_reconstruction.md)")
+    verdict = "calibrated" if ok else "differs"
+    why = (f"eigenvalues within 2 % (largest deviation {100 * worst:.1f} %), minimal order 4: "
+           f"{fitted}, so the match proves the fit" if ok else
+           f"minimal order 4 and rank 4 as printed, but eigenvalues up to {100 * worst:.0f} % "
+           f"off (tolerance 2 %): {CA_WHY}; {fitted}, but the complex pairs are not matched")
     return ReproduceResult("R3.7", rows, verdict, why)
 
 

@@ -1,5 +1,8 @@
 """Seed chapter 5 (MRAC and H-infinity on the state-shared model): R5.3-R5.8, R5.10-R5.13.
 
+The plants' steady states and linear models (R5.1, R5.2, R5.9) are in
+:mod:`services.reproduce.ch5_linear`.
+
 Every case runs the nonlinear plant of :mod:`plant_sim` (CSTR: dimensionless time;
 bioreactor: h) in closed loop with :class:`controller.multimodel.MultiModelController`
 through :func:`controller.loop.run_closed_loop`. The model set is the seed's: M1 and

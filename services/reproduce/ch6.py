@@ -45,21 +45,9 @@ __all__ = ["RESULTS", "ReactorCase", "ReactorRun", "run_reactor", "reactor_model
            "CalciumCase", "run_calcium", "reactor_settings", "calcium_models"]
 
 # -- calcium --------------------------------------------------------------------------------
-#: Printed order-3 models of R6.5 (time in s, outputs xp5, xp6 in µM). The printed B
-#: columns are ordered (q1, J): with that order the J coefficient of dxp5/dt is 1 (see
-#: plant_sim.calcium), so J/q1 = col 2 / col 1.
-CA_A = np.array([[-2.7566, 2.8145, -0.4583], [-2.8152, -0.6653, 1.0459],
-                 [-0.4589, -1.0459, -0.1260]])
-CA_B = np.array([[1.6977, -2.0232], [0.5244, -0.6249], [0.1736, -0.2069]])
-CA_C = np.array([[-0.0289, 0.0372, -0.0137], [-2.6409, 0.8149, -0.2697]])
-CA_A2 = np.array([[-1.0898, -2.9738, 0.6683], [2.9905, -0.0010, 0.0192],
-                  [0.6684, -0.0292, -0.7040]])
-CA_B2 = np.array([[1.5888, -1.7938], [-0.0480, 0.0542], [-0.5919, 0.6683]])
 #: Set points printed in the captions of Figs. 6.4–6.5, (xp5, xp6) µM. Following the
 #: reconstructed plant (plant_sim.calcium), OPI is the 0.1370 µM point.
 CA_PRINTED = {"OPI": (0.1370, 38.6162), "OPII": (0.1670, 39.262)}
-#: Tang–Othmer RyR rate constants (facts §2.3): k1, k-1, k2, k-2.
-RYR = (15.0, 7.6, 0.8, 0.84)
 #: Designer polynomial of the calcium state-shared model, s^3 + 3 s^2 + 2 s + 1 (§2.5).
 CA_A_DESIGN = (1.0, 2.0, 3.0)
 
@@ -340,6 +328,9 @@ def r6_3(ctx: StudyContext) -> ReproduceResult:
     return ReproduceResult("R6.3", rows, verdict, why, figs)
 
 
+R6_4_FACTOR = 2.0  # F4 SSE with yA3 inferred vs measured, Table 6.1's claim
+
+
 def r6_4(ctx: StudyContext) -> ReproduceResult:
     measured = run_reactor(ReactorCase(seed=ctx.seed))
     inferred = run_reactor(ReactorCase(infer=True, seed=ctx.seed))
@@ -349,19 +340,29 @@ def r6_4(ctx: StudyContext) -> ReproduceResult:
                         measured.sse(i)))
         rows.append(Row(f"SSE reference vs measured {name}, yA3 inferred", unit, None,
                         inferred.sse(i)))
-    why = ("Table 6.1's values are lost in the OCR, so there is nothing to compare: these "
+    # Table 6.1's numbers are lost; the claim it supports (text of sec. 6.1.2) is that
+    # inferring yA3 costs little: the transition is still made within 8 h. Judged on
+    # our runs: the F4 tracking error with yA3 inferred at most R6_4_FACTOR times the
+    # one with yA3 measured.
+    f4_ratio = inferred.sse(2) / measured.sse(2)
+    rows.append(Row("F4 SSE ratio, yA3 inferred / measured", "-", None, float(f4_ratio)))
+    ok = bool(np.isfinite(f4_ratio) and f4_ratio <= R6_4_FACTOR)
+    why = ("Table 6.1's values are lost in the OCR, so no row has a printed number: these "
            "sums (true output minus reference trajectory, every 0.1 h over 15 h) are the "
-           "baseline.")
-    return ReproduceResult("R6.4", rows, "differs", why, [])
-
-
-def ryr_mode(x5: float) -> float:
-    """Eigenvalue of the RyR mode that x5 cannot control: −(k−1 + k−2 + (k1 + k2) x5)."""
-    k1, km1, k2, km2 = RYR
-    return -(km1 + km2 + (k1 + k2) * x5)
+           "baseline. The claim the table supports, that inferring yA3 costs the F4 "
+           f"transition little, is judged on our runs: F4 SSE inferred / measured = "
+           f"{f4_ratio:.2f} (tolerance <= {R6_4_FACTOR:g}).")
+    return ReproduceResult("R6.4", rows, "reproduced" if ok else "differs", why, [])
 
 
 def r6_5(ctx: StudyContext) -> ReproduceResult:
+    """Our linearization of the reconstructed calcium plant against the printed models.
+
+    The Hankel singular values and B column ratios of the printed order-3 models are
+    among the targets the flux parameters were fitted to (docs/calcium_reconstruction.md,
+    the ratios fix q2), so a match is ``calibrated``. The -10.605 cancellation follows
+    from the RyR rate constants of the facts file and the operating point, not the fit.
+    """
     from controller.linear import hankel_singular_values, minimal_realization
     from plant_sim import get_plant
     from plant_sim.linearize import linearize
@@ -378,34 +379,37 @@ def r6_5(ctx: StudyContext) -> ReproduceResult:
     lm2 = linearize(plant, "OPII")
     ratio_ours2 = float(lm2.B[i5, 0] / lm2.B[i5, 1])
     b_sv = np.linalg.svd(lm.B, compute_uv=False)
-    hsv_printed = hankel_singular_values(CA_A, CA_B, CA_C)
     rows = [
         Row("pole-zero pair removed by minimal realization, OPI", "1/s", -10.605, cancelled),
-        Row("order after minimal realization", "-", 4, float(mr.A.shape[0])),
+        Row("order after minimal realization", "-", 4.0, float(mr.A.shape[0])),
         Row("Hankel singular value 1, our OPI linearization", "-", 1.265, float(hsv_ours[0])),
         Row("Hankel singular value 2, our OPI linearization", "-", 0.500, float(hsv_ours[1])),
         Row("Hankel singular value 3, our OPI linearization", "-", 0.289, float(hsv_ours[2])),
         Row("B column ratio J/q1, our OPI linearization", "-", -1.19, ratio_ours),
         Row("B column ratio J/q1, our OPII linearization", "-", -1.13, ratio_ours2),
         Row("B: second/first singular value (rank 1)", "-", None, float(b_sv[1] / b_sv[0])),
-        Row("RyR mode -(k-1 + k-2 + (k1 + k2) xp5) at 0.137 µM, closed form", "1/s", -10.605,
-            ryr_mode(0.137)),
-        Row("Hankel singular value 1, printed OPI model", "-", 1.265, float(hsv_printed[0])),
-        Row("printed B column ratio (col 2 / col 1), OPI", "-", -1.19,
-            float(np.median(CA_B[:, 1] / CA_B[:, 0]))),
-        Row("printed B column ratio (col 2 / col 1), OPII", "-", -1.13,
-            float(np.median(CA_B2[:, 1] / CA_B2[:, 0]))),
     ]
     ok = (abs(cancelled + 10.605) <= 0.01 * 10.605
           and all(abs(r.ours - r.seed) <= 0.05 * abs(r.seed) for r in rows[2:5])
           and all(abs(r.ours - r.seed) <= 0.03 * abs(r.seed) for r in rows[5:7])
           and rows[7].ours < 1e-9)
-    why = ("Linearization of the reconstructed calcium plant (plant_sim.calcium, fitted to "
-           "the seed's printed numbers) at OPI = 0.137 µM: the -10.605 mode is removed by "
-           "minimal realization (order 4), B has rank 1 and its J/q1 ratio and the order-3 "
-           "Hankel singular values match the print. The printed B columns are ordered "
-           "(q1, J).")
-    return ReproduceResult("R6.5", rows, "reproduced" if ok else "differs", why, [])
+    tol = ("tolerances: cancelled pair 1 %, Hankel singular values 5 %, B ratios 3 %, "
+           "rank 1 to 1e-9")
+    if ok:
+        verdict = "calibrated"
+        why = ("Linearization of the reconstructed calcium plant (plant_sim.calcium) at OPI "
+               "= 0.137 µM: the -10.605 mode is removed by minimal realization (order 4, "
+               "from the facts' RyR rate constants, not fitted), B has rank 1, and its J/q1 "
+               "ratios and the order-3 Hankel singular values match the print; those were "
+               "targets of the flux fit (q2 from the printed B ratios; vr, gamma0, gamma1, "
+               "p1, p2, J_lm least squares on the printed models' poles and Hankel singular "
+               "values, docs/calcium_reconstruction.md), so the match proves the fit, not "
+               f"the method ({tol}). The printed B columns are ordered (q1, J).")
+    else:
+        verdict = "differs"
+        why = (f"our linearization misses the print ({tol}; see rows), although the flux "
+               "parameters of plant_sim.calcium were fitted to these printed models")
+    return ReproduceResult("R6.5", rows, verdict, why, [])
 
 
 def calcium_runs():
@@ -435,12 +439,12 @@ def r6_6(ctx: StudyContext) -> ReproduceResult:
         Row("smallest J over all runs (J >= 0)", "µM/s", None, j_min),
         Row("ISE xp5 OPI→OPII, weights 50/1", "µM^2 s", None, up.ise(0)),
         Row("ISE xp5 OPI→OPII, weights 1/1", "µM^2 s", None, up1.ise(0)),
-        Row("xp5 set point OPI (plant) vs printed 0.1370", "µM", 0.1370, float(down.setpoint[0])),
         Row("xp6 set point OPI (plant) vs printed 38.6162", "µM", 38.6162,
             float(down.setpoint[1])),
         Row("xp6 set point OPII (plant) vs printed 39.262", "µM", 39.262, float(up.setpoint[1])),
     ]
     better = up.ise(0) < up1.ise(0)
+    xp6_dev = max(abs(r.ours - r.seed) / r.seed for r in rows[-2:])
     violated = j_min < -1e-9
     # Judged on the stricter of the catalogue's ±2 % band and 2 % of xp5's change (the
     # ±2 % band on xp6 is wider than its whole change).
@@ -453,7 +457,9 @@ def r6_6(ctx: StudyContext) -> ReproduceResult:
            f"{max(down.settle_time(0), up.settle_time(0)):.1f} s for xp5); J >= 0 "
            f"throughout (min {j_min:.2g}) and back at 0 after OPII→OPI; weights 50/1 give "
            f"{'a smaller' if better else 'a larger'} xp5 ISE than 1/1. Set points are the "
-           "plant's steady states (xp6 differs from the print by 0.7 %, see rows).")
+           "plant's steady states at xp5 = 0.137 / 0.167 µM (xp6 differs from the print by "
+           f"up to {100 * xp6_dev:.1f} %, see rows; the SR Ca levels were among the targets "
+           "of the calcium flux fit).")
     figs = _plot(ctx, "plot_calcium", runs, _path(ctx, "fig6_4_6_5.png"))
     return ReproduceResult("R6.6", rows, verdict, why, figs)
 
