@@ -71,7 +71,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["BASES", "SharedBasis", "orthonormal_block", "orthonormal_theta", "band_roots",
+__all__ = ["BASES", "SharedBasis", "companion_block", "finite_vector", "hurwitz_coefficients",
+           "orthonormal_block", "orthonormal_theta", "band_roots",
            "roots_from_poles"]
 
 BASES = ("companion", "orthonormal")
@@ -84,6 +85,52 @@ _GRID_PER_DECADE = 20
 #: outside the basis' span: the model's degree exceeds n, or it was not strictly proper)
 _FIT_RESIDUAL_MAX = 1e-8
 
+
+
+def finite_vector(value: ArrayLike, n: int | None, field: str) -> np.ndarray:
+    """``value`` as a finite float vector (of length ``n`` if given); ValueError naming
+    ``field`` otherwise."""
+    try:
+        arr = np.array(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{field}: not a numeric vector ({exc})") from exc
+    if n is not None and arr.size != n:
+        raise ValueError(f"{field}: expected length {n}, got {arr.size}")
+    if not np.isfinite(arr).all():
+        bad = [int(i) for i in np.flatnonzero(~np.isfinite(arr))]
+        raise ValueError(f"{field}: non-finite value at index {bad}")
+    return arr
+
+
+def hurwitz_coefficients(a: ArrayLike, field: str = "a") -> np.ndarray:
+    """Validate omega's coefficients (a1..an, lowest power first); return them."""
+    a = finite_vector(a, None, field)
+    if a.size == 0:
+        raise ValueError(f"{field}: the designer polynomial needs degree >= 1 (empty)")
+    roots = np.roots(np.concatenate(([1.0], a[::-1])))
+    if not np.all(roots.real < 0):
+        worst = roots[np.argmax(roots.real)]
+        raise ValueError(
+            f"{field}: omega(s) = s^{a.size} + ... is not Hurwitz (root {worst:.6g} "
+            "not in the open left half plane); F must be asymptotically stable"
+        )
+    return a
+
+
+def companion_block(a: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """One companion block (F_i, g_i) of eq. 3.12-3.13, shapes (n, n) and (n,).
+
+    ``F_i`` has ones on the superdiagonal and last row ``-(a1, ..., an)``;
+    ``g_i = e_n``. Then ``(sI - F_i)^-1 g_i = [1, s, ..., s^(n-1)]^T / omega(s)``.
+    """
+    a = hurwitz_coefficients(a)
+    n = a.size
+    Fb = np.zeros((n, n))
+    Fb[np.arange(n - 1), np.arange(1, n)] = 1.0
+    Fb[-1, :] = -a
+    gb = np.zeros(n)
+    gb[-1] = 1.0
+    return Fb, gb
 
 def _roots(value: ArrayLike, field: str = "roots") -> np.ndarray:
     try:
@@ -241,8 +288,6 @@ class SharedBasis:
     @classmethod
     def companion(cls, a: ArrayLike) -> SharedBasis:
         """The seed's companion block (eq. 3.12-3.13) of ``omega`` with coefficients a."""
-        from controller.state_shared import companion_block
-
         Fb, gb = companion_block(a)
         a = np.array(-Fb[-1], dtype=float)
         steady = np.zeros(a.size)
@@ -296,8 +341,6 @@ class SharedBasis:
         Exact in principle, ill conditioned like the companion basis itself: for the
         coefficient readings of small models (n <= ~10, e.g. the SISO units' n = 2).
         """
-        from controller.state_shared import companion_block
-
         if self.kind == "companion":
             return np.eye(self.n)
         Fc, gc = companion_block(self.a)

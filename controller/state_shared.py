@@ -76,7 +76,14 @@ from numpy.typing import ArrayLike
 
 from controller.linear.mfd import LeftMFD, left_mfd
 from controller.packing import pack_array, unpack_array
-from controller.shared_basis import BASES, SharedBasis, orthonormal_theta
+from controller.shared_basis import (
+    BASES,
+    SharedBasis,
+    companion_block,
+    finite_vector,
+    hurwitz_coefficients,
+    orthonormal_theta,
+)
 
 __all__ = [
     "companion_pair",
@@ -97,34 +104,6 @@ __all__ = [
 MODEL_KINDS = ("fixed", "adaptive")
 
 
-def _vector(value: ArrayLike, n: int | None, field: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{field}: not a numeric vector ({exc})") from exc
-    if n is not None and arr.size != n:
-        raise ValueError(f"{field}: expected length {n}, got {arr.size}")
-    if not np.isfinite(arr).all():
-        bad = [int(i) for i in np.flatnonzero(~np.isfinite(arr))]
-        raise ValueError(f"{field}: non-finite value at index {bad}")
-    return arr
-
-
-def _hurwitz_coefficients(a: ArrayLike, field: str = "a") -> np.ndarray:
-    """Validate omega's coefficients (a1..an, lowest power first); return them."""
-    a = _vector(a, None, field)
-    if a.size == 0:
-        raise ValueError(f"{field}: the designer polynomial needs degree >= 1 (empty)")
-    roots = np.roots(np.concatenate(([1.0], a[::-1])))
-    if not np.all(roots.real < 0):
-        worst = roots[np.argmax(roots.real)]
-        raise ValueError(
-            f"{field}: omega(s) = s^{a.size} + ... is not Hurwitz (root {worst:.6g} "
-            "not in the open left half plane); F must be asymptotically stable"
-        )
-    return a
-
-
 def designer_polynomial(roots: ArrayLike) -> np.ndarray:
     """Coefficients ``a = (a1, ..., an)`` (lowest power first) of prod (s - r_i).
 
@@ -134,23 +113,7 @@ def designer_polynomial(roots: ArrayLike) -> np.ndarray:
     c = np.poly(r)
     if np.max(np.abs(c.imag)) > 1e-9 * max(1.0, np.max(np.abs(c.real))):
         raise ValueError("roots: complex roots must come in conjugate pairs")
-    return _hurwitz_coefficients(c.real[1:][::-1], "roots")
-
-
-def companion_block(a: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-    """One companion block (F_i, g_i) of eq. 3.12-3.13, shapes (n, n) and (n,).
-
-    ``F_i`` has ones on the superdiagonal and last row ``-(a1, ..., an)``;
-    ``g_i = e_n``. Then ``(sI - F_i)^-1 g_i = [1, s, ..., s^(n-1)]^T / omega(s)``.
-    """
-    a = _hurwitz_coefficients(a)
-    n = a.size
-    Fb = np.zeros((n, n))
-    Fb[np.arange(n - 1), np.arange(1, n)] = 1.0
-    Fb[-1, :] = -a
-    gb = np.zeros(n)
-    gb[-1] = 1.0
-    return Fb, gb
+    return hurwitz_coefficients(c.real[1:][::-1], "roots")
 
 
 def companion_pair(a: ArrayLike, m: int) -> tuple[np.ndarray, np.ndarray]:
@@ -216,7 +179,7 @@ def theta_from_mfd(mfd: LeftMFD, a: ArrayLike, *, pad_root: float | None = None,
         Non-square MFD, nonzero feedthrough, degree above n (or below without
         ``pad_root``), non-Hurwitz omega.
     """
-    a = _hurwitz_coefficients(a)
+    a = hurwitz_coefficients(a)
     n = a.size
     if not isinstance(mfd, LeftMFD):
         raise ValueError(f"mfd: expected a LeftMFD, got {type(mfd).__name__}")
@@ -266,7 +229,7 @@ def mfd_from_theta(theta: ArrayLike, a: ArrayLike, m: int, p: int | None = None)
 
     ``m`` inputs, ``p`` outputs (default m).
     """
-    a = _hurwitz_coefficients(a)
+    a = hurwitz_coefficients(a)
     n = a.size
     m = _positive_int(m, "m")
     p = m if p is None else _positive_int(p, "p")
@@ -340,7 +303,7 @@ class ModelSpec:
         if not np.isfinite(th).all():
             raise ValueError("theta: non-finite entries")
         m = th.shape[1]
-        b = np.zeros(m) if self.bias is None else _vector(self.bias, m, "bias")
+        b = np.zeros(m) if self.bias is None else finite_vector(self.bias, m, "bias")
         th.setflags(write=False)
         b.setflags(write=False)
         object.__setattr__(self, "theta", th)
@@ -647,8 +610,8 @@ class StateSharedModel:
             theta = theta_from_mfd(mfd, a, pad_root=pad_root, square=square)
             basis = SharedBasis.companion(a)
             p, m = mfd.shape
-        u_op = _vector(u_op, m, "u_op")
-        y_op = _vector(y_op, p, "y_op")
+        u_op = finite_vector(u_op, m, "u_op")
+        y_op = finite_vector(y_op, p, "y_op")
         n_ss = _steady_state(basis, u_op, y_op)
         return ModelSpec(name, theta, y_op - theta.T @ n_ss, kind)
 
@@ -664,13 +627,13 @@ class StateSharedModel:
         n, m, q = self.n_deg, self.m, self.p
         th = _theta_matrix(theta, n, m, "theta", q)
         t2 = _theta2_column(th, n, m, "theta", q)
-        b = np.zeros(q) if bias is None else _vector(bias, q, "bias")
+        b = np.zeros(q) if bias is None else finite_vector(bias, q, "bias")
         return np.concatenate((th[: n * m].T.reshape(-1), t2, b))
 
     def theta_from_params(self, p: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Inverse of :meth:`params_from_theta`: (Theta (2nm, m), bias (m,))."""
         n, m, q = self.n_deg, self.m, self.p
-        p = _vector(p, self.n_params + q, "p")
+        p = finite_vector(p, self.n_params + q, "p")
         nm = n * m
         theta = np.zeros((self.order, q))
         theta[:nm] = p[: nm * q].reshape(q, nm).T
@@ -703,7 +666,7 @@ class StateSharedModel:
         if fast and np.size(u) == self.m:
             return uy
         # slow path: precise messages naming the field
-        return np.concatenate((_vector(u, self.m, "u"), _vector(y, self.p, "y")))
+        return np.concatenate((finite_vector(u, self.m, "u"), finite_vector(y, self.p, "y")))
 
     def initialize(self, u: ArrayLike, y: ArrayLike) -> None:
         """Set n to the steady state for constant u and y (``F n1 + G u = 0`` etc.)."""
@@ -716,7 +679,7 @@ class StateSharedModel:
 
     def set_state(self, n: ArrayLike) -> None:
         """Overwrite the shared state, shape (2nm,)."""
-        self._N[:] = _vector(n, self.order, "n").reshape(self.m + self.p, self.n_deg)
+        self._N[:] = finite_vector(n, self.order, "n").reshape(self.m + self.p, self.n_deg)
 
     def update(self, u: ArrayLike, y: ArrayLike) -> None:
         """Advance one sample with u and y held (ZOH): exact for piecewise-constant signals.
@@ -734,7 +697,7 @@ class StateSharedModel:
 
     def errors(self, y: ArrayLike) -> np.ndarray:
         """``y - y_j`` for every model, shape (k, m)."""
-        return _vector(y, self.p, "y")[None, :] - self.estimates()
+        return finite_vector(y, self.p, "y")[None, :] - self.estimates()
 
     # -- prediction form ---------------------------------------------------------------
     def continuous_form(self, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -833,7 +796,7 @@ class StateSharedModel:
             if "basis" in state and state["basis"].get("kind") != "companion":
                 raise ValueError("state.basis: the checkpoint's basis is not this model's "
                                  "(companion)")
-            a = _vector(state["a"], None, "state.a")
+            a = finite_vector(state["a"], None, "state.a")
             if a.shape != self.a.shape or np.any(a != self.a):
                 raise ValueError("state.a: designer polynomial differs from this model's")
         elif not self.basis.same_as(SharedBasis.from_dict(state.get("basis", {}))):
@@ -845,7 +808,7 @@ class StateSharedModel:
             raise ValueError(f"state.p: expected {self.p}, got {state.get('p')!r}")
         if float(state["dt"]) != self.dt:
             raise ValueError(f"state.dt: expected {self.dt}, got {state['dt']!r}")
-        n = _vector(state["n"], self.order, "state.n")
+        n = finite_vector(state["n"], self.order, "state.n")
         specs = [ModelSpec(d["name"], unpack_array(d["theta"]), d["bias"], d["kind"])
                  for d in state["models"]]
         for s in specs:

@@ -108,6 +108,7 @@ from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
 from controller.units.te.pi_baseline import PI_BASELINE_LOOPS, PRODUCTION_LOOP, VelocityPI
+from controller.units.te.spec import ALARM_LIMITS, SAMPLE_H, TEControlSpec
 from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
 
 #: Largest trim (%) of the A-feed target by the outer A loop (anti-windup).
@@ -122,8 +123,6 @@ __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec"
            "run_te", "plant_seed_for", "RatioSettings", "TR_LIMITS", "PR_LIMITS",
            "PRESSURE_LOOP", "ALARM_LIMITS"]
 
-#: Supervisory sample period, h (36 s = 20 Euler steps of 1.8 s).
-SAMPLE_H = 0.01
 STRATEGIES = ("fixed", "ssmpc", "pi", "decentralized", "plan")
 #: The five core handles: XMV numbers, None = reactor-temperature set point (R7.15).
 CORE_XMVS = (3, 4, None, None, 11)
@@ -135,12 +134,6 @@ CORE_CVS = (7, 11, 13, 16, 18)
 _CORE_CV_INDEX = np.array(CORE_CVS) - 1
 #: Reactor temperature set point range, degC (R7.12).
 TR_LIMITS = (110.0, 130.0)
-#: Alarm limits below the interlocks (XMEAS number -> (low, high), XMEAS units):
-#: reactor pressure 2950 kPa (trip 3000), reactor temperature 170 degC (trip 175),
-#: levels 10-90 % (the liquid-volume trips correspond to reactor -2 % / 114 %,
-#: separator 3 % / 137 %, stripper -27 % / 131 % of the level spans).
-ALARM_LIMITS = {7: (-math.inf, 2950.0), 9: (-math.inf, 170.0), 8: (10.0, 90.0),
-                12: (10.0, 90.0), 15: (10.0, 90.0)}
 #: High-pressure override on the A+C feed (production), as in Ricker's (1996)
 #: decentralized TE control: above this reactor pressure (kPa) the A+C feed is cut
 #: at OVERRIDE_GAIN %/(kPa h), at most OVERRIDE_MAX %; it is released below it.
@@ -178,18 +171,6 @@ class RatioSettings:
         if not 0 < self.s_min < self.s_max < 1:
             raise ValueError(f"s_min/s_max: need 0 < s_min < s_max < 1, got "
                              f"{self.s_min}, {self.s_max}")
-
-
-@dataclass(frozen=True)
-class TEControlSpec:
-    """What the plant side needs to apply a TE controller's decisions."""
-
-    strategy: str
-    sample_h: float
-    sample_steps: int
-    loops: tuple = INNER_LOOPS
-    loop_xmvs: tuple[int, ...] = tuple(lp.mv for lp in INNER_LOOPS)
-    written_xmvs: tuple[int, ...] = (2, 3, 4, 5, 9, 11, 12)
 
 
 class TEController:

@@ -129,8 +129,8 @@ from typing import Any
 import numpy as np
 
 from controller.interfaces import ControlDecision
-from controller.units.te.control import ALARM_LIMITS, SAMPLE_H, TEControlSpec
 from controller.units.te.grades import TransitionPlan, grade
+from controller.units.te.spec import ALARM_LIMITS, SAMPLE_H, TEControlSpec
 from plant_sim.tennessee_eastman.regulatory import CascadeLoop, PILoop, ValveOverride
 
 __all__ = ["PublishedLoop", "TEMAIN_MOD_LOOPS", "PURGE_OVERRIDE", "PLANT_LOOPS",
