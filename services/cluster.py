@@ -86,10 +86,13 @@ def open_client(scheduler: str | None = None, workers: int | None = None,
         for var in THREAD_ENV:
             os.environ.setdefault(var, "1")
         # no dashboard: the workers' statistical profiler (a stack sample every 10 ms,
-        # taken under the interpreter lock) would have no one to show its samples to
+        # taken under the interpreter lock) would have no one to show its samples to.
+        # The scheduler's small HTTP server (health, metrics) still starts: on a free
+        # loopback port (the default 8787 may be another cluster's)
         with dask.config.set({"distributed.worker.profile.enabled": False}):
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
+                                   host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                                   silence_logs=logging.ERROR)
         client = Client(cluster)
         try:
             client.register_plugin(SingleThreadedWorker())

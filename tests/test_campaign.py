@@ -388,9 +388,10 @@ def test_bench_campaign_reports_serial_and_workers_cases(capsys):
     assert code == 0
     doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert doc["bench"] == "campaign"
-    serial, workers = doc["cases"]
+    serial, workers, pool = doc["cases"]
     assert serial["case"] == "serial" and workers["case"] == "workers 1"
-    for c in (serial, workers):
+    assert pool["case"] == "pool 1"
+    for c in (serial, workers, pool):
         assert c["unit"] == "runs/s" and c["n"] == 1 and c["median"] > 0
         assert c["cpu_s_per_run"] > 0 and c["cores_used"] > 0
     assert main(["bench", "campaign", "--workers", "0", "--json"]) == 2

@@ -10,23 +10,27 @@ campaign's series do. Cases:
 - "serial": the runs one after another in this process;
 - "workers N": the same runs as one Dask task each on a local cluster of N worker
   processes (:mod:`services.cluster`: one thread each, BLAS single-threaded),
-  gathered as they finish.
+  gathered as they finish;
+- "pool N": the reference without Dask, the same runs on a
+  :class:`multiprocessing.pool.Pool` of N spawned processes (only each run's CPU
+  time comes back): what worker processes can give on this machine at all.
 
-Each case is repeated ``--repeats`` times, a serial pass and a parallel pass in
-turn (on a shared machine both then meet the same load); the median is the rate
+Each case is repeated ``--repeats`` times, the three passes in turn (on a shared
+machine they then meet the same load); the median is the rate
 (runs/s). Warm-up is not timed: this process and every worker make one short run
 of the strategy first (numba kernels from the cache, models built), and the
-cluster is started before. "workers N" carries ``speedup`` (its median over the
-serial median); both carry the mean 1-minute load average at the passes' starts,
-the CPU seconds per run (of the process that ran it: a worker's includes its
-event loop meanwhile) and ``cores_used``, the CPU seconds of the runs over the
-pass's wall time. On a shared machine other processes take cores from the
-workers: equal CPU per run with ``cores_used`` near 1 says the machine gave the
-pass one core, not that the workers got in each other's way.
+cluster and the pool are started before. "workers N" and "pool N" carry
+``speedup`` (the median over the serial median); all carry the mean 1-minute
+load average at the passes' starts, the CPU seconds per run (of the process
+that ran it: a worker's includes its event loop meanwhile) and ``cores_used``,
+the CPU seconds of the runs over the pass's wall time. On a shared machine other
+processes take cores from the workers: "pool N" beside "workers N" tells what
+the machine gave from what Dask costs.
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import time
 
@@ -57,6 +61,11 @@ def _te_run(job: tuple[str, float, int]):
     return run, time.process_time() - cpu
 
 
+def _te_cpu(job: tuple[str, float, int]) -> float:
+    """One run in the process pool: only its CPU s come back (the run stays there)."""
+    return _te_run(job)[1]
+
+
 def _warm(strategy: str) -> None:
     from services.cluster import single_threaded_process
 
@@ -82,30 +91,32 @@ def run(args) -> list[dict]:
     jobs = [(args.strategy, hours, seed) for seed in range(1, n + 1)]
     common = {"runs": n, "hours": hours, "strategy": args.strategy, "cores": os.cpu_count()}
 
-    cpu = {"serial": [], "workers": []}
-    used = {"serial": [], "workers": []}
+    kinds = ("serial", "pool", "workers")
+    rates: dict[str, list[float]] = {k: [] for k in kinds}
+    cpu: dict[str, list[float]] = {k: [] for k in kinds}
+    used: dict[str, list[float]] = {k: [] for k in kinds}
 
-    def timed(run_all, kind: str) -> float:
+    def timed(kind: str, run_all) -> None:
         t0 = time.perf_counter()
         cpu_s = run_all()
         wall = time.perf_counter() - t0
+        rates[kind].append(n / wall)
         cpu[kind].extend(cpu_s)
         used[kind].append(sum(cpu_s) / wall)
-        return n / wall
-
-    def serial_pass() -> list[float]:
-        return [_te_run(job)[1] for job in jobs]
 
     _warm(args.strategy)
-    serial, parallel, loads = [], [], []
-    with open_client(None, workers) as (client, _):
+    loads = []
+    ctx = multiprocessing.get_context("spawn")
+    with ctx.Pool(workers, initializer=_warm, initargs=(args.strategy,)) as pool, \
+            open_client(None, workers) as (client, _):
         client.run(_warm, args.strategy)
         # and one untimed short task per worker through the task path
         warm_jobs = [(args.strategy, 0.05, 10_000 + i) for i in range(workers)]
         for _ in gather(client, _te_run, warm_jobs, key=lambda j: f"te-warm-{j[2]}"):
             pass
+        pool.map(_te_cpu, warm_jobs, chunksize=1)
 
-        def parallel_pass() -> list[float]:
+        def dask_pass() -> list[float]:
             out = []
             for job, result, error in gather(client, _te_run, jobs, key=lambda j: f"te-{j[2]}"):
                 if error is not None:
@@ -113,21 +124,23 @@ def run(args) -> list[dict]:
                 out.append(result[1])
             return out
 
-        # serial and parallel passes alternate, so that both meet the same load
+        # the passes alternate, so that all three meet the same load
         for _ in range(repeats):
             loads.append(os.getloadavg()[0])
-            serial.append(timed(serial_pass, "serial"))
-            parallel.append(timed(parallel_pass, "workers"))
+            timed("serial", lambda: [_te_run(job)[1] for job in jobs])
+            timed("pool", lambda: pool.map(_te_cpu, jobs, chunksize=1))
+            timed("workers", dask_pass)
     load = round(float(sum(loads) / len(loads)), 2)
 
-    def cpu_fields(kind: str) -> dict:
-        return {"cpu_s_per_run": round(float(np.median(cpu[kind])), 4),
-                "cores_used": round(float(np.median(used[kind])), 3)}
+    def case(name: str, kind: str, **extra) -> dict:
+        return rate_case(name, rates[kind], "runs/s", load_avg_1min=load, **common,
+                         cpu_s_per_run=round(float(np.median(cpu[kind])), 4),
+                         cores_used=round(float(np.median(used[kind])), 3), **extra)
 
-    cases = [rate_case("serial", serial, "runs/s", load_avg_1min=load, **common,
-                       **cpu_fields("serial"))]
-    case = rate_case(f"workers {workers}", parallel, "runs/s", load_avg_1min=load,
-                     workers=workers, **common, **cpu_fields("workers"))
-    case["speedup"] = round(case["median"] / cases[0]["median"], 3)
-    cases.append(case)
+    serial = case("serial", "serial")
+    cases = [serial]
+    for name, kind in ((f"workers {workers}", "workers"), (f"pool {workers}", "pool")):
+        c = case(name, kind, workers=workers)
+        c["speedup"] = round(c["median"] / serial["median"], 3)
+        cases.append(c)
     return cases

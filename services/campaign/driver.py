@@ -14,20 +14,22 @@ Results
     task that raises (or whose worker dies) becomes a row with its ``error``; the
     campaign goes on.
 
-Measured (``ssmpc bench campaign``, 3-h TE runs of the ``ssmpc`` strategy, this
-2-core VM shared with other work at a load average of 5.3, 8 runs x 5 repeats)
+Measured (``ssmpc bench campaign``, 8 runs of 3 h of the ``ssmpc`` strategy x 5
+repeats, passes in turn, this 2-core VM shared with other work at a load average
+of 4.2)
 
-    ===========  ========  ================  ==========
-    case         runs/s    CPU s per run     cores used
-    ===========  ========  ================  ==========
-    serial       2.30      0.29              0.57
-    workers 2    2.22      0.32              0.67
-    ===========  ========  ================  ==========
+    ================  ========  ==============  ==========
+    case              runs/s    CPU s per run   cores used
+    ================  ========  ==============  ==========
+    serial            3.07      0.31            0.92
+    workers 2 (Dask)  3.30      0.34            1.08
+    pool 2 (no Dask)  2.49      0.32            0.98
+    ================  ========  ==============  ==========
 
-A run costs the same CPU in a worker as in one process (0.29-0.41 s either way,
-one worker beside the serial loop); the rate is bounded by the cores the machine
-gives, not by Dask. A worker's first run of a strategy also pays its warm-up:
-5-20 s for the MPC strategies (models built), under 1 s for ``pi`` and ``plan``.
+The rate is bounded by the cores the machine gives (about one here), not by
+Dask: a plain process pool does no better. A worker's first run of a strategy
+also pays its warm-up: 5-20 s for the MPC strategies (models built), under 1 s
+for ``pi`` and ``plan``.
 """
 
 from __future__ import annotations
