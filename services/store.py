@@ -4,7 +4,8 @@ One file per unit (default ``ssmpc-<unit>.sqlite`` in the state directory),
 WAL journal, every write in its own transaction, so a crash leaves either the
 old or the new row, never half of one. Tables:
 
-- ``transitions``: one row per transition, the latest state and its record (JSON).
+- ``transitions``: one row per transition, the latest state and its record (JSON),
+  and the idempotency key of the request that made it (unique per unit, or NULL).
 - ``transition_events``: every state change, appended (the complete history).
 - ``checkpoint``: one row per unit: sample, process time and the node's state
   (controller checkpoint, last move, reference, active transition) as JSON.
@@ -29,7 +30,8 @@ CREATE TABLE IF NOT EXISTS transitions (
     state TEXT NOT NULL,
     created_wall REAL NOT NULL,
     updated_wall REAL NOT NULL,
-    record TEXT NOT NULL
+    record TEXT NOT NULL,
+    idempotency_key TEXT
 );
 CREATE TABLE IF NOT EXISTS transition_events (
     seq INTEGER PRIMARY KEY AUTOINCREMENT,
@@ -67,6 +69,15 @@ class UnitStore:
         self._db.execute("PRAGMA foreign_keys=ON")
         with self._lock:
             self._db.executescript(_SCHEMA)
+            self._migrate()
+
+    def _migrate(self) -> None:
+        """Bring a store made by an older version up to this schema (columns added)."""
+        cols = {r[1] for r in self._db.execute("PRAGMA table_info(transitions)")}
+        if "idempotency_key" not in cols:
+            self._db.execute("ALTER TABLE transitions ADD COLUMN idempotency_key TEXT")
+        self._db.execute("CREATE UNIQUE INDEX IF NOT EXISTS transitions_idempotency"
+                         " ON transitions (unit, idempotency_key)")
 
     def close(self) -> None:
         with self._lock:
@@ -80,16 +91,18 @@ class UnitStore:
         Both happen in one transaction.
         """
         now = time.time()
+        key = (record.get("idempotency") or {}).get("key")
         with self._lock:
             self._db.execute("BEGIN IMMEDIATE")
             try:
                 self._db.execute(
                     "INSERT INTO transitions (id, unit, grade, state, created_wall, updated_wall,"
-                    " record) VALUES (?, ?, ?, ?, ?, ?, ?) ON CONFLICT(id) DO UPDATE SET"
+                    " record, idempotency_key) VALUES (?, ?, ?, ?, ?, ?, ?, ?)"
+                    " ON CONFLICT(id) DO UPDATE SET"
                     " state=excluded.state, updated_wall=excluded.updated_wall,"
                     " record=excluded.record",
                     (record["id"], self.unit, record["grade"], record["state"], now, now,
-                     json.dumps(record, allow_nan=False)),
+                     json.dumps(record, allow_nan=False), key),
                 )
                 if event is not None:
                     self._db.execute(
@@ -114,6 +127,14 @@ class UnitStore:
         with self._lock:
             row = self._db.execute("SELECT record FROM transitions WHERE id=? AND unit=?",
                                    (tid, self.unit)).fetchone()
+        return None if row is None else json.loads(row[0])
+
+    def transition_by_key(self, key: str) -> dict[str, Any] | None:
+        """The record of the transition made by a request with idempotency ``key``."""
+        with self._lock:
+            row = self._db.execute(
+                "SELECT record FROM transitions WHERE unit=? AND idempotency_key=?",
+                (self.unit, key)).fetchone()
         return None if row is None else json.loads(row[0])
 
     def events(self, tid: str | None = None) -> list[dict[str, Any]]:

@@ -70,6 +70,8 @@ from services.timing import (
 )
 from services.transitions import (
     ConflictError,
+    QueueFullError,
+    Transition,
     TransitionError,
     TransitionManager,
     UnknownTransition,
@@ -196,7 +198,7 @@ class ControllerNode:
         self.tm = TransitionManager(
             cfg.unit, {k: g["setpoints"] for k, g in tracked.items()}, cv_scales(cfg, tracked),
             cfg.initial_grade, cfg.sample_period_s, cfg.transition_duration_s,
-            cfg.settle_tolerance, cfg.settle_samples)
+            cfg.settle_tolerance, cfg.settle_samples, max_queued=cfg.transition_queue_limit)
         self.stats = DeadlineStats(self.budget.budget_s)
         self.sample_times = SampleTimes()  # arrival and move of the latest samples
         self.mv_seq = 0
@@ -218,6 +220,7 @@ class ControllerNode:
         self.alarms: deque[str] = deque(maxlen=20)
         self.restored_from: int | None = None
         self._lock = threading.RLock()
+        self._create_lock = threading.Lock()  # one create at a time (idempotency keys)
         self._cond = threading.Condition()
         self._latest: tuple[float, Measurement] | None = None
         self._busy = threading.Lock()  # held by whichever thread processes a sample
@@ -420,6 +423,8 @@ class ControllerNode:
             reply = Reply(404, error=str(exc))
         except ConflictError as exc:
             reply = Reply(409, error=str(exc))
+        except QueueFullError as exc:
+            reply = Reply(429, error=str(exc))
         except (TransitionError, ValueError) as exc:
             reply = Reply(422, error=str(exc))
         except Exception as exc:  # never let a query kill the node
@@ -469,22 +474,13 @@ class ControllerNode:
             queue = args.get("queue", False)
             if not isinstance(queue, bool):
                 return Reply(422, error="queue: expected a boolean")
-            # A controller that knows grades it cannot hold refuses them now, not
-            # inside a later sample (the transition would run toward nothing).
-            check = getattr(self.controller, "check_grade", None)
-            if check is not None and grade in self.info.grades:
-                try:
-                    with self._lock:
-                        check(grade)
-                except ValueError as exc:
-                    return Reply(422, error=str(exc))
-            with self._lock:
-                tr = self.tm.request(grade, self.t, duration, queue=queue)
-                self._persist(tr, "pending", "queued" if tr.detail == "queued"
-                              else f"requested from {tr.from_grade}")
-                view = tr.view(self.t, self.budget.speed)
-            self.checkpoint(wait=True)
-            return Reply(202, view)
+            key = args.get("idempotency_key")
+            if key is not None and not (isinstance(key, str) and 0 < len(key) <= 255):
+                return Reply(422, error="idempotency_key: expected a string of 1..255")
+            if key is None:
+                return self._create(grade, duration, queue, None)
+            with self._create_lock:  # two requests with one key make one transition
+                return self._create(grade, duration, queue, key)
         tid = args.get("id")
         if not isinstance(tid, str):
             return Reply(422, error="id: expected a transition id")
@@ -507,9 +503,42 @@ class ControllerNode:
                 return Reply(200, view)
         return Reply(200, self._view(tid))
 
-    def _view(self, tid: str) -> dict:
-        from services.transitions import Transition
+    def _create(self, grade: str, duration, queue: bool, key: str | None) -> Reply:
+        """A new transition (202), or, for a known idempotency ``key``, the one that key
+        made (202 again; 422 when the request differs)."""
+        request = {"key": key, "grade": grade,
+                   "duration_s": None if duration is None else float(duration), "queue": queue}
+        if key is not None:
+            with self._lock:
+                found = self.tm.find_by_key(key)
+                record = None if found is None else found.as_dict()
+            if record is None:
+                self._worker.wait()
+                record = self.store.transition_by_key(key)
+            if record is not None:
+                if record.get("idempotency") != request:
+                    return Reply(422, error="Idempotency-Key: already used by another request "
+                                            f"(transition {record['id']})")
+                return Reply(202, Transition.from_dict(record).view(self.t, self.budget.speed))
+        # A controller that knows grades it cannot hold refuses them now, not
+        # inside a later sample (the transition would run toward nothing).
+        check = getattr(self.controller, "check_grade", None)
+        if check is not None and grade in self.info.grades:
+            try:
+                with self._lock:
+                    check(grade)
+            except ValueError as exc:
+                return Reply(422, error=str(exc))
+        with self._lock:
+            tr = self.tm.request(grade, self.t, duration, queue=queue,
+                                 idempotency=None if key is None else request)
+            self._persist(tr, "pending", "queued" if tr.detail == "queued"
+                          else f"requested from {tr.from_grade}")
+            view = tr.view(self.t, self.budget.speed)
+        self.checkpoint(wait=True)
+        return Reply(202, view)
 
+    def _view(self, tid: str) -> dict:
         with self._lock:
             found = self.tm.find(tid)
             if found is not None:
