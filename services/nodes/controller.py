@@ -3,7 +3,11 @@
 Per measurement (sample k):
 
 1. decode and validate it strictly (a bad payload is counted, raises an alarm
-   and is skipped: the plant keeps the last move);
+   and is skipped: the plant keeps the last move); a measurement of another plant
+   incarnation than the one followed is refused (``foreign_measurements``, an
+   alarm) unless the plant's liveliness token appeared again since and the one
+   followed has gone silent (:attr:`ControllerNode.PLANT_SILENT_PERIODS`): only
+   then did the plant restart, and its samples are followed from its new numbering;
 2. advance the transition (:class:`~services.transitions.TransitionManager`)
    and take the reference over the horizon;
 3. step the unit's :class:`~controller.interfaces.SampleController` (shared
@@ -215,6 +219,12 @@ class ControllerNode:
         self.failed_samples = 0
         self._failures = FailureLog(log)
         self._last_meas_seq = -1
+        #: the plant run followed (Measurement.incarnation); another one is taken only
+        #: after the plant's liveliness token appeared again
+        self._plant_incarnation: str | None = None
+        self._plant_restarted = False
+        self._followed_at = -math.inf  # arrival of its latest accepted sample, perf s
+        self.foreign_measurements = 0
         self.y_lower, self.y_upper = plausible_ranges(cfg, plant, grades)
         self.plant_shutdown = False
         self.alarms: deque[str] = deque(maxlen=20)
@@ -291,6 +301,11 @@ class ControllerNode:
         if wait:
             self._worker.wait()
 
+    #: A new plant incarnation is followed only when the one followed has been silent
+    #: this many wall periods (and the plant's liveliness token appeared again): a live
+    #: plant publishes every period, so a sample of another incarnation meanwhile is
+    #: forged or replayed.
+    PLANT_SILENT_PERIODS = 1.5
     #: Longest wall time telemetry stays buffered, s.
     TELEMETRY_MAX_WALL_S = 1.0
     #: Shortest wall time between two published status messages, s.
@@ -341,8 +356,8 @@ class ControllerNode:
         import zenoh
 
         if sample.kind == zenoh.SampleKind.PUT:
-            with self._cond:  # a (re)started plant counts its samples from 0 again
-                self._last_meas_seq = -1
+            with self._cond:  # a plant (re)started: its new incarnation may be followed
+                self._plant_restarted = True
 
     def _on_meas(self, sample) -> None:
         if self._accept(sample, time.perf_counter()):
@@ -361,11 +376,35 @@ class ControllerNode:
             log.warning("measurement rejected: %s", exc)
             return False
         with self._cond:
+            if msg.incarnation != self._plant_incarnation:
+                silent = arrived - self._followed_at > self.PLANT_SILENT_PERIODS * \
+                    self.budget.wall_period_s
+                if self._plant_incarnation is not None and not (
+                        self._plant_restarted and silent):
+                    # not a plant liveliness said was (re)started while the one followed
+                    # went silent: forged or replayed
+                    self.foreign_measurements += 1
+                    if self.foreign_measurements in (1, 10, 100, 1000) or \
+                            self.foreign_measurements % 10_000 == 0:
+                        with self._lock:
+                            self.alarms.append(
+                                f"measurement of an unknown plant incarnation refused "
+                                f"({self.foreign_measurements} so far)")
+                    return False
+                if self._plant_incarnation is not None:
+                    with self._lock:
+                        self.alarms.append(f"plant restarted: following its incarnation "
+                                           f"{msg.incarnation[:8]} from sample {msg.seq}")
+                # a (re)started plant counts its samples from 0 again
+                self._plant_incarnation = msg.incarnation
+                self._plant_restarted = False
+                self._last_meas_seq = -1
             if msg.seq <= self._last_meas_seq:
                 # duplicated, reordered or delayed: acting on it again would double-count
                 self.stale_measurements += 1
                 return False
             self._last_meas_seq = msg.seq
+            self._followed_at = arrived
             if self._latest is not None:
                 self._dropped += 1
             self._latest = (arrived, msg)
@@ -589,6 +628,8 @@ class ControllerNode:
                 "bad_measurements": self.bad_measurements,
                 "stale_measurements": self.stale_measurements,
                 "implausible_measurements": self.implausible_measurements,
+                "foreign_measurements": self.foreign_measurements,
+                "plant_incarnation": self._plant_incarnation,
                 "failed_samples": self.failed_samples,
                 "dropped_measurements": self._dropped,
                 "plant_shutdown": self.plant_shutdown,
@@ -759,9 +800,9 @@ class ControllerNode:
                 log.exception("status not published")
 
     def _publish_status(self) -> None:
-        from services.io.messages import encode
+        from services.io.messages import SCHEMA_VERSION, encode
 
-        self._status_pub.put(encode({"schema": 1, "kind": "status", **self.status()}))
+        self._status_pub.put(encode({"schema": SCHEMA_VERSION, "kind": "status", **self.status()}))
 
     #: Measurements the busy-poll channel holds (more than one only when the loop is
     #: behind; the newest is processed, the others counted as dropped).
