@@ -49,6 +49,7 @@ import logging
 import math
 import os
 import queue
+import sqlite3
 import threading
 import time
 from collections import deque
@@ -62,7 +63,7 @@ from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.io.zenoh_session import declare_loop_publisher, declare_loop_subscriber
 from services.registry import build_controller
-from services.store import UnitStore
+from services.store import StoreError, UnitStore
 from services.telemetry import TelemetryLogger
 from services.timing import (
     GC_PAUSES,
@@ -73,6 +74,7 @@ from services.timing import (
     thread_switches,
 )
 from services.transitions import (
+    TERMINAL,
     ConflictError,
     QueueFullError,
     Transition,
@@ -99,15 +101,39 @@ def _qp_work(extra: dict) -> dict:
 
 class _Worker:
     """One background thread for the slow chores of a sample (SQLite, Rerun),
-    in submission order, so that they never delay the next move."""
+    in submission order, so that they never delay the next move.
 
-    def __init__(self) -> None:
+    ``on_error(exc)`` is told of every task that raised (after it is logged)."""
+
+    def __init__(self, on_error=None) -> None:
+        self._on_error = on_error
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._run, name="ssmpc-worker", daemon=True)
         self._thread.start()
 
     def submit(self, fn, *args) -> None:
         self._q.put((fn, args, None))
+
+    def call(self, fn, *args, timeout: float = 30.0):
+        """Run ``fn(*args)`` in order after everything submitted so far; its result, or
+        its exception raised here (TimeoutError if it has not run within ``timeout``)."""
+        done = threading.Event()
+        out: dict = {}
+
+        def task():
+            try:
+                out["value"] = fn(*args)
+            except BaseException as exc:  # handed to the caller, not to on_error
+                out["error"] = exc
+            finally:
+                done.set()
+
+        self._q.put((task, (), None))
+        if not done.wait(timeout):
+            raise TimeoutError(f"store: the write did not finish within {timeout:g} s")
+        if "error" in out:
+            raise out["error"]
+        return out.get("value")
 
     def wait(self, timeout: float = 30.0) -> None:
         """Block until everything submitted so far is done."""
@@ -127,8 +153,13 @@ class _Worker:
             fn, args, _ = item
             try:
                 fn(*args)
-            except Exception:
+            except Exception as exc:
                 log.exception("background task failed")
+                if self._on_error is not None:
+                    try:
+                        self._on_error(exc)
+                    except Exception:
+                        log.exception("background error handler failed")
 
 
 class FailureLog:
@@ -230,13 +261,15 @@ class ControllerNode:
         self.alarms: deque[str] = deque(maxlen=20)
         self.restored_from: int | None = None
         self._lock = threading.RLock()
-        self._create_lock = threading.Lock()  # one create at a time (idempotency keys)
+        self._create_lock = threading.RLock()  # one create at a time (idempotency keys)
         self._cond = threading.Condition()
         self._latest: tuple[float, Measurement] | None = None
         self._busy = threading.Lock()  # held by whichever thread processes a sample
         self._closing = False
         self._dropped = 0
-        self._worker = _Worker()
+        #: why the store last failed to commit (None: it commits); writes answer 503
+        self.store_error: str | None = None
+        self._worker = _Worker(on_error=self._background_failed)
         self._checkpoint_due = False
         self._busy_until = 0.0
         self._last_flush = time.perf_counter()
@@ -263,20 +296,93 @@ class ControllerNode:
 
     # -- persistence -------------------------------------------------------------------
     def _restore(self) -> None:
-        cp = self.store.load_checkpoint()
-        if cp is None:
-            return
-        st = cp["state"]
-        self.tm.restore(st["transitions"])
-        self.controller.restore(st["controller"])
-        self.u_last = np.asarray(st["u_last"], float)
-        self.mv_seq = int(st["mv_seq"])
-        self.stats.misses = int(st.get("deadline_misses", 0))
-        self.stats.fallbacks = int(st.get("fallback_moves", 0))
-        self.k = int(cp["sample"])
-        self.t = float(cp["process_time"])
-        self.restored_from = self.k
-        log.info("restored checkpoint at sample %d", self.k)
+        """Start from the checkpoint, reconciled with the transition records.
+
+        A checkpoint that does not decode or does not fit this controller is refused:
+        :class:`~services.store.StoreError` (the CLI: ``error:``, exit 2; the operator
+        moves the store aside), never a start from half of it. The records win over
+        the checkpoint: a transition the store has as ended stays ended, and one the
+        store has as pending but the checkpoint does not know (a crash between the
+        two writes) is queued again, so nothing acknowledged is lost or revived.
+        """
+        cp = self.store.load_checkpoint()  # StoreError when it does not decode
+        if cp is not None:
+            st = cp["state"]
+            try:
+                self.tm.restore(st["transitions"])
+                self.controller.restore(st["controller"])
+                u_last = np.asarray(st["u_last"], float)
+                if u_last.shape != (self.nu,) or not np.all(np.isfinite(u_last)):
+                    raise ValueError(f"u_last: expected {self.nu} finite numbers")
+                self.u_last = u_last
+                self.mv_seq = int(st["mv_seq"])
+                self.stats.misses = int(st.get("deadline_misses", 0))
+                self.stats.fallbacks = int(st.get("fallback_moves", 0))
+                self.k = int(cp["sample"])
+                self.t = float(cp["process_time"])
+            except (KeyError, TypeError, ValueError, IndexError) as exc:
+                raise StoreError(f"store: {self.store.path}: the checkpoint does not fit "
+                                 f"this controller ({type(exc).__name__}: {exc}); move the "
+                                 "store aside to start afresh") from None
+            self.restored_from = self.k
+            log.info("restored checkpoint at sample %d", self.k)
+        self._reconcile()
+
+    def _reconcile(self) -> None:
+        """Make the transitions in memory agree with the committed records."""
+        tm = self.tm
+        known = {tr.id for tr in ([tm.active] if tm.active is not None else []) + tm.queued}
+        for tr in ([tm.active] if tm.active is not None else []) + list(tm.queued):
+            rec = self.store.transition(tr.id)
+            if rec is None or rec["state"] not in TERMINAL or tr.terminal:
+                continue
+            ended = Transition.from_dict(rec)
+            if tr is tm.active:
+                # hold the set points of the moment it ended (settled: its target)
+                t_end = ended.ended_t if ended.ended_t is not None else self.t
+                tm.hold = (np.asarray(ended.target, float) if ended.state == "settled"
+                           else tm.reference_at(t_end)[0].copy())
+                tm.grade = ended.grade if ended.state == "settled" else None
+                tm.active = ended
+            else:
+                tm.queued.remove(tr)
+            self.alarms.append(f"transition {tr.id}: the store has it {ended.state}; "
+                               "the older checkpoint's state was dropped")
+        for rec in self.store.transitions():
+            if rec["id"] in known or rec["state"] in TERMINAL:
+                continue
+            tr = Transition.from_dict(rec)
+            if rec["state"] == "pending":
+                tr.detail = "queued"
+                tm.queued.append(tr)  # acknowledged, never started: it runs
+                self.alarms.append(f"transition {tr.id}: pending in the store, not in the "
+                                   "checkpoint; queued again")
+            else:  # running, but the checkpoint never knew it: its start is lost
+                tr.state, tr.ended_t = "failed", self.t
+                tr.detail = "interrupted by a restart before its start was checkpointed"
+                self.store.save_transition(tr.as_dict(), event="failed", process_time=self.t,
+                                           detail=tr.detail)
+                self.alarms.append(f"transition {tr.id}: {tr.detail}")
+
+    # -- the store's health --------------------------------------------------------------
+    def _store_failed(self, what: str, exc: BaseException) -> None:
+        """The store did not commit ``what``: degraded, with an alarm (writes answer 503)."""
+        reason = f"{what} not stored ({type(exc).__name__}: {exc})"
+        with self._lock:
+            first = self.store_error is None
+            self.store_error = reason
+            self.alarms.append(f"store degraded: {reason}")
+        if first:
+            log.error("store degraded: %s", reason)
+
+    def _store_ok(self) -> None:
+        if self.store_error is not None:
+            with self._lock:
+                self.store_error = None
+                self.alarms.append("store commits again")
+
+    def _background_failed(self, exc: BaseException) -> None:
+        self._store_failed("a background write", exc)
 
     def checkpoint(self, wait: bool = True) -> None:
         """Snapshot the node's state now and write it (in order with transition records);
@@ -297,9 +403,13 @@ class ControllerNode:
             with self._lock:
                 self.alarms.append(f"checkpoint not written at sample {k}: {exc}")
             return
-        self._worker.submit(self.store.save_checkpoint, k, t, payload)
-        if wait:
-            self._worker.wait()
+        if not wait:
+            self._worker.submit(self.store.save_checkpoint, k, t, payload)
+            return
+        try:
+            self._worker.call(self.store.save_checkpoint, k, t, payload)
+        except (sqlite3.Error, TimeoutError) as exc:
+            self._store_failed(f"checkpoint at sample {k}", exc)
 
     #: A new plant incarnation is followed only when the one followed has been silent
     #: this many wall periods (and the plant's liveliness token appeared again): a live
@@ -534,10 +644,19 @@ class ControllerNode:
                     if changed:
                         if tr is self.tm.active:
                             self._notify(tr, "aborted")
-                        self._persist(tr, "aborted")
+                        record, t = tr.as_dict(), self.t
                     view = tr.view(self.t, self.budget.speed)
             if active:
                 if changed:
+                    try:  # committed before it is acknowledged
+                        self._worker.call(self._save_transition, record, "aborted", t,
+                                          tr.detail)
+                    except (sqlite3.Error, TimeoutError) as exc:
+                        # the abort holds the set points (the safe side) but is not durable
+                        self._store_failed(f"abort of {tid}", exc)
+                        return Reply(503, error="store: cannot commit; the abort holds the "
+                                                f"set points but is not stored ({exc})")
+                    self._store_ok()
                     self.checkpoint(wait=True)
                 return Reply(200, view)
         return Reply(200, self._view(tid))
@@ -568,12 +687,25 @@ class ControllerNode:
                     check(grade)
             except ValueError as exc:
                 return Reply(422, error=str(exc))
-        with self._lock:
-            tr = self.tm.request(grade, self.t, duration, queue=queue,
-                                 idempotency=None if key is None else request)
-            self._persist(tr, "pending", "queued" if tr.detail == "queued"
-                          else f"requested from {tr.from_grade}")
-            view = tr.view(self.t, self.budget.speed)
+        with self._create_lock:
+            with self._lock:
+                tr = self.tm.request(grade, self.t, duration, queue=queue,
+                                     idempotency=None if key is None else request)
+                record, t = tr.as_dict(), self.t
+                view = tr.view(self.t, self.budget.speed)
+            detail = "queued" if tr.detail == "queued" else f"requested from {tr.from_grade}"
+            try:  # committed before it is acknowledged
+                self._worker.call(self._save_transition, record, "pending", t, detail)
+            except (sqlite3.Error, TimeoutError) as exc:
+                with self._lock:  # not accepted: as if never asked
+                    if tr is self.tm.active:
+                        self.tm.active = None
+                    elif tr in self.tm.queued:
+                        self.tm.queued.remove(tr)
+                self._store_failed(f"transition {tr.id}", exc)
+                return Reply(503, error=f"store: cannot commit, transition not accepted "
+                                        f"({exc}); retry later")
+        self._store_ok()
         self.checkpoint(wait=True)
         return Reply(202, view)
 
@@ -629,6 +761,8 @@ class ControllerNode:
                 "stale_measurements": self.stale_measurements,
                 "implausible_measurements": self.implausible_measurements,
                 "foreign_measurements": self.foreign_measurements,
+                "store": "ok" if self.store_error is None else "degraded",
+                "store_error": self.store_error,
                 "plant_incarnation": self._plant_incarnation,
                 "failed_samples": self.failed_samples,
                 "dropped_measurements": self._dropped,
@@ -700,6 +834,7 @@ class ControllerNode:
         with self._lock:
             self.k, self.t = msg.seq, msg.t
             self.y = np.asarray(msg.y, float)
+            ended = False  # a transition ended outside update(): checkpoint at once too
             if msg.shutdown and not self.plant_shutdown:
                 self.plant_shutdown = True
                 self.alarms.append(f"plant shut down at t={msg.t:.1f} s")
@@ -707,6 +842,7 @@ class ControllerNode:
                 if tr is not None:
                     self._notify(tr, "failed")
                     self._persist(tr, "failed")
+                    ended = True
             changes = self.tm.update(msg.t, self.y[self.track_idx])
             for tr, state in changes:
                 self._notify(tr, state)
@@ -783,11 +919,11 @@ class ControllerNode:
                 # in batches, but never more than a second behind (a live viewer)
                 self._last_flush = now
                 self._worker.submit(self.telemetry.flush)
-        if (changes or msg.seq % self.cfg.checkpoint_every == 0
+        if (changes or ended or msg.seq % self.cfg.checkpoint_every == 0
                 or time.perf_counter() - self._last_checkpoint_wall > self.CHECKPOINT_WALL_S):
             self._checkpoint_due = True
-        if self._checkpoint_due:
-            self._maybe_checkpoint(arrived, forced=bool(changes))
+        if self._checkpoint_due:  # a state change (ended, settled, ...) at once
+            self._maybe_checkpoint(arrived, forced=bool(changes) or ended)
         now = time.perf_counter()
         if (msg.seq % self.cfg.status_every == 0
                 and now - self._last_status_wall >= self.STATUS_MIN_WALL_S):
