@@ -40,6 +40,7 @@ from fastapi import Depends, FastAPI, Header, HTTPException, Path, Request, Resp
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import TypeAdapter, ValidationError
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from api.auth import make_write_guard, token_from_env
 from api.mesh import Mesh, MeshError
@@ -79,6 +80,9 @@ TID = Path(..., min_length=1, max_length=64, description="transition id")
 #: Codes of a node's error reply passed on as they are (anything else is a 502).
 PASSED_ON = (400, 404, 409, 422, 429, 503)
 
+#: FastAPI's answer (400) to a body ``json.loads`` cannot read (bad UTF-8, a number
+#: of more digits than Python converts): a malformed body, so 422 here.
+_BODY_UNREADABLE = "There was an error parsing the body"
 _VIEW = TypeAdapter(TransitionView)
 _VIEWS = TypeAdapter(list[TransitionView])
 _STATUS = TypeAdapter(StatusView)
@@ -104,6 +108,10 @@ def _validation_message(errors) -> str:
     """One line per error, ``where: what``, without the input (it may not be writable)."""
     parts = []
     for e in errors:
+        if e.get("type") == "json_invalid":
+            where = e.get("loc", ("body", "?"))[-1]
+            parts.append(f"body: not valid JSON (at character {_printable(where)})")
+            continue
         loc = ".".join(_printable(x) for x in e.get("loc", ()) if x != "body") or "body"
         parts.append(f"{loc}: {_printable(e.get('msg', 'invalid'))}")
     return "; ".join(parts) or "malformed request"
@@ -163,9 +171,12 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
         return SafeJSONResponse(status_code=422,
                                 content={"detail": _validation_message(exc.errors())})
 
-    @app.exception_handler(HTTPException)
-    async def http_error(request: Request, exc: HTTPException):
+    @app.exception_handler(StarletteHTTPException)  # FastAPI's own errors are Starlette's
+    async def http_error(request: Request, exc: StarletteHTTPException):
         detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+        if exc.status_code == 400 and detail == _BODY_UNREADABLE:  # FastAPI's own
+            return SafeJSONResponse(status_code=422, content={"detail": (
+                "body: not readable as JSON (not UTF-8, or a number too long to read)")})
         return SafeJSONResponse(status_code=exc.status_code,
                                 content={"detail": _printable(detail)},
                                 headers=getattr(exc, "headers", None))

@@ -39,7 +39,10 @@ def _is_422_with_message(r):
     '{"grade": "\\ud800"}',
     '{"grade": "OP\\udfffII"}',
     '{"grade": "OPII", "\\ud800": 1}',
-])
+    b'{"grade": "OP\xffII"}',  # not UTF-8
+    b'{"grade": "OPII", "duration_h": 1' + b"0" * 5000 + b"}",  # beyond int conversion
+    '{"grade": "OPII"',
+], ids=lambda raw: repr(raw[:48]))
 def test_non_finite_out_of_range_and_bad_unicode_transition_bodies_are_422(stack, raw):
     h, api = stack
     _is_422_with_message(api.client.post(POST, content=raw, headers=JSON))
