@@ -236,3 +236,23 @@ def test_a_checkpoint_that_cannot_be_encoded_is_refused_and_the_last_good_one_ke
     assert any("checkpoint not written" in a for a in st["alarms"])
     cp = h.store.load_checkpoint()  # the previous one, decodable
     assert all(math.isfinite(x) for x in cp["state"]["u_last"])
+
+
+def test_a_locked_store_answers_503_and_the_controller_recovers(stack2):
+    """Another process holds the store's write lock (longer than the busy timeout)."""
+    h, api = stack2
+    c = api.client
+    h.wait_samples(3)
+    other = sqlite3.connect(str(h.store_path), isolation_level=None)
+    other.execute("BEGIN IMMEDIATE")
+    try:
+        r = c.post(POST, json={"grade": "OPII", "duration_h": 1.0}, headers=AUTH)
+        assert r.status_code == 503, (r.status_code, r.text)
+        assert c.get("/api/v1/units/cstr/status").json()["store"] == "degraded"
+    finally:
+        other.execute("ROLLBACK")
+        other.close()
+    r = c.post(POST, json={"grade": "OPII", "duration_h": 1.0}, headers=AUTH)
+    assert r.status_code == 202
+    assert c.get("/api/v1/units/cstr/status").json()["store"] == "ok"
+    assert [t["id"] for t in c.get(POST).json()] == [r.json()["id"]]
