@@ -74,6 +74,9 @@ def test_a_move_that_is_not_the_controllers_latest_raises_an_alarm(harness):
     assert _until(lambda: h.plant.status()["mv_rejected"]["stale"] > 0)
     st = h.plant.status()
     assert any("not the controller's latest" in a for a in st["alarms"]), st["alarms"]
+    # and the controller sees, in the measurements, a move it did not send
+    assert _until(lambda: h.query("status").data["foreign_moves"] >= 1)
+    assert any("did not send" in a for a in h.query("status").data["alarms"])
     h.wait_samples(10)  # and the loop goes on afterwards
     pub.undeclare()
 

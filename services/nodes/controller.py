@@ -256,6 +256,7 @@ class ControllerNode:
         self._plant_restarted = False
         self._followed_at = -math.inf  # arrival of its latest accepted sample, perf s
         self.foreign_measurements = 0
+        self._foreign_moves = 0  # samples whose applied move this node did not send
         self.y_lower, self.y_upper = plausible_ranges(cfg, plant, grades)
         self.plant_shutdown = False
         self.alarms: deque[str] = deque(maxlen=20)
@@ -761,6 +762,7 @@ class ControllerNode:
                 "stale_measurements": self.stale_measurements,
                 "implausible_measurements": self.implausible_measurements,
                 "foreign_measurements": self.foreign_measurements,
+                "foreign_moves": self._foreign_moves,
                 "store": "ok" if self.store_error is None else "degraded",
                 "store_error": self.store_error,
                 "plant_incarnation": self._plant_incarnation,
@@ -815,6 +817,14 @@ class ControllerNode:
         sw_begin = thread_switches()
         if self._align_pending:
             self._align(msg)
+        elif msg.mv_seq > self.mv_seq:
+            # the plant applied a move numbered beyond any this node sent: not ours
+            self._foreign_moves += 1
+            if self._foreign_moves in (1, 10, 100, 1000) or self._foreign_moves % 10_000 == 0:
+                with self._lock:
+                    self.alarms.append(f"sample {msg.seq}: the plant applies a move this "
+                                       f"controller did not send ({self._foreign_moves} "
+                                       "samples so far)")
         hold = self.u_last.copy()
         y = np.asarray(msg.y, float)
         outside = (y < self.y_lower) | (y > self.y_upper)
@@ -846,6 +856,9 @@ class ControllerNode:
             changes = self.tm.update(msg.t, self.y[self.track_idx])
             for tr, state in changes:
                 self._notify(tr, state)
+                # queued for the store before a query can see the new state (a flush
+                # after a GET that says settled finds the event written)
+                self._persist(tr, state)
             ref = self.tm.reference_at(msg.t, self.horizon)
             self.r = ref[0]
         t_step = time.perf_counter()
@@ -907,8 +920,6 @@ class ControllerNode:
                     finish()
                 except Exception as exc:  # the next step retries it; never stall the loop
                     self.alarms.append(f"bookkeeping after sample {msg.seq} failed: {exc}")
-        for tr, state in changes:
-            self._persist(tr, state)
         if self.telemetry is not None:
             full = self.telemetry.add(msg.seq, msg.t, self.y, self.r, u,
                                       decision.active_model, decision.model_names, decision.J,
