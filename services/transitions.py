@@ -183,13 +183,22 @@ class TransitionManager:
     # -- requests ------------------------------------------------------------------
     def request(self, grade: str, t: float, duration_s: float | None = None,
                 queue: bool = False, idempotency: dict | None = None) -> Transition:
-        """Create a pending transition to ``grade``.
+        """Create a pending transition to ``grade`` (:meth:`prepare`, then :meth:`admit`).
 
         While one is pending or running: 409 (:class:`ConflictError`), unless
         ``queue`` — then it waits (``pending``) and starts when the ones before it end,
         or 429 (:class:`QueueFullError`) when ``max_queued`` wait already.
         ``idempotency`` is kept in the record as it is.
         """
+        tr = self.prepare(grade, t, duration_s, queue, idempotency)
+        self.admit(tr)
+        return tr
+
+    def prepare(self, grade: str, t: float, duration_s: float | None = None,
+                queue: bool = False, idempotency: dict | None = None) -> Transition:
+        """The transition :meth:`request` would make, checked but not admitted yet: the
+        caller may store it first and :meth:`admit` it once it is committed, so a
+        transition that was never stored never starts."""
         if grade not in self.grades:
             raise UnknownTransition(
                 f"grade: unknown grade {grade!r} for unit {self.unit!r}; "
@@ -212,10 +221,16 @@ class TransitionManager:
                         requested_t=float(t), idempotency=idempotency)
         if busy:
             tr.detail = "queued"
+        return tr
+
+    def admit(self, tr: Transition) -> None:
+        """Make a :meth:`prepare` d transition active, or queue it behind the one under
+        way (it starts when the ones before it end)."""
+        if tr.detail == "queued" or (self.active is not None and not self.active.terminal):
+            tr.detail = "queued"
             self.queued.append(tr)
         else:
             self.active = tr
-        return tr
 
     def find(self, tid: str) -> Transition | None:
         """The active or a queued transition with this id."""

@@ -229,6 +229,7 @@ def test_an_undecodable_checkpoint_is_refused_at_start(tmp_path, u_last):
 def test_a_checkpoint_that_cannot_be_encoded_is_refused_and_the_last_good_one_kept(stack2):
     h, api = stack2
     h.wait_samples(3)
+    h.ctrl.checkpoint(wait=True)  # a good one
     with h.ctrl._lock:
         h.ctrl.u_last = h.ctrl.u_last * float("inf")
         h.ctrl.checkpoint(wait=True)

@@ -688,24 +688,21 @@ class ControllerNode:
                     check(grade)
             except ValueError as exc:
                 return Reply(422, error=str(exc))
-        with self._create_lock:
+        with self._create_lock:  # creates one at a time: nothing else admits meanwhile
             with self._lock:
-                tr = self.tm.request(grade, self.t, duration, queue=queue,
+                tr = self.tm.prepare(grade, self.t, duration, queue=queue,
                                      idempotency=None if key is None else request)
                 record, t = tr.as_dict(), self.t
-                view = tr.view(self.t, self.budget.speed)
             detail = "queued" if tr.detail == "queued" else f"requested from {tr.from_grade}"
-            try:  # committed before it is acknowledged
+            try:  # committed before it is admitted and acknowledged
                 self._worker.call(self._save_transition, record, "pending", t, detail)
             except (sqlite3.Error, TimeoutError) as exc:
-                with self._lock:  # not accepted: as if never asked
-                    if tr is self.tm.active:
-                        self.tm.active = None
-                    elif tr in self.tm.queued:
-                        self.tm.queued.remove(tr)
-                self._store_failed(f"transition {tr.id}", exc)
+                self._store_failed(f"transition {tr.id}", exc)  # never admitted: not run
                 return Reply(503, error=f"store: cannot commit, transition not accepted "
                                         f"({exc}); retry later")
+            with self._lock:
+                self.tm.admit(tr)
+                view = tr.view(self.t, self.budget.speed)
         self._store_ok()
         self.checkpoint(wait=True)
         return Reply(202, view)
