@@ -2,7 +2,8 @@
 
 The token comes from ``SSMPC_API_TOKEN`` (read when the app is built). The
 comparison is constant-time (``hmac.compare_digest``) and the token is never
-logged or echoed.
+logged or echoed. A token that is set but empty (or only blanks) is a
+configuration error, not "no token": it would silently switch the check off.
 """
 
 from __future__ import annotations
@@ -13,18 +14,27 @@ from typing import Annotated
 
 from fastapi import Header, HTTPException
 
-__all__ = ["token_from_env", "make_write_guard"]
+__all__ = ["ENV", "check_token", "token_from_env", "make_write_guard"]
 
 ENV = "SSMPC_API_TOKEN"
 
 
+def check_token(token: str | None, where: str = "token") -> str | None:
+    """``token`` as given; ValueError when it is set but empty or only blanks."""
+    if token is not None and not token.strip():
+        raise ValueError(f"{where}: set but empty; give a token, or unset it to serve "
+                         "writes without one (loopback only)")
+    return token
+
+
 def token_from_env() -> str | None:
-    token = os.environ.get(ENV, "")
-    return token or None
+    """``SSMPC_API_TOKEN``, None when unset; ValueError when set but empty."""
+    return check_token(os.environ.get(ENV), ENV)
 
 
 def make_write_guard(token: str | None):
     """A FastAPI dependency that rejects writes without the right bearer token."""
+    check_token(token)
     expected = None if token is None else token.encode()
 
     def guard(authorization: Annotated[str | None, Header()] = None) -> None:

@@ -1,42 +1,67 @@
-"""Request and response bodies of the v1 REST API (pydantic v2)."""
+"""Request and response bodies of the v1 REST API (pydantic v2).
+
+Request bodies are strict (``strict=True``: no ``true`` for 1.0, no ``"0.5"`` for
+0.5; an integer is still a number), refuse unknown fields, NaN and infinities
+(``allow_inf_nan=False``; Python's ``json`` reads ``1e400`` as infinity) and text
+that is not valid Unicode (a lone surrogate such as ``"\\ud800"`` decodes to a
+Python string that cannot be written as UTF-8).
+
+Replies of the nodes are validated with the ``*View`` models before use
+(:func:`api.app.create_app`): a reply that does not fit is a 502, never a 500.
+"""
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 __all__ = ["DisturbanceRequest", "TransitionRequest", "TransitionView", "Health",
-           "UnitLiveliness", "UnitsResponse", "ErrorBody"]
+           "UnitLiveliness", "UnitsResponse", "ErrorBody", "GradesView", "StatusView",
+           "valid_unicode"]
+
+
+def valid_unicode(text: str) -> str:
+    """``text`` if it can be written as UTF-8 (no lone surrogates), else ValueError."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ValueError("not valid Unicode (a lone surrogate)") from None
+    return text
+
+
+Text = Annotated[str, AfterValidator(valid_unicode)]
+_STRICT = ConfigDict(extra="forbid", strict=True)
 
 
 class TransitionRequest(BaseModel):
     """``POST /api/v1/units/{unit}/transitions``."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _STRICT
 
-    grade: str = Field(min_length=1, max_length=64, description="target grade, e.g. mode2 or OPII")
+    grade: Text = Field(min_length=1, max_length=64,
+                        description="target grade, e.g. mode2 or OPII")
     duration_h: float | None = Field(
         default=None, gt=0, le=1e4, allow_inf_nan=False,
         description="transition duration in process hours (first-order reference reaches "
                     "98 % after it); default: the unit's")
     queue: bool = Field(default=False, description="if another transition is under way, "
-                        "wait for it instead of 409")
+                        "wait for it instead of 409 (429 when the queue is full)")
 
 
 class DisturbanceRequest(BaseModel):
     """``POST /api/v1/units/{unit}/disturbances``: a plant disturbance switched by command."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = _STRICT
 
-    name: str = Field(min_length=1, max_length=64,
-                      description="IDV1..IDV20 for TE (value 1 = on, 0 = off), or a "
-                                  "disturbance variable of a unit plant")
-    value: float = Field(allow_inf_nan=False, description="new value")
+    name: Text = Field(min_length=1, max_length=64,
+                       description="IDV1..IDV20 for TE (value 1 = on, 0 = off), or a "
+                                   "disturbance variable of a unit plant")
+    value: float = Field(allow_inf_nan=False, ge=-1e12, le=1e12, description="new value")
 
 
 class TransitionView(BaseModel):
-    id: str
+    id: str = Field(min_length=1)
     unit: str
     grade: str
     from_grade: str | None = None
@@ -51,6 +76,23 @@ class TransitionView(BaseModel):
     ended_t: float | None = None
     target: list[float]
     detail: str = ""
+
+
+class StatusView(BaseModel):
+    """A controller's status: the fields the api relies on; the rest passes through."""
+
+    model_config = ConfigDict(extra="allow")
+
+    unit: str
+    sample: int
+    alarms: list[str]
+
+
+class GradesView(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    unit: str
+    grades: dict[str, Any]
 
 
 class Health(BaseModel):

@@ -4,22 +4,55 @@ One file per unit (default ``ssmpc-<unit>.sqlite`` in the state directory),
 WAL journal, every write in its own transaction, so a crash leaves either the
 old or the new row, never half of one. Tables:
 
-- ``transitions``: one row per transition, the latest state and its record (JSON).
+- ``transitions``: one row per transition, the latest state and its record (JSON),
+  and the idempotency key of the request that made it (unique per unit, or NULL).
 - ``transition_events``: every state change, appended (the complete history).
 - ``checkpoint``: one row per unit: sample, process time and the node's state
   (controller checkpoint, last move, reference, active transition) as JSON.
+
+Integrity. Opening a store runs ``PRAGMA quick_check`` and checks what this
+module wrote (every record decodes, names its id and a known state; every event
+belongs to a transition); a file that is not an SQLite database, a corrupt page
+or an inconsistent row is a :class:`StoreError` (the CLI says ``error: ...`` and
+exits 2; nothing is changed). A write either commits or raises (a busy lock is
+waited for at most ``busy_timeout_s``): the caller acknowledges only what
+committed. A checkpoint is checked at both ends: NaN, infinities (``1e999``) or a
+non-object are refused when encoded (ValueError) and when loaded (StoreError).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import sqlite3
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["UnitStore", "default_store_path"]
+__all__ = ["StoreError", "UnitStore", "default_store_path"]
+
+_STATES = ("pending", "running", "settled", "aborted", "failed")
+
+
+class StoreError(ValueError):
+    """A store that cannot be used as it is (corrupt, inconsistent, undecodable)."""
+
+
+def _refuse_constant(name: str):
+    raise ValueError(f"non-finite number {name}")
+
+
+def _finite_float(text: str) -> float:
+    v = float(text)
+    if not math.isfinite(v):
+        raise ValueError(f"number {text} out of range")
+    return v
+
+
+def _decode(text: str):
+    """JSON as this module writes it: NaN, infinities and 1e999 refused (ValueError)."""
+    return json.loads(text, parse_constant=_refuse_constant, parse_float=_finite_float)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS transitions (
@@ -29,7 +62,8 @@ CREATE TABLE IF NOT EXISTS transitions (
     state TEXT NOT NULL,
     created_wall REAL NOT NULL,
     updated_wall REAL NOT NULL,
-    record TEXT NOT NULL
+    record TEXT NOT NULL,
+    idempotency_key TEXT
 );
 CREATE TABLE IF NOT EXISTS transition_events (
     seq INTEGER PRIMARY KEY AUTOINCREMENT,
@@ -54,19 +88,91 @@ def default_store_path(unit: str, state_dir: str | Path = ".") -> Path:
 
 
 class UnitStore:
-    """Transitions and checkpoint of one unit in one SQLite file (thread-safe)."""
+    """Transitions and checkpoint of one unit in one SQLite file (thread-safe).
 
-    def __init__(self, path: str | Path, unit: str) -> None:
+    Parameters
+    ----------
+    path : str or Path
+    unit : str
+    busy_timeout_s : float
+        Longest wait for another connection's write lock before a write fails, s.
+
+    Raises
+    ------
+    StoreError
+        The file is not a usable store (see the module notes).
+    """
+
+    def __init__(self, path: str | Path, unit: str, *, busy_timeout_s: float = 1.0) -> None:
         self.path = Path(path)
         self.unit = unit
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()
-        self._db = sqlite3.connect(str(self.path), check_same_thread=False, isolation_level=None)
-        self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=NORMAL")
-        self._db.execute("PRAGMA foreign_keys=ON")
-        with self._lock:
-            self._db.executescript(_SCHEMA)
+        try:
+            self._db = sqlite3.connect(str(self.path), check_same_thread=False,
+                                       isolation_level=None, timeout=float(busy_timeout_s))
+        except sqlite3.Error as exc:
+            raise StoreError(f"store: cannot open {self.path}: {exc}") from None
+        try:
+            self._check_integrity()
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.execute("PRAGMA foreign_keys=ON")
+            with self._lock:
+                self._db.executescript(_SCHEMA)
+                self._migrate()
+            self._check_rows()
+        except sqlite3.Error as exc:
+            self._db.close()
+            raise StoreError(f"store: {self.path} is not a usable store: {exc}") from None
+        except StoreError:
+            self._db.close()
+            raise
+
+    def __enter__(self) -> UnitStore:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _check_integrity(self) -> None:
+        """``PRAGMA quick_check``: StoreError naming the first problems unless ``ok``."""
+        try:
+            rows = [r[0] for r in self._db.execute("PRAGMA quick_check(5)")]
+        except sqlite3.DatabaseError as exc:  # "file is not a database", a bad header
+            raise StoreError(f"store: {self.path} is corrupt or not a store ({exc}); "
+                             "move it aside to start afresh") from None
+        if rows != ["ok"]:
+            raise StoreError(f"store: {self.path} is corrupt (quick_check: "
+                             f"{'; '.join(map(str, rows))}); move it aside to start afresh")
+
+    def _check_rows(self) -> None:
+        """Every record decodes and names its id and a known state; every event belongs
+        to a transition (what this module wrote, read back)."""
+        for tid, state, text in self._db.execute(
+                "SELECT id, state, record FROM transitions WHERE unit=?", (self.unit,)):
+            try:
+                rec = _decode(text)
+            except ValueError as exc:
+                raise StoreError(f"store: {self.path}: transition {tid!r} does not decode "
+                                 f"({exc})") from None
+            if not isinstance(rec, dict) or rec.get("id") != tid or state not in _STATES \
+                    or rec.get("state") != state:
+                raise StoreError(f"store: {self.path}: transition {tid!r} is inconsistent "
+                                 "(record, id and state disagree)")
+        orphan = self._db.execute(
+            "SELECT COUNT(*) FROM transition_events e LEFT JOIN transitions t"
+            " ON t.id = e.transition_id WHERE t.id IS NULL").fetchone()[0]
+        if orphan:
+            raise StoreError(f"store: {self.path}: {orphan} events of unknown transitions")
+
+    def _migrate(self) -> None:
+        """Bring a store made by an older version up to this schema (columns added)."""
+        cols = {r[1] for r in self._db.execute("PRAGMA table_info(transitions)")}
+        if "idempotency_key" not in cols:
+            self._db.execute("ALTER TABLE transitions ADD COLUMN idempotency_key TEXT")
+        self._db.execute("CREATE UNIQUE INDEX IF NOT EXISTS transitions_idempotency"
+                         " ON transitions (unit, idempotency_key)")
 
     def close(self) -> None:
         with self._lock:
@@ -80,16 +186,18 @@ class UnitStore:
         Both happen in one transaction.
         """
         now = time.time()
+        key = (record.get("idempotency") or {}).get("key")
         with self._lock:
             self._db.execute("BEGIN IMMEDIATE")
             try:
                 self._db.execute(
                     "INSERT INTO transitions (id, unit, grade, state, created_wall, updated_wall,"
-                    " record) VALUES (?, ?, ?, ?, ?, ?, ?) ON CONFLICT(id) DO UPDATE SET"
+                    " record, idempotency_key) VALUES (?, ?, ?, ?, ?, ?, ?, ?)"
+                    " ON CONFLICT(id) DO UPDATE SET"
                     " state=excluded.state, updated_wall=excluded.updated_wall,"
                     " record=excluded.record",
                     (record["id"], self.unit, record["grade"], record["state"], now, now,
-                     json.dumps(record, allow_nan=False)),
+                     json.dumps(record, allow_nan=False), key),
                 )
                 if event is not None:
                     self._db.execute(
@@ -99,7 +207,8 @@ class UnitStore:
                     )
                 self._db.execute("COMMIT")
             except BaseException:
-                self._db.execute("ROLLBACK")
+                if self._db.in_transaction:  # SQLite may have rolled back already
+                    self._db.execute("ROLLBACK")
                 raise
 
     def transitions(self) -> list[dict[str, Any]]:
@@ -108,13 +217,21 @@ class UnitStore:
             rows = self._db.execute(
                 "SELECT record FROM transitions WHERE unit=? ORDER BY created_wall, rowid",
                 (self.unit,)).fetchall()
-        return [json.loads(r[0]) for r in rows]
+        return [_decode(r[0]) for r in rows]
 
     def transition(self, tid: str) -> dict[str, Any] | None:
         with self._lock:
             row = self._db.execute("SELECT record FROM transitions WHERE id=? AND unit=?",
                                    (tid, self.unit)).fetchone()
-        return None if row is None else json.loads(row[0])
+        return None if row is None else _decode(row[0])
+
+    def transition_by_key(self, key: str) -> dict[str, Any] | None:
+        """The record of the transition made by a request with idempotency ``key``."""
+        with self._lock:
+            row = self._db.execute(
+                "SELECT record FROM transitions WHERE unit=? AND idempotency_key=?",
+                (self.unit, key)).fetchone()
+        return None if row is None else _decode(row[0])
 
     def events(self, tid: str | None = None) -> list[dict[str, Any]]:
         """State changes (all, or of one transition), in the order they happened."""
@@ -152,16 +269,32 @@ class UnitStore:
                 )
                 self._db.execute("COMMIT")
             except BaseException:
-                self._db.execute("ROLLBACK")
+                if self._db.in_transaction:  # SQLite may have rolled back already
+                    self._db.execute("ROLLBACK")
                 raise
 
     def load_checkpoint(self) -> dict[str, Any] | None:
-        """``{"sample", "process_time", "wall", "state"}`` or None."""
+        """``{"sample", "process_time", "wall", "state"}`` or None.
+
+        Raises
+        ------
+        StoreError
+            The checkpoint does not decode into an object of finite numbers.
+        """
         with self._lock:
             row = self._db.execute(
                 "SELECT sample, process_time, wall, state FROM checkpoint WHERE unit=?",
                 (self.unit,)).fetchone()
         if row is None:
             return None
-        return {"sample": row[0], "process_time": row[1], "wall": row[2],
-                "state": json.loads(row[3])}
+        try:
+            state = _decode(row[3])
+        except ValueError as exc:
+            raise StoreError(f"store: {self.path}: the checkpoint of unit {self.unit!r} "
+                             f"cannot be decoded ({exc}); move the store aside to start "
+                             "afresh") from None
+        if not isinstance(state, dict) or not isinstance(row[1], float | int) \
+                or not math.isfinite(row[1]):
+            raise StoreError(f"store: {self.path}: the checkpoint of unit {self.unit!r} is "
+                             "not a checkpoint; move the store aside to start afresh")
+        return {"sample": row[0], "process_time": row[1], "wall": row[2], "state": state}

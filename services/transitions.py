@@ -13,7 +13,12 @@ so that 98 % of the move is done after ``duration``. States::
        └───────────┴──────▶ failed    (plant shutdown, or not settled by timeout)
 
 A request while one is pending or running is refused (409) unless queued: a
-queued transition stays ``pending`` and starts when the ones before it end.
+queued transition stays ``pending`` and starts when the ones before it end. At most
+``max_queued`` wait; one more is refused (:class:`QueueFullError`, REST 429).
+
+A request may carry an idempotency key (REST ``Idempotency-Key``): it is kept in
+the record (``idempotency``: the key and the request it came with), so the node can
+give back the transition a repeated request made instead of a second one.
 
 ``settled`` means: the reference has reached ``r1`` (t ≥ t0 + duration) and
 every CV stayed within ``settle_tolerance * scale`` of ``r1`` for
@@ -37,6 +42,7 @@ __all__ = [
     "TERMINAL",
     "TransitionError",
     "ConflictError",
+    "QueueFullError",
     "UnknownTransition",
     "Transition",
     "TransitionManager",
@@ -56,6 +62,10 @@ class TransitionError(ValueError):
 
 class ConflictError(TransitionError):
     """A transition is already pending or running (REST 409)."""
+
+
+class QueueFullError(TransitionError):
+    """Too many transitions wait already (REST 429)."""
 
 
 class UnknownTransition(TransitionError):
@@ -82,6 +92,8 @@ class Transition:
     in_band_samples: int = 0
     samples: int = 0
     detail: str = ""
+    #: ``{"key", "grade", "duration_s", "queue"}`` of a request with an idempotency key
+    idempotency: dict | None = None
 
     @property
     def terminal(self) -> bool:
@@ -139,12 +151,14 @@ class TransitionManager:
         Consecutive in-band samples needed to settle.
     timeout_factor : float
         A running transition fails if not settled by ``t0 + timeout_factor * duration``.
+    max_queued : int
+        Transitions that may wait behind the one under way.
     """
 
     def __init__(self, unit: str, grades: dict[str, list[float]], scales, initial_grade: str,
                  sample_period_s: float, default_duration_s: float,
                  settle_tolerance: float = 0.02, settle_samples: int = 5,
-                 timeout_factor: float = 3.0) -> None:
+                 timeout_factor: float = 3.0, max_queued: int = 8) -> None:
         if initial_grade not in grades:
             raise TransitionError(f"initial_grade: unknown grade {initial_grade!r}")
         self.unit = unit
@@ -157,6 +171,9 @@ class TransitionManager:
         self.settle_tolerance = float(settle_tolerance)
         self.settle_samples = int(settle_samples)
         self.timeout_factor = float(timeout_factor)
+        if isinstance(max_queued, bool) or not isinstance(max_queued, int) or max_queued < 0:
+            raise TransitionError(f"max_queued: must be an integer >= 0, got {max_queued!r}")
+        self.max_queued = max_queued
         self.grade: str | None = initial_grade
         self.hold = self.grades[initial_grade].copy()
         self.active: Transition | None = None
@@ -165,12 +182,23 @@ class TransitionManager:
 
     # -- requests ------------------------------------------------------------------
     def request(self, grade: str, t: float, duration_s: float | None = None,
-                queue: bool = False) -> Transition:
-        """Create a pending transition to ``grade``.
+                queue: bool = False, idempotency: dict | None = None) -> Transition:
+        """Create a pending transition to ``grade`` (:meth:`prepare`, then :meth:`admit`).
 
         While one is pending or running: 409 (:class:`ConflictError`), unless
-        ``queue`` — then it waits (``pending``) and starts when the ones before it end.
+        ``queue`` — then it waits (``pending``) and starts when the ones before it end,
+        or 429 (:class:`QueueFullError`) when ``max_queued`` wait already.
+        ``idempotency`` is kept in the record as it is.
         """
+        tr = self.prepare(grade, t, duration_s, queue, idempotency)
+        self.admit(tr)
+        return tr
+
+    def prepare(self, grade: str, t: float, duration_s: float | None = None,
+                queue: bool = False, idempotency: dict | None = None) -> Transition:
+        """The transition :meth:`request` would make, checked but not admitted yet: the
+        caller may store it first and :meth:`admit` it once it is committed, so a
+        transition that was never stored never starts."""
         if grade not in self.grades:
             raise UnknownTransition(
                 f"grade: unknown grade {grade!r} for unit {self.unit!r}; "
@@ -180,25 +208,42 @@ class TransitionManager:
             raise ConflictError(
                 f"transition {self.active.id} to {self.active.grade} is {self.active.state}; "
                 "abort it first, or queue this one")
+        if busy and len(self.queued) >= self.max_queued:
+            raise QueueFullError(
+                f"queue: {len(self.queued)} transitions wait already (the limit, "
+                "transition_queue_limit); retry when one has started")
         duration = self.default_duration_s if duration_s is None else float(duration_s)
         if not (math.isfinite(duration) and duration > 0):
             raise TransitionError(f"duration_h: must be positive, got {duration_s}")
         tr = Transition(id=uuid.uuid4().hex[:12], unit=self.unit, grade=grade,
                         from_grade=None if busy else self.grade,
                         target=self.grades[grade].tolist(), duration_s=duration,
-                        requested_t=float(t))
+                        requested_t=float(t), idempotency=idempotency)
         if busy:
+            tr.detail = "queued"
+        return tr
+
+    def admit(self, tr: Transition) -> None:
+        """Make a :meth:`prepare` d transition active, or queue it behind the one under
+        way (it starts when the ones before it end)."""
+        if tr.detail == "queued" or (self.active is not None and not self.active.terminal):
             tr.detail = "queued"
             self.queued.append(tr)
         else:
             self.active = tr
-        return tr
 
     def find(self, tid: str) -> Transition | None:
         """The active or a queued transition with this id."""
         if self.active is not None and self.active.id == tid:
             return self.active
         return next((q for q in self.queued if q.id == tid), None)
+
+    def find_by_key(self, key: str) -> Transition | None:
+        """The active or a queued transition made by a request with idempotency ``key``."""
+        for tr in ([self.active] if self.active is not None else []) + self.queued:
+            if tr.idempotency is not None and tr.idempotency.get("key") == key:
+                return tr
+        return None
 
     def abort(self, tid: str, t: float) -> Transition:
         """Abort: hold the set points of this moment. Aborting a finished one is a no-op;

@@ -258,7 +258,8 @@ def test_default_schedule_has_every_kind_on_every_channel():
 def test_corrupted_measurement_decodes_or_fails_as_intended(kind):
     import random
 
-    good = Measurement(unit="te", seq=3, t=108.0, y=(1.0, 2.0, 3.0), u=(4.0,)).to_bytes()
+    good = Measurement(unit="te", seq=3, t=108.0, y=(1.0, 2.0, 3.0), u=(4.0,),
+                       incarnation="run-a").to_bytes()
     bad = corrupt_measurement(good, kind, random.Random(0))
     if kind == "range":
         msg = Measurement.from_bytes(bad)

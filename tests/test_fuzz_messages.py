@@ -45,14 +45,14 @@ DECODERS = {
 KIND = {"meas": "meas", "meas-any": "meas", "mv": "mv", "mv-any": "mv", "request": "request",
         "reply": "reply"}
 FIELDS = {
-    "meas": ("unit", "seq", "t", "y", "u", "mv_seq", "shutdown"),
+    "meas": ("unit", "seq", "t", "y", "u", "mv_seq", "shutdown", "incarnation"),
     "mv": ("unit", "seq", "meas_seq", "u", "sender", "fallback"),
     "request": ("action", "args"),
     "reply": ("code", "data", "error"),
 }
 VALID = {
     "meas": {"unit": "te", "seq": 1, "t": 36.0, "y": [1.0, 2.0], "u": [3.0], "mv_seq": 0,
-             "shutdown": False},
+             "shutdown": False, "incarnation": "run-a"},
     "mv": {"unit": "te", "seq": 1, "meas_seq": 0, "u": [1.0], "sender": "te-controller",
            "fallback": False},
     "request": {"action": "status", "args": {}},
@@ -111,16 +111,16 @@ def test_well_formed_envelope_with_fuzzed_fields(name, data):
 @pytest.mark.parametrize("name", sorted(DECODERS))
 @pytest.mark.parametrize("payload", [
     # an integer beyond double range where a float is expected
-    b'{"schema":1,"kind":"meas","unit":"te","seq":1,"t":1' + b"0" * 400 + b',"y":[1,2],"u":[3]}',
-    b'{"schema":1,"kind":"mv","unit":"te","seq":1,"meas_seq":0,"u":[1' + b"0" * 400
+    b'{"schema":2,"kind":"meas","unit":"te","seq":1,"t":1' + b"0" * 400 + b',"y":[1,2],"u":[3]}',
+    b'{"schema":2,"kind":"mv","unit":"te","seq":1,"meas_seq":0,"u":[1' + b"0" * 400
     + b'],"sender":"x"}',
     # nesting deeper than the JSON parser's recursion limit
     b"[" * 100_000 + b"]" * 100_000,
-    b'{"schema":1,"kind":"reply","code":200,"data":' + b"[" * 100_000 + b"]" * 100_000 + b"}",
+    b'{"schema":2,"kind":"reply","code":200,"data":' + b"[" * 100_000 + b"]" * 100_000 + b"}",
     # NaN/Infinity literals and an overflowing exponent
-    b'{"schema":1,"kind":"meas","unit":"te","seq":1,"t":NaN,"y":[1,2],"u":[3]}',
-    b'{"schema":1,"kind":"meas","unit":"te","seq":1,"t":1e999,"y":[1,2],"u":[3]}',
-    b'{"schema":1,"kind":"meas","unit":"te","seq":1,"t":1,"y":[1,-Infinity],"u":[3]}',
+    b'{"schema":2,"kind":"meas","unit":"te","seq":1,"t":NaN,"y":[1,2],"u":[3]}',
+    b'{"schema":2,"kind":"meas","unit":"te","seq":1,"t":1e999,"y":[1,2],"u":[3]}',
+    b'{"schema":2,"kind":"meas","unit":"te","seq":1,"t":1,"y":[1,-Infinity],"u":[3]}',
 ], ids=["huge-int-t", "huge-int-u", "deep-list", "deep-reply-data", "nan-literal",
         "exponent-overflow", "infinity-literal"])
 def test_known_hard_payloads_are_message_errors(name, payload):

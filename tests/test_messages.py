@@ -21,7 +21,7 @@ finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
 def _meas_obj(**over):
     obj = {"schema": SCHEMA_VERSION, "kind": "meas", "unit": "cstr", "seq": 3, "t": 0.3,
-           "y": [1.3], "u": [0.4], "mv_seq": 2, "shutdown": False}
+           "y": [1.3], "u": [0.4], "mv_seq": 2, "shutdown": False, "incarnation": "run-a"}
     obj.update(over)
     return obj
 
@@ -29,7 +29,8 @@ def _meas_obj(**over):
 @given(seq=st.integers(0, 2**53), t=finite, y=st.lists(finite, min_size=1, max_size=41),
        u=st.lists(finite, min_size=1, max_size=12))
 def test_measurement_round_trip_is_exact(seq, t, y, u):
-    msg = Measurement(unit="te", seq=seq, t=t, y=tuple(y), u=tuple(u), mv_seq=-1)
+    msg = Measurement(unit="te", seq=seq, t=t, y=tuple(y), u=tuple(u), mv_seq=-1,
+                      incarnation="run-a")
     back = Measurement.from_bytes(msg.to_bytes(), unit="te", ny=len(y), nu=len(u))
     assert back == msg
 
@@ -50,12 +51,16 @@ def test_nan_and_inf_literals_are_rejected(text):
 
 def test_nan_cannot_be_encoded():
     with pytest.raises(MessageError, match="y"):
-        Measurement(unit="cstr", seq=0, t=0.0, y=(math.nan,), u=(0.4,))
+        Measurement(unit="cstr", seq=0, t=0.0, y=(math.nan,), u=(0.4,), incarnation="r")
 
 
 @pytest.mark.parametrize("over, field", [
-    ({"schema": 2}, "schema"),
-    ({"schema": "1"}, "schema"),
+    ({"schema": 1}, "schema"),  # the version before the plant incarnation
+    ({"schema": 3}, "schema"),
+    ({"schema": "2"}, "schema"),
+    ({"incarnation": ""}, "incarnation"),
+    ({"incarnation": 7}, "incarnation"),
+    ({"incarnation": "x" * 65}, "incarnation"),
     ({"kind": "mv"}, "kind"),
     ({"seq": -1}, "seq"),
     ({"seq": 1.5}, "seq"),
@@ -106,16 +111,16 @@ def test_request_and_reply():
     assert back == rep and not back.ok
     assert Reply(202, {"id": "x"}).ok
     with pytest.raises(MessageError, match="args"):
-        Request.from_bytes(json.dumps({"schema": 1, "kind": "request", "action": "x",
+        Request.from_bytes(json.dumps({"schema": SCHEMA_VERSION, "kind": "request", "action": "x",
                                        "args": [1]}).encode())
 
 
 @pytest.mark.parametrize("payload", [
-    b'{"schema":1,"kind":"meas","unit":"te","seq":1,"t":1' + b"0" * 400 + b',"y":[1],"u":[3]}',
-    b'{"schema":1,"kind":"meas","unit":"te","seq":1,"t":1,"y":[1' + b"0" * 400 + b'],"u":[3]}',
-    b'{"schema":1,"kind":"meas","unit":"te","seq":1' + b"0" * 5000 + b',"t":1,"y":[1],"u":[3]}',
+    b'{"schema":2,"kind":"meas","unit":"te","seq":1,"t":1' + b"0" * 400 + b',"y":[1],"u":[3]}',
+    b'{"schema":2,"kind":"meas","unit":"te","seq":1,"t":1,"y":[1' + b"0" * 400 + b'],"u":[3]}',
+    b'{"schema":2,"kind":"meas","unit":"te","seq":1' + b"0" * 5000 + b',"t":1,"y":[1],"u":[3]}',
     b"[" * 100_000 + b"]" * 100_000,
-    b'{"schema":1,"kind":"meas","data":' + b"[" * 100_000 + b"]" * 100_000 + b"}",
+    b'{"schema":2,"kind":"meas","data":' + b"[" * 100_000 + b"]" * 100_000 + b"}",
 ], ids=["huge-int-t", "huge-int-y", "int-too-long", "deep-list", "deep-field"])
 def test_hard_payloads_are_message_errors(payload):
     with pytest.raises(MessageError):

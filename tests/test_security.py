@@ -103,9 +103,12 @@ def _listening(port: int) -> set[str]:
 def test_api_binds_to_loopback_unless_told(host, expected):
     port = free_port()
     argv = [sys.executable, "-m", "services.cli", "api", "--port", str(port), "--duration", "30"]
-    if host:
+    env = {k: v for k, v in os.environ.items() if k != "SSMPC_API_TOKEN"}
+    if host:  # beyond loopback only with a token (tests/test_config_errors.py)
         argv += ["--host", host]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        env["SSMPC_API_TOKEN"] = TOKEN
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                            env=env)
     try:
         assert proc.stdout.readline().startswith("ready api")
         assert _listening(port) == expected  # 127.0.0.1 in /proc's byte order

@@ -194,7 +194,7 @@ def test_closed_loop_transition_settles_at_the_grade(harness):
     expected = ["pending", "running", "settled"]
     assert h.wait_events(rep.data["id"], expected) == expected
     ps = h.plant.status()
-    assert ps["mv_rejected"] == {"decode": 0, "sender": 0, "stale": 0}
+    assert ps["mv_rejected"] == {"decode": 0, "sender": 0, "stale": 0, "jump": 0}
     assert ps["lockstep_timeouts"] == 0
 
 
@@ -219,10 +219,10 @@ def test_plant_ignores_mv_from_wrong_sender_stale_and_malformed(harness, plant_b
     good = MVMessage(unit="cstr", seq=10, meas_seq=0, u=(0.45,), sender="cstr-controller")
     wrong = MVMessage(unit="cstr", seq=11, meas_seq=0, u=(9.0,), sender="intruder")
     stale = MVMessage(unit="cstr", seq=5, meas_seq=0, u=(8.0,), sender="cstr-controller")
-    nan = json.dumps({"schema": 1, "kind": "mv", "unit": "cstr", "seq": 12, "meas_seq": 0,
+    nan = json.dumps({"schema": 2, "kind": "mv", "unit": "cstr", "seq": 12, "meas_seq": 0,
                       "u": [float("nan")], "sender": "cstr-controller"}).encode()
     v2 = json.loads(good.to_bytes())
-    v2["schema"] = 2
+    v2["schema"] = 1  # an older version
     v2["seq"] = 13
     for payload in (good.to_bytes(), wrong.to_bytes(), stale.to_bytes(), nan,
                     json.dumps(v2).encode(), b"\x00garbage"):
@@ -231,7 +231,7 @@ def test_plant_ignores_mv_from_wrong_sender_stale_and_malformed(harness, plant_b
     while time.monotonic() < t_end and sum(h.plant.status()["mv_rejected"].values()) < 5:
         time.sleep(0.02)
     st = h.plant.status()
-    assert st["mv_rejected"] == {"decode": 3, "sender": 1, "stale": 1}
+    assert st["mv_rejected"] == {"decode": 3, "sender": 1, "stale": 1, "jump": 0}
     time.sleep(0.1)
     assert h.plant.runner.u[0] == pytest.approx(0.45)  # only the good one was applied
     pub.undeclare()
@@ -242,8 +242,9 @@ def test_controller_rejects_bad_measurements_and_keeps_running(harness):
     h.wait_samples(3)
     pub = h.s_client.declare_publisher(keys.meas("cstr"))
     time.sleep(0.2)
-    bad = [b'{"schema":1,"kind":"meas","unit":"cstr","seq":1,"t":0,"y":[NaN],"u":[0.4]}',
-           Measurement(unit="cstr", seq=1, t=0.0, y=(1.0, 2.0), u=(0.4,)).to_bytes(),
+    bad = [b'{"schema":2,"kind":"meas","unit":"cstr","seq":1,"t":0,"y":[NaN],"u":[0.4]}',
+           Measurement(unit="cstr", seq=1, t=0.0, y=(1.0, 2.0), u=(0.4,),
+                       incarnation=h.plant.incarnation).to_bytes(),
            b'{"schema":9,"kind":"meas"}', b"[]"]
     for p in bad:
         pub.put(p)
@@ -310,7 +311,7 @@ def test_held_samples_record_where_their_time_went(harness):
     time.sleep(0.45)  # the plant holds at each boundary now
     k = h.plant.k - 1  # held at the last boundary; its answer may still come, late
     pub = h.s_client.declare_publisher(keys.mv("cstr"))
-    late = MVMessage(unit="cstr", seq=time.time_ns() // 1000 + 10**6, meas_seq=k, u=(0.45,),
+    late = MVMessage(unit="cstr", seq=time.time_ns() // 1000 + 10**5, meas_seq=k, u=(0.45,),
                      sender="cstr-controller")
     pub.put(late.to_bytes())
     time.sleep(0.35)
@@ -370,7 +371,8 @@ def test_stale_and_implausible_measurements_are_not_acted_on(harness):
     u = tuple(h.ctrl.u_last)
 
     def meas(seq, y):
-        return Measurement(unit="cstr", seq=seq, t=seq * h.cfg.sample_period_s, y=(y,), u=u)
+        return Measurement(unit="cstr", seq=seq, t=seq * h.cfg.sample_period_s, y=(y,), u=u,
+                           incarnation=h.plant.incarnation)
 
     for m in (meas(k + 1, 1.3), meas(k + 1, 1.3), meas(k, 1.3), meas(k + 2, -1e9)):
         pub.put(m.to_bytes())
@@ -521,7 +523,8 @@ def test_busy_poll_acts_on_the_newest_of_queued_measurements(harness):
     y0, u0 = grades["setpoints"], grades["mv"]
     time.sleep(0.3)
     for k in range(3):
-        pub.put(Measurement(h.cfg.unit, k, 10.0 * k, tuple(y0), tuple(u0)).to_bytes())
+        pub.put(Measurement(h.cfg.unit, k, 10.0 * k, tuple(y0), tuple(u0),
+                            incarnation="test").to_bytes())
     time.sleep(0.3)
     stop = threading.Event()
     th = threading.Thread(target=h.ctrl.run, args=(stop,), daemon=True)
@@ -638,7 +641,7 @@ def test_a_measurement_delivered_while_the_node_is_built_is_processed(tmp_path):
     op = plant.operating_point(cfg.initial_grade)
     y = plant.outputs(op.x, op.u)
     payload = Measurement(unit=cfg.unit, seq=3, t=0.15, y=tuple(map(float, y)),
-                          u=tuple(map(float, op.u)), mv_seq=7).to_bytes()
+                          u=tuple(map(float, op.u)), mv_seq=7, incarnation="run1").to_bytes()
 
     class Sample:
         class payload:  # noqa: N801 - the shape of a zenoh sample

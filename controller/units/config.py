@@ -105,6 +105,10 @@ class UnitConfig:
         Plant-node integration steps per sample (for ODE plants: solver calls).
     status_every, checkpoint_every, telemetry_every : int
         Samples between status messages, SQLite checkpoints and Rerun batches.
+    transition_queue_limit : int
+        Transitions that may wait (``queue=True``) behind the one under way; one more
+        is refused (REST 429), so a flood of requests cannot grow the store and the
+        controller's work without bound.
     """
 
     unit: str
@@ -128,6 +132,7 @@ class UnitConfig:
     status_every: int = 10
     checkpoint_every: int = 50
     telemetry_every: int = 50
+    transition_queue_limit: int = 8
     description: str = ""
 
     def __post_init__(self) -> None:
@@ -147,7 +152,7 @@ class UnitConfig:
         if not (0 < self.settle_tolerance < 1):
             raise ValueError(f"settle_tolerance: must be in (0, 1), got {self.settle_tolerance}")
         for name in ("settle_samples", "substeps", "status_every", "checkpoint_every",
-                     "telemetry_every"):
+                     "telemetry_every", "transition_queue_limit"):
             v = getattr(self, name)
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
                 raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")

@@ -34,7 +34,10 @@ __all__ = [
 ]
 
 #: Version of every message schema in this module; bumped on incompatible change.
-SCHEMA_VERSION = 1
+#: 2: :class:`Measurement` carries the plant's ``incarnation`` (required). A node
+#: refuses every message of another version (it names both), so nodes of versions
+#: 1 and 2 do not talk to each other: upgrade the nodes of a unit together.
+SCHEMA_VERSION = 2
 
 
 class MessageError(ValueError):
@@ -176,6 +179,11 @@ class Measurement:
         ``seq`` of the MV message those ``u`` came from (-1: initial values).
     shutdown : bool
         True once the plant has tripped (TE interlocks); outputs then freeze.
+    incarnation : str
+        Identity of this run of the plant node (random at its start, 1..64
+        characters): a measurement of another incarnation comes from a restarted
+        plant, or from someone else (the controller follows it only after the plant's
+        liveliness says it restarted).
     """
 
     unit: str
@@ -185,10 +193,13 @@ class Measurement:
     u: tuple[float, ...]
     mv_seq: int = -1
     shutdown: bool = False
+    incarnation: str = ""
 
     KIND = "meas"
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.incarnation, str) and 0 < len(self.incarnation) <= 64):
+            raise MessageError("incarnation: expected a string of 1..64 characters")
         object.__setattr__(self, "y", _finite_tuple(self.y, "y"))
         object.__setattr__(self, "u", _finite_tuple(self.u, "u"))
         if self.seq < 0:
@@ -199,14 +210,16 @@ class Measurement:
     def to_bytes(self) -> bytes:
         return encode({"schema": SCHEMA_VERSION, "kind": self.KIND, "unit": self.unit,
                        "seq": self.seq, "t": self.t, "y": list(self.y), "u": list(self.u),
-                       "mv_seq": self.mv_seq, "shutdown": self.shutdown})
+                       "mv_seq": self.mv_seq, "shutdown": self.shutdown,
+                       "incarnation": self.incarnation})
 
     @classmethod
     def from_bytes(cls, payload, *, unit: str | None = None, ny: int | None = None,
                    nu: int | None = None) -> Measurement:
         """Strict decode; ``unit``, ``ny`` and ``nu`` when given must match."""
         obj = decode_object(payload, cls.KIND)
-        _check_fields(obj, cls.KIND, {"unit", "seq", "t", "y", "u"}, {"mv_seq", "shutdown"})
+        _check_fields(obj, cls.KIND, {"unit", "seq", "t", "y", "u", "incarnation"},
+                      {"mv_seq", "shutdown"})
         msg_unit = _str(obj, "unit")
         if unit is not None and msg_unit != unit:
             raise MessageError(f"unit: expected {unit!r}, got {msg_unit!r}")
@@ -221,6 +234,7 @@ class Measurement:
             u=_vector(obj, "u", nu),
             mv_seq=_int({"mv_seq": obj.get("mv_seq", -1)}, "mv_seq", minimum=-1),
             shutdown=shutdown,
+            incarnation=_str(obj, "incarnation"),
         )
 
 

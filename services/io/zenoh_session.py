@@ -8,18 +8,22 @@ gossip), and an optional short lease so that a frozen peer is noticed quickly
 
 A config file (``--zenoh-config FILE``, JSON5 as read by
 ``zenoh.Config.from_file``) replaces the embedded default entirely; command
-line ``--listen``/``--connect`` endpoints are then added on top of it.
+line ``--listen``/``--connect`` endpoints are then added on top of it. The file
+is read when the settings are made: invalid JSON5, an unknown field or a wrong
+value is a ``ValueError`` naming ``zenoh_config`` with Zenoh's reason and the line
+(the CLI prints it as ``error: ...`` and exits 2), never a traceback.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import socket
 from dataclasses import dataclass, field
 from pathlib import Path
 
 __all__ = ["SessionSettings", "build_config", "open_session", "declare_loop_publisher",
-           "declare_loop_subscriber", "free_port", "free_tcp_endpoint"]
+           "declare_loop_subscriber", "free_port", "free_tcp_endpoint", "zenoh_reason"]
 
 MODES = ("peer", "client", "router")
 
@@ -59,8 +63,37 @@ class SessionSettings:
             for ep in getattr(self, name):
                 if "/" not in ep:
                     raise ValueError(f"{name}: endpoint {ep!r} is not of the form proto/addr:port")
-        if self.config_file is not None and not Path(self.config_file).is_file():
-            raise ValueError(f"zenoh_config: file {self.config_file!r} does not exist")
+        if self.config_file is not None:
+            if not Path(self.config_file).is_file():
+                raise ValueError(f"zenoh_config: file {self.config_file!r} does not exist")
+            _read_config_file(self.config_file)
+
+
+_JSON_REASON = re.compile(r'msg: "(?P<msg>.*?)", location: Some\(Location \{ line: '
+                          r'(?P<line>\d+), column: (?P<col>\d+)', re.S)
+_PARSE_REASON = re.compile(r"-->\s*(?P<line>\d+):(?P<col>\d+).*=\s*(?P<msg>[^\n]+)", re.S)
+_SOURCE_PATH = re.compile(r"\s+at /\S+?\.rs:\d+\.?")
+
+
+def zenoh_reason(exc: BaseException) -> str:
+    """Zenoh's error text in one line: the reason and where, without its source path."""
+    text = str(exc)
+    m = _JSON_REASON.search(text)
+    if m:
+        return f"{m['msg']} (line {m['line']}, column {m['col']})"
+    m = _PARSE_REASON.search(_SOURCE_PATH.sub("", text))
+    if m:  # the JSON5 parser's report
+        return f"not JSON5: {m['msg'].strip()} (line {m['line']}, column {m['col']})"
+    return " ".join(_SOURCE_PATH.sub("", text).split()) or type(exc).__name__
+
+
+def _read_config_file(path: str):
+    import zenoh
+
+    try:
+        return zenoh.Config.from_file(str(path))
+    except Exception as exc:  # zenoh.ZError: not JSON5, unknown field, wrong value
+        raise ValueError(f"zenoh_config: {path}: {zenoh_reason(exc)}") from None
 
 
 def build_config(settings: SessionSettings):
@@ -68,11 +101,14 @@ def build_config(settings: SessionSettings):
     import zenoh
 
     if settings.config_file is not None:
-        conf = zenoh.Config.from_file(settings.config_file)
-        if settings.listen:
-            conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
-        if settings.connect:
-            conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+        conf = _read_config_file(settings.config_file)
+        try:
+            if settings.listen:
+                conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+            if settings.connect:
+                conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+        except Exception as exc:
+            raise ValueError(f"listen/connect: {zenoh_reason(exc)}") from None
         return conf
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps(settings.mode))
@@ -91,10 +127,21 @@ def build_config(settings: SessionSettings):
 
 
 def open_session(settings: SessionSettings | None = None):
-    """Open and return a ``zenoh.Session``; the caller must ``close()`` it."""
+    """Open and return a ``zenoh.Session``; the caller must ``close()`` it.
+
+    Raises
+    ------
+    ValueError
+        The session cannot be opened (an endpoint in use or unreachable, a config
+        Zenoh refuses): the message names Zenoh's reason.
+    """
     import zenoh
 
-    return zenoh.open(build_config(settings or SessionSettings()))
+    conf = build_config(settings or SessionSettings())
+    try:
+        return zenoh.open(conf)
+    except Exception as exc:  # zenoh.ZError
+        raise ValueError(f"zenoh: cannot open the session: {zenoh_reason(exc)}") from None
 
 
 def declare_loop_publisher(session, key_expr):

@@ -3,7 +3,11 @@
 Per measurement (sample k):
 
 1. decode and validate it strictly (a bad payload is counted, raises an alarm
-   and is skipped: the plant keeps the last move);
+   and is skipped: the plant keeps the last move); a measurement of another plant
+   incarnation than the one followed is refused (``foreign_measurements``, an
+   alarm) unless the plant's liveliness token appeared again since and the one
+   followed has gone silent (:attr:`ControllerNode.PLANT_SILENT_PERIODS`): only
+   then did the plant restart, and its samples are followed from its new numbering;
 2. advance the transition (:class:`~services.transitions.TransitionManager`)
    and take the reference over the horizon;
 3. step the unit's :class:`~controller.interfaces.SampleController` (shared
@@ -45,6 +49,7 @@ import logging
 import math
 import os
 import queue
+import sqlite3
 import threading
 import time
 from collections import deque
@@ -60,7 +65,7 @@ from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.io.zenoh_session import declare_loop_publisher, declare_loop_subscriber
 from services.registry import build_controller
-from services.store import UnitStore
+from services.store import StoreError, UnitStore
 from services.telemetry import TelemetryLogger
 from services.timing import (
     GC_PAUSES,
@@ -71,7 +76,10 @@ from services.timing import (
     thread_switches,
 )
 from services.transitions import (
+    TERMINAL,
     ConflictError,
+    QueueFullError,
+    Transition,
     TransitionError,
     TransitionManager,
     UnknownTransition,
@@ -95,15 +103,39 @@ def _qp_work(extra: dict) -> dict:
 
 class _Worker:
     """One background thread for the slow chores of a sample (SQLite, Rerun),
-    in submission order, so that they never delay the next move."""
+    in submission order, so that they never delay the next move.
 
-    def __init__(self) -> None:
+    ``on_error(exc)`` is told of every task that raised (after it is logged)."""
+
+    def __init__(self, on_error=None) -> None:
+        self._on_error = on_error
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._run, name="ssmpc-worker", daemon=True)
         self._thread.start()
 
     def submit(self, fn, *args) -> None:
         self._q.put((fn, args, None))
+
+    def call(self, fn, *args, timeout: float = 30.0):
+        """Run ``fn(*args)`` in order after everything submitted so far; its result, or
+        its exception raised here (TimeoutError if it has not run within ``timeout``)."""
+        done = threading.Event()
+        out: dict = {}
+
+        def task():
+            try:
+                out["value"] = fn(*args)
+            except BaseException as exc:  # handed to the caller, not to on_error
+                out["error"] = exc
+            finally:
+                done.set()
+
+        self._q.put((task, (), None))
+        if not done.wait(timeout):
+            raise TimeoutError(f"store: the write did not finish within {timeout:g} s")
+        if "error" in out:
+            raise out["error"]
+        return out.get("value")
 
     def wait(self, timeout: float = 30.0) -> None:
         """Block until everything submitted so far is done."""
@@ -123,8 +155,13 @@ class _Worker:
             fn, args, _ = item
             try:
                 fn(*args)
-            except Exception:
+            except Exception as exc:
                 log.exception("background task failed")
+                if self._on_error is not None:
+                    try:
+                        self._on_error(exc)
+                    except Exception:
+                        log.exception("background error handler failed")
 
 
 class FailureLog:
@@ -206,7 +243,7 @@ class ControllerNode:
         self.tm = TransitionManager(
             cfg.unit, {k: g["setpoints"] for k, g in tracked.items()}, cv_scales(cfg, tracked),
             cfg.initial_grade, cfg.sample_period_s, cfg.transition_duration_s,
-            cfg.settle_tolerance, cfg.settle_samples)
+            cfg.settle_tolerance, cfg.settle_samples, max_queued=cfg.transition_queue_limit)
         self.stats = DeadlineStats(self.budget.budget_s)
         self.sample_times = SampleTimes()  # arrival and move of the latest samples
         self.mv_seq = 0
@@ -226,17 +263,27 @@ class ControllerNode:
         self.plant_alive: bool | None = None
         self._failures = FailureLog(log)
         self._last_meas_seq = -1
+        #: the plant run followed (Measurement.incarnation); another one is taken only
+        #: after the plant's liveliness token appeared again
+        self._plant_incarnation: str | None = None
+        self._plant_restarted = False
+        self._followed_at = -math.inf  # arrival of its latest accepted sample, perf s
+        self.foreign_measurements = 0
+        self._foreign_moves = 0  # samples whose applied move this node did not send
         self.y_lower, self.y_upper = plausible_ranges(cfg, plant, grades)
         self.plant_shutdown = False
         self.alarms: deque[str] = deque(maxlen=20)
         self.restored_from: int | None = None
         self._lock = threading.RLock()
+        self._create_lock = threading.RLock()  # one create at a time (idempotency keys)
         self._cond = threading.Condition()
         self._latest: tuple[float, Measurement] | None = None
         self._busy = threading.Lock()  # held by whichever thread processes a sample
         self._closing = False
         self._dropped = 0
-        self._worker = _Worker()
+        #: why the store last failed to commit (None: it commits); writes answer 503
+        self.store_error: str | None = None
+        self._worker = _Worker(on_error=self._background_failed)
         self._checkpoint_due = False
         self._busy_until = 0.0
         self._last_flush = time.perf_counter()
@@ -265,20 +312,93 @@ class ControllerNode:
 
     # -- persistence -------------------------------------------------------------------
     def _restore(self) -> None:
-        cp = self.store.load_checkpoint()
-        if cp is None:
-            return
-        st = cp["state"]
-        self.tm.restore(st["transitions"])
-        self.controller.restore(st["controller"])
-        self.u_last = np.asarray(st["u_last"], float)
-        self.mv_seq = int(st["mv_seq"])
-        self.stats.misses = int(st.get("deadline_misses", 0))
-        self.stats.fallbacks = int(st.get("fallback_moves", 0))
-        self.k = int(cp["sample"])
-        self.t = float(cp["process_time"])
-        self.restored_from = self.k
-        log.info("restored checkpoint at sample %d", self.k)
+        """Start from the checkpoint, reconciled with the transition records.
+
+        A checkpoint that does not decode or does not fit this controller is refused:
+        :class:`~services.store.StoreError` (the CLI: ``error:``, exit 2; the operator
+        moves the store aside), never a start from half of it. The records win over
+        the checkpoint: a transition the store has as ended stays ended, and one the
+        store has as pending but the checkpoint does not know (a crash between the
+        two writes) is queued again, so nothing acknowledged is lost or revived.
+        """
+        cp = self.store.load_checkpoint()  # StoreError when it does not decode
+        if cp is not None:
+            st = cp["state"]
+            try:
+                self.tm.restore(st["transitions"])
+                self.controller.restore(st["controller"])
+                u_last = np.asarray(st["u_last"], float)
+                if u_last.shape != (self.nu,) or not np.all(np.isfinite(u_last)):
+                    raise ValueError(f"u_last: expected {self.nu} finite numbers")
+                self.u_last = u_last
+                self.mv_seq = int(st["mv_seq"])
+                self.stats.misses = int(st.get("deadline_misses", 0))
+                self.stats.fallbacks = int(st.get("fallback_moves", 0))
+                self.k = int(cp["sample"])
+                self.t = float(cp["process_time"])
+            except (KeyError, TypeError, ValueError, IndexError) as exc:
+                raise StoreError(f"store: {self.store.path}: the checkpoint does not fit "
+                                 f"this controller ({type(exc).__name__}: {exc}); move the "
+                                 "store aside to start afresh") from None
+            self.restored_from = self.k
+            log.info("restored checkpoint at sample %d", self.k)
+        self._reconcile()
+
+    def _reconcile(self) -> None:
+        """Make the transitions in memory agree with the committed records."""
+        tm = self.tm
+        known = {tr.id for tr in ([tm.active] if tm.active is not None else []) + tm.queued}
+        for tr in ([tm.active] if tm.active is not None else []) + list(tm.queued):
+            rec = self.store.transition(tr.id)
+            if rec is None or rec["state"] not in TERMINAL or tr.terminal:
+                continue
+            ended = Transition.from_dict(rec)
+            if tr is tm.active:
+                # hold the set points of the moment it ended (settled: its target)
+                t_end = ended.ended_t if ended.ended_t is not None else self.t
+                tm.hold = (np.asarray(ended.target, float) if ended.state == "settled"
+                           else tm.reference_at(t_end)[0].copy())
+                tm.grade = ended.grade if ended.state == "settled" else None
+                tm.active = ended
+            else:
+                tm.queued.remove(tr)
+            self.alarms.append(f"transition {tr.id}: the store has it {ended.state}; "
+                               "the older checkpoint's state was dropped")
+        for rec in self.store.transitions():
+            if rec["id"] in known or rec["state"] in TERMINAL:
+                continue
+            tr = Transition.from_dict(rec)
+            if rec["state"] == "pending":
+                tr.detail = "queued"
+                tm.queued.append(tr)  # acknowledged, never started: it runs
+                self.alarms.append(f"transition {tr.id}: pending in the store, not in the "
+                                   "checkpoint; queued again")
+            else:  # running, but the checkpoint never knew it: its start is lost
+                tr.state, tr.ended_t = "failed", self.t
+                tr.detail = "interrupted by a restart before its start was checkpointed"
+                self.store.save_transition(tr.as_dict(), event="failed", process_time=self.t,
+                                           detail=tr.detail)
+                self.alarms.append(f"transition {tr.id}: {tr.detail}")
+
+    # -- the store's health --------------------------------------------------------------
+    def _store_failed(self, what: str, exc: BaseException) -> None:
+        """The store did not commit ``what``: degraded, with an alarm (writes answer 503)."""
+        reason = f"{what} not stored ({type(exc).__name__}: {exc})"
+        with self._lock:
+            first = self.store_error is None
+            self.store_error = reason
+            self.alarms.append(f"store degraded: {reason}")
+        if first:
+            log.error("store degraded: %s", reason)
+
+    def _store_ok(self) -> None:
+        if self.store_error is not None:
+            with self._lock:
+                self.store_error = None
+                self.alarms.append("store commits again")
+
+    def _background_failed(self, exc: BaseException) -> None:
+        self._store_failed("a background write", exc)
 
     def checkpoint(self, wait: bool = True) -> None:
         """Snapshot the node's state now and write it (in order with transition records);
@@ -299,10 +419,19 @@ class ControllerNode:
             with self._lock:
                 self.alarms.append(f"checkpoint not written at sample {k}: {exc}")
             return
-        self._worker.submit(self.store.save_checkpoint, k, t, payload)
-        if wait:
-            self._worker.wait()
+        if not wait:
+            self._worker.submit(self.store.save_checkpoint, k, t, payload)
+            return
+        try:
+            self._worker.call(self.store.save_checkpoint, k, t, payload)
+        except (sqlite3.Error, TimeoutError) as exc:
+            self._store_failed(f"checkpoint at sample {k}", exc)
 
+    #: A new plant incarnation is followed only when the one followed has been silent
+    #: this many wall periods (and the plant's liveliness token appeared again): a live
+    #: plant publishes every period, so a sample of another incarnation meanwhile is
+    #: forged or replayed.
+    PLANT_SILENT_PERIODS = 1.5
     #: Shortest wall time between two published status messages, s.
     STATUS_MIN_WALL_S = 0.2
     #: A checkpoint is also due after this wall time (slow speeds: samples are far apart), s.
@@ -355,8 +484,8 @@ class ControllerNode:
         import zenoh
 
         if sample.kind == zenoh.SampleKind.PUT:
-            with self._cond:  # a (re)started plant counts its samples from 0 again
-                self._last_meas_seq = -1
+            with self._cond:  # a plant (re)started: its new incarnation may be followed
+                self._plant_restarted = True
                 self.plant_alive = True
         elif sample.kind == zenoh.SampleKind.DELETE:
             # the plant's liveliness token is gone (its lease ran out): the plant holds
@@ -383,11 +512,35 @@ class ControllerNode:
             log.warning("measurement rejected: %s", exc)
             return False
         with self._cond:
+            if msg.incarnation != self._plant_incarnation:
+                silent = arrived - self._followed_at > self.PLANT_SILENT_PERIODS * \
+                    self.budget.wall_period_s
+                if self._plant_incarnation is not None and not (
+                        self._plant_restarted and silent):
+                    # not a plant liveliness said was (re)started while the one followed
+                    # went silent: forged or replayed
+                    self.foreign_measurements += 1
+                    if self.foreign_measurements in (1, 10, 100, 1000) or \
+                            self.foreign_measurements % 10_000 == 0:
+                        with self._lock:
+                            self.alarms.append(
+                                f"measurement of an unknown plant incarnation refused "
+                                f"({self.foreign_measurements} so far)")
+                    return False
+                if self._plant_incarnation is not None:
+                    with self._lock:
+                        self.alarms.append(f"plant restarted: following its incarnation "
+                                           f"{msg.incarnation[:8]} from sample {msg.seq}")
+                # a (re)started plant counts its samples from 0 again
+                self._plant_incarnation = msg.incarnation
+                self._plant_restarted = False
+                self._last_meas_seq = -1
             if msg.seq <= self._last_meas_seq:
                 # duplicated, reordered or delayed: acting on it again would double-count
                 self.stale_measurements += 1
                 return False
             self._last_meas_seq = msg.seq
+            self._followed_at = arrived
             if self._latest is not None:
                 self._dropped += 1
             self._latest = (arrived, msg)
@@ -445,6 +598,8 @@ class ControllerNode:
             reply = Reply(404, error=str(exc))
         except ConflictError as exc:
             reply = Reply(409, error=str(exc))
+        except QueueFullError as exc:
+            reply = Reply(429, error=str(exc))
         except (TransitionError, ValueError) as exc:
             reply = Reply(422, error=str(exc))
         except Exception as exc:  # never let a query kill the node
@@ -494,22 +649,13 @@ class ControllerNode:
             queue = args.get("queue", False)
             if not isinstance(queue, bool):
                 return Reply(422, error="queue: expected a boolean")
-            # A controller that knows grades it cannot hold refuses them now, not
-            # inside a later sample (the transition would run toward nothing).
-            check = getattr(self.controller, "check_grade", None)
-            if check is not None and grade in self.info.grades:
-                try:
-                    with self._lock:
-                        check(grade)
-                except ValueError as exc:
-                    return Reply(422, error=str(exc))
-            with self._lock:
-                tr = self.tm.request(grade, self.t, duration, queue=queue)
-                self._persist(tr, "pending", "queued" if tr.detail == "queued"
-                              else f"requested from {tr.from_grade}")
-                view = tr.view(self.t, self.budget.speed)
-            self.checkpoint(wait=True)
-            return Reply(202, view)
+            key = args.get("idempotency_key")
+            if key is not None and not (isinstance(key, str) and 0 < len(key) <= 255):
+                return Reply(422, error="idempotency_key: expected a string of 1..255")
+            if key is None:
+                return self._create(grade, duration, queue, None)
+            with self._create_lock:  # two requests with one key make one transition
+                return self._create(grade, duration, queue, key)
         tid = args.get("id")
         if not isinstance(tid, str):
             return Reply(422, error="id: expected a transition id")
@@ -524,17 +670,69 @@ class ControllerNode:
                     if changed:
                         if tr is self.tm.active:
                             self._notify(tr, "aborted")
-                        self._persist(tr, "aborted")
+                        record, t = tr.as_dict(), self.t
                     view = tr.view(self.t, self.budget.speed)
             if active:
                 if changed:
+                    try:  # committed before it is acknowledged
+                        self._worker.call(self._save_transition, record, "aborted", t,
+                                          tr.detail)
+                    except (sqlite3.Error, TimeoutError) as exc:
+                        # the abort holds the set points (the safe side) but is not durable
+                        self._store_failed(f"abort of {tid}", exc)
+                        return Reply(503, error="store: cannot commit; the abort holds the "
+                                                f"set points but is not stored ({exc})")
+                    self._store_ok()
                     self.checkpoint(wait=True)
                 return Reply(200, view)
         return Reply(200, self._view(tid))
 
-    def _view(self, tid: str) -> dict:
-        from services.transitions import Transition
+    def _create(self, grade: str, duration, queue: bool, key: str | None) -> Reply:
+        """A new transition (202), or, for a known idempotency ``key``, the one that key
+        made (202 again; 422 when the request differs)."""
+        request = {"key": key, "grade": grade,
+                   "duration_s": None if duration is None else float(duration), "queue": queue}
+        if key is not None:
+            with self._lock:
+                found = self.tm.find_by_key(key)
+                record = None if found is None else found.as_dict()
+            if record is None:
+                self._worker.wait()
+                record = self.store.transition_by_key(key)
+            if record is not None:
+                if record.get("idempotency") != request:
+                    return Reply(422, error="Idempotency-Key: already used by another request "
+                                            f"(transition {record['id']})")
+                return Reply(202, Transition.from_dict(record).view(self.t, self.budget.speed))
+        # A controller that knows grades it cannot hold refuses them now, not
+        # inside a later sample (the transition would run toward nothing).
+        check = getattr(self.controller, "check_grade", None)
+        if check is not None and grade in self.info.grades:
+            try:
+                with self._lock:
+                    check(grade)
+            except ValueError as exc:
+                return Reply(422, error=str(exc))
+        with self._create_lock:  # creates one at a time: nothing else admits meanwhile
+            with self._lock:
+                tr = self.tm.prepare(grade, self.t, duration, queue=queue,
+                                     idempotency=None if key is None else request)
+                record, t = tr.as_dict(), self.t
+            detail = "queued" if tr.detail == "queued" else f"requested from {tr.from_grade}"
+            try:  # committed before it is admitted and acknowledged
+                self._worker.call(self._save_transition, record, "pending", t, detail)
+            except (sqlite3.Error, TimeoutError) as exc:
+                self._store_failed(f"transition {tr.id}", exc)  # never admitted: not run
+                return Reply(503, error=f"store: cannot commit, transition not accepted "
+                                        f"({exc}); retry later")
+            with self._lock:
+                self.tm.admit(tr)
+                view = tr.view(self.t, self.budget.speed)
+        self._store_ok()
+        self.checkpoint(wait=True)
+        return Reply(202, view)
 
+    def _view(self, tid: str) -> dict:
         with self._lock:
             found = self.tm.find(tid)
             if found is not None:
@@ -586,6 +784,11 @@ class ControllerNode:
                 "bad_measurements": self.bad_measurements,
                 "stale_measurements": self.stale_measurements,
                 "implausible_measurements": self.implausible_measurements,
+                "foreign_measurements": self.foreign_measurements,
+                "foreign_moves": self._foreign_moves,
+                "store": "ok" if self.store_error is None else "degraded",
+                "store_error": self.store_error,
+                "plant_incarnation": self._plant_incarnation,
                 "failed_samples": self.failed_samples,
                 "dropped_measurements": self._dropped,
                 "plant_shutdown": self.plant_shutdown,
@@ -656,6 +859,14 @@ class ControllerNode:
         sw_begin = thread_switches()
         if self._align_pending:
             self._align(msg)
+        elif msg.mv_seq > self.mv_seq:
+            # the plant applied a move numbered beyond any this node sent: not ours
+            self._foreign_moves += 1
+            if self._foreign_moves in (1, 10, 100, 1000) or self._foreign_moves % 10_000 == 0:
+                with self._lock:
+                    self.alarms.append(f"sample {msg.seq}: the plant applies a move this "
+                                       f"controller did not send ({self._foreign_moves} "
+                                       "samples so far)")
         hold = self.u_last.copy()
         y = np.asarray(msg.y, float)
         outside = (y < self.y_lower) | (y > self.y_upper)
@@ -675,6 +886,7 @@ class ControllerNode:
         with self._lock:
             self.k, self.t = msg.seq, msg.t
             self.y = np.asarray(msg.y, float)
+            ended = False  # a transition ended outside update(): checkpoint at once too
             if msg.shutdown and not self.plant_shutdown:
                 self.plant_shutdown = True
                 self.alarms.append(f"plant shut down at t={msg.t:.1f} s")
@@ -682,9 +894,13 @@ class ControllerNode:
                 if tr is not None:
                     self._notify(tr, "failed")
                     self._persist(tr, "failed")
+                    ended = True
             changes = self.tm.update(msg.t, self.y[self.track_idx])
             for tr, state in changes:
                 self._notify(tr, state)
+                # queued for the store before a query can see the new state (a flush
+                # after a GET that says settled finds the event written)
+                self._persist(tr, state)
             ref = self.tm.reference_at(msg.t, self.horizon)
             self.r = ref[0]
         t_step = time.perf_counter()
@@ -752,8 +968,6 @@ class ControllerNode:
                     finish()
                 except Exception as exc:  # the next step retries it; never stall the loop
                     self.alarms.append(f"bookkeeping after sample {msg.seq} failed: {exc}")
-        for tr, state in changes:
-            self._persist(tr, state)
         if self.telemetry is not None:
             full = self.telemetry.add(msg.seq, msg.t, self.y, self.r, u,
                                       decision.active_model, decision.model_names, decision.J,
@@ -764,11 +978,11 @@ class ControllerNode:
                 # in batches, but never more than a second behind (a live viewer)
                 self._last_flush = now
                 self._worker.submit(self.telemetry.flush)
-        if (changes or msg.seq % self.cfg.checkpoint_every == 0
+        if (changes or ended or msg.seq % self.cfg.checkpoint_every == 0
                 or time.perf_counter() - self._last_checkpoint_wall > self.CHECKPOINT_WALL_S):
             self._checkpoint_due = True
-        if self._checkpoint_due:
-            self._maybe_checkpoint(arrived, forced=bool(changes))
+        if self._checkpoint_due:  # a state change (ended, settled, ...) at once
+            self._maybe_checkpoint(arrived, forced=bool(changes) or ended)
         now = time.perf_counter()
         if (msg.seq % self.cfg.status_every == 0
                 and now - self._last_status_wall >= self.STATUS_MIN_WALL_S):
@@ -781,9 +995,9 @@ class ControllerNode:
                 log.exception("status not published")
 
     def _publish_status(self) -> None:
-        from services.io.messages import encode
+        from services.io.messages import SCHEMA_VERSION, encode
 
-        self._status_pub.put(encode({"schema": 1, "kind": "status", **self.status()}))
+        self._status_pub.put(encode({"schema": SCHEMA_VERSION, "kind": "status", **self.status()}))
 
     #: Measurements the busy-poll channel holds (more than one only when the loop is
     #: behind; the newest is processed, the others counted as dropped).

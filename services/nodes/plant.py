@@ -10,8 +10,19 @@ Each sample k (period ``Ts`` process seconds, ``Ts / speed`` wall seconds):
    last, as a DCS does) and integrate the plant over ``[t_k, t_k+1]``.
 
 An MV message is accepted only if it decodes strictly, names this unit, comes
-from the expected sender and has a ``seq`` newer than the last accepted one;
-everything else is counted by reason and ignored. A controller move computed
+from the expected sender and has a ``seq`` newer than the last accepted one, but
+not further ahead of it than the wall time since then allows (the controller
+numbers its moves by the wall clock in µs, see ``ControllerNode._publish_mv``; the
+first one may be at most that far ahead of this node's clock): a forged move with a
+huge ``seq`` would otherwise make every genuine move look stale. Everything else is
+counted by reason (``decode``, ``sender``, ``stale``, ``jump``) and ignored. A move of
+the expected sender refused as stale although it answers a sample as new as the
+applied one's raises the alarm that the applied move is not the controller's latest.
+The move applied is then held inside the instrument ranges and rate limits of
+:mod:`services.nodes.plant_guard` (counted as ``moves_limited``, with an alarm).
+
+Every measurement carries this run's ``incarnation`` (random at start), so the
+controller can tell a restarted plant from a forged or replayed sample. A controller move computed
 from ``y(k)`` and received before boundary ``k+1`` acts over ``[t_k, t_k+1]``,
 the usual discrete-time convention (computation delay within the budget).
 
@@ -37,9 +48,11 @@ queries on ``ssmpc/<unit>/plant/cmd/**``: ``status``, ``disturbance``
 from __future__ import annotations
 
 import logging
+import math
 import os
 import threading
 import time
+import uuid
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -50,6 +63,7 @@ from controller.units.config import UnitConfig, build_plant, cv_indices, mv_indi
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.io.zenoh_session import declare_loop_publisher, declare_loop_subscriber
+from services.nodes.plant_guard import InstrumentLimits, te_limits
 from services.timing import GC_PAUSES, SampleClock, TimingBudget, percentile_summary
 
 __all__ = ["ODERunner", "PlantNode", "PlantCounters"]
@@ -83,6 +97,10 @@ class ODERunner:
         lo = np.array([self.plant.input_vars[i].lower for i in self.mvi])
         hi = np.array([self.plant.input_vars[i].upper for i in self.mvi])
         self.u_lower, self.u_upper = lo, hi
+        self.mv_names = tuple(self.plant.input_vars[i].name for i in self.mvi)
+        #: the inputs' physical bounds, no rate limit (plant_guard)
+        self.limits = InstrumentLimits(self.mv_names, tuple(lo), tuple(hi),
+                                       (math.inf,) * len(lo))
 
     @property
     def u(self) -> np.ndarray:
@@ -143,12 +161,12 @@ class TERunner:
         mvs = te_mv_names(cfg)
         self._sp_index = {i: sp_names.index(n) for i, n in enumerate(mvs) if n in sp_names}
         self._xmv_index = {i: int(n[3:]) - 1 for i, n in enumerate(mvs) if n not in sp_names}
-        mvs_len = len(mvs)
         self.t = 0.0
-        self.u_lower = np.array([-np.inf if i in self._sp_index else 0.0
-                                 for i in range(mvs_len)])
-        self.u_upper = np.array([np.inf if i in self._sp_index else 100.0
-                                 for i in range(mvs_len)])
+        self.mv_names = tuple(mvs)
+        #: instrument ranges and rate limits of the set points and valves (plant_guard)
+        self.limits = te_limits(mvs)
+        self.u_lower = np.array(self.limits.lower)
+        self.u_upper = np.array(self.limits.upper)
 
     @property
     def shutdown(self) -> bool:
@@ -255,8 +273,11 @@ class PlantCounters:
     samples: int = 0
     mv_accepted: int = 0
     mv_held: int = 0
-    rejected: dict = field(default_factory=lambda: {"decode": 0, "sender": 0, "stale": 0})
+    rejected: dict = field(default_factory=lambda: {"decode": 0, "sender": 0, "stale": 0,
+                                                    "jump": 0})
     lockstep_timeouts: int = 0
+    #: samples whose move was clamped or rate-limited (plant_guard)
+    moves_limited: int = 0
 
 
 class PlantNode:
@@ -292,6 +313,12 @@ class PlantNode:
     POLL_QUEUE = 16
     #: Longest sleep between two looks at the stop event while waiting for a move, s.
     STOP_CHECK_S = 0.1
+    #: How far an MV's ``seq`` (wall µs) may run ahead of the time elapsed since the
+    #: last accepted one (or of this node's clock for the first), s; at least two
+    #: wall periods. Clock skew between hosts of a mesh must stay below it.
+    MV_SEQ_SLACK_S = 1.0
+    #: Shortest wall time between two alarms of one kind (the rest are counted), s.
+    ALARM_MIN_WALL_S = 1.0
 
     def __init__(self, cfg: UnitConfig, session, *, speed: float = 1.0,
                  expected_sender: str | None = None, lockstep: bool = False,
@@ -305,6 +332,14 @@ class PlantNode:
         self.lockstep_timeout_s = float(lockstep_timeout_s)
         self.runner = runner if runner is not None else make_runner(cfg)
         self.nu = len(self.runner.u)
+        #: this run of the plant node, in every measurement
+        self.incarnation = uuid.uuid4().hex
+        self.limits: InstrumentLimits = self.runner.limits
+        self.alarms: deque[str] = deque(maxlen=20)
+        self._alarm_wall: dict[str, float] = {}
+        self._seq_slack_us = 1e6 * max(self.MV_SEQ_SLACK_S, 2 * self.budget.wall_period_s)
+        self._last_mv_wall_us = 0
+        self._last_mv_meas_seq = -1
         self.counters = PlantCounters()
         self.k = 0
         self.last_mv_seq = -1
@@ -346,6 +381,7 @@ class PlantNode:
                 self.counters.rejected["decode"] += 1
             log.warning("MV rejected: %s", exc)
             return
+        now_us = time.time_ns() // 1000
         with self._cond:
             if msg.sender != self.expected_sender:
                 self.counters.rejected["sender"] += 1
@@ -353,8 +389,21 @@ class PlantNode:
                 return
             if msg.seq <= self.last_mv_seq:
                 self.counters.rejected["stale"] += 1
+                if msg.meas_seq >= self._last_mv_meas_seq:
+                    self._alarm("stale", f"move for sample {msg.meas_seq} refused as older "
+                                "than the applied one: the applied move is not the "
+                                "controller's latest (another publisher uses its name?)")
+                return
+            base = now_us if self.last_mv_seq < 0 else (
+                self.last_mv_seq + now_us - self._last_mv_wall_us)
+            if msg.seq > base + self._seq_slack_us:
+                self.counters.rejected["jump"] += 1
+                self._alarm("jump", f"move for sample {msg.meas_seq} refused: sequence jump "
+                            f"of {(msg.seq - base) / 1e6:.3g} s beyond the time elapsed")
                 return
             self.last_mv_seq = msg.seq
+            self._last_mv_wall_us = now_us
+            self._last_mv_meas_seq = msg.meas_seq
             if msg.meas_seq == self.k and not msg.fallback:
                 self.loop_latency_s.append(time.perf_counter() - self._published_at)
             elif msg.meas_seq in self._held_open:  # the answer to a held sample, late
@@ -368,6 +417,16 @@ class PlantNode:
     def submit_mv(self, payload: bytes) -> None:
         """An MV message from the plant link (OPC UA): the same checks as over Zenoh."""
         self._on_mv(_LinkSample(payload))
+
+    def _alarm(self, kind: str, text: str) -> None:
+        """Raise an alarm (caller holds ``_cond``), at most one of a kind per
+        :attr:`ALARM_MIN_WALL_S`."""
+        now = time.monotonic()
+        if now - self._alarm_wall.get(kind, -math.inf) < self.ALARM_MIN_WALL_S:
+            return
+        self._alarm_wall[kind] = now
+        self.alarms.append(f"sample {self.k}: {text}")
+        log.warning("%s", text)
 
     def _on_query(self, query) -> None:
         try:
@@ -446,6 +505,8 @@ class PlantNode:
                     "samples": c.samples, "mv_accepted": c.mv_accepted, "mv_held": c.mv_held,
                     "mv_rejected": dict(c.rejected), "lockstep": self.lockstep,
                     "lockstep_timeouts": c.lockstep_timeouts, "speed": self.budget.speed,
+                    "moves_limited": c.moves_limited, "alarms": list(self.alarms),
+                    "incarnation": self.incarnation,
                     "busy_poll": self.busy_poll,
                     "shutdown": bool(self.runner.shutdown),
                     "controller_alive": self.controller_alive,
@@ -456,7 +517,7 @@ class PlantNode:
         y = self.runner.y()
         msg = Measurement(unit=self.cfg.unit, seq=self.k, t=self.runner.t, y=tuple(y),
                           u=tuple(self.runner.u), mv_seq=self._applied_mv_seq,
-                          shutdown=bool(self.runner.shutdown))
+                          shutdown=bool(self.runner.shutdown), incarnation=self.incarnation)
         with self._cond:
             self._published_at = time.perf_counter()
         self._pub.put(msg.to_bytes())
@@ -524,6 +585,16 @@ class PlantNode:
         self._held_open = {k: v for k, v in self._held_open.items() if k >= self.k - 4}
         self._held_open[self.k] = record
 
+    def _guarded(self, msg: MVMessage) -> np.ndarray:
+        """The move of ``msg`` inside the instrument ranges and rate limits."""
+        u, limited = self.limits.apply(self.runner.u, msg.u)
+        if limited:
+            with self._cond:
+                self.counters.moves_limited += 1
+                self._alarm("limited", f"move for sample {msg.meas_seq} clamped or "
+                            f"rate-limited: {', '.join(limited)}")
+        return u
+
     def run(self, stop: threading.Event, max_samples: int | None = None) -> None:
         """Run until ``stop`` is set (or ``max_samples`` samples have been integrated),
         with BLAS single-threaded meanwhile (:mod:`controller.blas`); see :meth:`_run`."""
@@ -546,7 +617,7 @@ class PlantNode:
                 msg = self._take_mv(self.lockstep_timeout_s, stop)
             else:
                 msg = self._take_mv(clock.deadline(clock.k + 1) - time.perf_counter(), stop)
-            u = self.runner.u if msg is None else np.asarray(msg.u)
+            u = self.runner.u if msg is None else self._guarded(msg)
             if msg is not None:
                 self._applied_mv_seq = msg.seq
             t_adv = time.perf_counter()

@@ -248,6 +248,18 @@ def _config(args):
     return load_unit_config(args.unit, args.unit_config)
 
 
+def _is_loopback(host: str) -> bool:
+    """True for ``localhost`` and loopback addresses (127.0.0.0/8, ::1)."""
+    import ipaddress
+
+    if host.strip().lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip().strip("[]")).is_loopback
+    except ValueError:
+        return False  # a name: it may resolve beyond loopback
+
+
 def run_opcua(args) -> int:
     """``ssmpc opcua``: the plant node with its OPC UA server."""
     from services.io.opcua.server import PlantOPCUAServer
@@ -269,6 +281,7 @@ def run_plant(args, link=None) -> int:
 
     if link is None:
         _logging()
+    settings = session_settings(args)  # a bad Zenoh config fails before anything starts
     cfg = _config(args)
     if (args.noise or args.idv) and cfg.plant != "te":
         raise CLIError("noise/idv: only the TE plant has them; use the plant's "
@@ -279,7 +292,7 @@ def run_plant(args, link=None) -> int:
             raise CLIError(f"idv: IDV number must be 1..20, got {k}")
         runner.set_idv(k, True)
     stop = _stop_event(args.duration)
-    session = open_session(session_settings(args))
+    session = open_session(settings)
     node = None
     try:
         try:
@@ -323,6 +336,7 @@ def run_controller(args) -> int:
     from services.telemetry import TelemetryLogger
 
     _logging()
+    settings = session_settings(args)  # a bad Zenoh config fails before anything starts
     cfg = _config(args)
     link = None
     if args.plant_io == "opcua":
@@ -351,7 +365,12 @@ def run_controller(args) -> int:
                                 batch=cfg.telemetry_every, ref_names=cfg.track or None,
                                 recording_id=recording_id,
                                 variables=unit_variables(cfg, plant))
-    session = open_session(session_settings(args))
+    try:
+        session = open_session(settings)
+    except BaseException:
+        telemetry.close()
+        store.close()
+        raise
     node = None
     try:
         node = ControllerNode(cfg, session, store, telemetry, speed=args.speed,
@@ -374,16 +393,22 @@ def run_api(args) -> int:
     import uvicorn
 
     from api.app import create_app
+    from api.auth import ENV, token_from_env
     from api.mesh import Mesh
     from services.io.zenoh_session import open_session
 
     _logging()
     if not 0 < args.port < 65536:
         raise CLIError(f"port: must be 1..65535, got {args.port}")
-    session = open_session(session_settings(args))
+    settings = session_settings(args)
+    token = token_from_env()  # set but empty: a config error
+    if token is None and not _is_loopback(args.host):
+        raise CLIError(f"host: serving on {args.host} (beyond loopback) needs a write token; "
+                       f"set {ENV}")
+    session = open_session(settings)
     mesh = Mesh(session, timeout_s=args.query_timeout)
     try:
-        app = create_app(mesh)
+        app = create_app(mesh, token=token, token_from_environment=False)
         config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning",
                                 access_log=False, lifespan="off")
         server = uvicorn.Server(config)

@@ -153,10 +153,12 @@ def _move_aside(state_dir: str, unit: str) -> list[str]:
 
 
 def run_up(args) -> int:
+    from api.auth import token_from_env
     from services.io.zenoh_session import free_port
     from services.registry import load_unit_config
 
     load_unit_config(args.unit, args.unit_config)  # fail early on a bad unit/config
+    token_from_env()  # set but empty: a config error before any node starts
     if not 0 < args.port < 65536:
         raise CLIError(f"port: must be 1..65535, got {args.port}")
     if args.restart_limit < 0:
