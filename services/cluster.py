@@ -83,16 +83,28 @@ def open_client(scheduler: str | None = None, workers: int | None = None,
 
     if scheduler is None:
         n = int(workers or os.cpu_count() or 1)
-        for var in THREAD_ENV:
-            os.environ.setdefault(var, "1")
-        # no dashboard: the workers' statistical profiler (a stack sample every 10 ms,
+        # the thread-pool variables go to the worker processes before they start (the
+        # nanny's pre-spawn environment). distributed applies them to this process's
+        # environment to spawn the workers and leaves them there; they are put back
+        # once the workers run, or every later child of the caller would inherit them
+        # (seen: a node test's BLAS started single-threaded after a campaign test).
+        saved = {var: os.environ.get(var) for var in (*THREAD_ENV, "MALLOC_TRIM_THRESHOLD_")}
+        # No dashboard: the workers' statistical profiler (a stack sample every 10 ms,
         # taken under the interpreter lock) would have no one to show its samples to.
         # The scheduler's small HTTP server (health, metrics) still starts: on a free
         # loopback port (the default 8787 may be another cluster's)
-        with dask.config.set({"distributed.worker.profile.enabled": False}):
+        pre_spawn = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
+        pre_spawn.update({var: "1" for var in THREAD_ENV})
+        with dask.config.set({"distributed.worker.profile.enabled": False,
+                              "distributed.nanny.pre-spawn-environ": pre_spawn}):
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                    silence_logs=logging.ERROR)
+        for var, value in saved.items():
+            if value is None:
+                os.environ.pop(var, None)
+            else:
+                os.environ[var] = value
         client = Client(cluster)
         try:
             client.register_plugin(SingleThreadedWorker())
