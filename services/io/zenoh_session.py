@@ -23,9 +23,24 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 __all__ = ["SessionSettings", "build_config", "open_session", "declare_loop_publisher",
-           "declare_loop_subscriber", "free_port", "free_tcp_endpoint", "zenoh_reason"]
+           "declare_loop_subscriber", "free_port", "free_tcp_endpoint", "zenoh_reason",
+           "PayloadSample"]
 
 MODES = ("peer", "client", "router")
+
+
+class PayloadSample:
+    """A payload from another link (OPC UA), shaped as a Zenoh sample
+    (``sample.payload.to_bytes()``), so that it takes the Zenoh path's checks."""
+
+    __slots__ = ("payload", "_data")
+
+    def __init__(self, data: bytes) -> None:
+        self._data = data
+        self.payload = self
+
+    def to_bytes(self) -> bytes:
+        return self._data
 
 
 @dataclass(frozen=True)

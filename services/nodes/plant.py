@@ -62,7 +62,11 @@ from controller.blas import single_threaded_blas
 from controller.units.config import UnitConfig, build_plant, cv_indices, mv_indices, time_scale_s
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
-from services.io.zenoh_session import declare_loop_publisher, declare_loop_subscriber
+from services.io.zenoh_session import (
+    PayloadSample,
+    declare_loop_publisher,
+    declare_loop_subscriber,
+)
 from services.nodes.plant_guard import InstrumentLimits, te_limits
 from services.timing import GC_PAUSES, SampleClock, TimingBudget, percentile_summary
 
@@ -255,19 +259,6 @@ def _percentiles_us(values_s) -> dict | None:
     return {"p50_us": s["p50"], "p99_us": s["p99"], "max_us": s["max"], "n": s["n"]}
 
 
-class _LinkSample:
-    """A payload from a plant link, shaped as a Zenoh sample (``payload.to_bytes()``)."""
-
-    __slots__ = ("payload", "_data")
-
-    def __init__(self, data: bytes) -> None:
-        self._data = data
-        self.payload = self
-
-    def to_bytes(self) -> bytes:
-        return self._data
-
-
 @dataclass
 class PlantCounters:
     samples: int = 0
@@ -416,7 +407,7 @@ class PlantNode:
 
     def submit_mv(self, payload: bytes) -> None:
         """An MV message from the plant link (OPC UA): the same checks as over Zenoh."""
-        self._on_mv(_LinkSample(payload))
+        self._on_mv(PayloadSample(payload))
 
     def _alarm(self, kind: str, text: str) -> None:
         """Raise an alarm (caller holds ``_cond``), at most one of a kind per

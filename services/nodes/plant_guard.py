@@ -19,7 +19,23 @@ MV                        range              per sample    why
 ``reactor_temperature_sp`` 100 .. 150 °C     10 °C         trip above 175 °C; grades
                                                            120.4-128.2 °C
 ``*_level_sp``            0 .. 100 %         100 %         level instrument range
+``D_feed_sp``             0 .. 5811 kg/h     full range    the D valve's full flow
+``E_feed_sp``             0 .. 8354 kg/h     full range    the E valve's full flow
+``A_feed_sp``             0 .. 1.017 kscmh   full range    the A valve's full flow
+``A_and_C_feed_sp``       0 .. 15.25 kscmh   full range    the A+C valve's full flow
+``recycle_flow_sp``       0 .. 53.8 kscmh    full range    twice the base case (no
+                                                           full scale published)
+``purge_rate_sp``         0 .. 0.674 kscmh   full range    twice the base case
+``production_sp``         0 .. 45.9 m³/h     full range    twice the base case
+``stripper_temperature_sp`` 0 .. 150 °C      full range    the reactor's range
+``stripper_steam_sp``     0 .. 460 kg/h      full range    twice the base case
+``reactor_coolant_outlet_temperature_sp`` 0 .. 150 °C  full range  the reactor's range
 ========================  =================  ============  ==========================
+
+The decentralized baseline's set points (the flows and temperatures it controls with
+its own PI loops, :mod:`controller.units.te.decentralized`) are held inside their
+instruments' ranges, without a rate limit of their own: their loops move the valves,
+which keep theirs.
 
 The rate limits equal the MPC's own, so a genuine move never meets them; a forged
 one (reactor pressure set point 1e6 kPa tripped the plant on pressure at 3824 kPa
@@ -98,6 +114,13 @@ TE_LIMITS = {
     "separator_level_sp": (0.0, 100.0, 100.0),
     "stripper_level_sp": (0.0, 100.0, 100.0),
     **{f"XMV{i}": (0.0, 100.0, 50.0) for i in range(1, 13)},
+    # the decentralized baseline's loop set points (XMEAS units)
+    **{name: (lo, hi, hi - lo) for name, lo, hi in (
+        ("D_feed_sp", 0.0, 5811.0), ("E_feed_sp", 0.0, 8354.0), ("A_feed_sp", 0.0, 1.017),
+        ("A_and_C_feed_sp", 0.0, 15.25), ("recycle_flow_sp", 0.0, 53.8),
+        ("purge_rate_sp", 0.0, 0.674), ("production_sp", 0.0, 45.9),
+        ("stripper_temperature_sp", 0.0, 150.0), ("stripper_steam_sp", 0.0, 460.0),
+        ("reactor_coolant_outlet_temperature_sp", 0.0, 150.0))},
 }
 
 

@@ -108,7 +108,7 @@ from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
 from controller.units.te.pi_baseline import PI_BASELINE_LOOPS, PRODUCTION_LOOP, VelocityPI
-from controller.units.te.spec import ALARM_LIMITS, SAMPLE_H, TEControlSpec
+from controller.units.te.spec import ALARM_LIMITS, SAMPLE_H, TEControlSpec, alarm_crossings
 from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
 
 #: Largest trim (%) of the A-feed target by the outer A loop (anti-windup).
@@ -330,17 +330,11 @@ class TEController:
         t0 = time.perf_counter()
         self.n_samples += 1
         xmeas = np.asarray(y, dtype=float).reshape(-1)
-        alarms: list[str] = []
         if xmeas.shape != (41,):
             return ControlDecision(u=np.full(12, np.nan), status="invalid_measurement",
                                    fallback=True, alarms=(f"y: expected 41 XMEAS, got "
                                                           f"{xmeas.shape}",))
-        for cv, (lo, hi) in ALARM_LIMITS.items():
-            v = xmeas[cv - 1]
-            if v > hi or v < lo:
-                side, lim = ("above", hi) if v > hi else ("below", lo)
-                alarms.append(f"XMEAS{cv} = {v:.1f} {side} its alarm limit {lim:g} "
-                              f"(interlock ahead)")
+        alarms = alarm_crossings(xmeas)
         # every plan reference of the sample in one evaluation: now and the horizon, on
         # the sample grid (see _grid_time); usually evaluated after the previous move
         t_ref = self._grid_time(t)

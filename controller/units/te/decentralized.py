@@ -130,7 +130,7 @@ import numpy as np
 
 from controller.interfaces import ControlDecision
 from controller.units.te.grades import TransitionPlan, grade
-from controller.units.te.spec import ALARM_LIMITS, SAMPLE_H, TEControlSpec
+from controller.units.te.spec import SAMPLE_H, TEControlSpec, alarm_crossings
 from plant_sim.tennessee_eastman.regulatory import CascadeLoop, PILoop, ValveOverride
 
 __all__ = ["PublishedLoop", "TEMAIN_MOD_LOOPS", "PURGE_OVERRIDE", "PLANT_LOOPS",
@@ -379,13 +379,7 @@ class DecentralizedController:
         t = float(t)
         if self._analyzers is None:
             self._start(t)
-        alarms = []
-        for cv, (lo, hi) in ALARM_LIMITS.items():
-            v = xmeas[cv - 1]
-            if v > hi or v < lo:
-                side, lim = ("above", hi) if v > hi else ("below", lo)
-                alarms.append(f"XMEAS{cv} = {v:.1f} {side} its alarm limit {lim:g} "
-                              f"(interlock ahead)")
+        alarms = alarm_crossings(xmeas)
         sp = self.setpoints_at(t)
         if self._mirror_override(float(xmeas[12])):
             self._held[6] = PURGE_OVERRIDE.restart_setpoint

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from controller.units.te.loops import INNER_LOOPS
 
-__all__ = ["ALARM_LIMITS", "SAMPLE_H", "TEControlSpec"]
+__all__ = ["ALARM_LIMITS", "SAMPLE_H", "TEControlSpec", "alarm_crossings"]
 
 #: Supervisory sample period, h (36 s = 20 Euler steps of 1.8 s).
 SAMPLE_H = 0.01
@@ -36,3 +36,15 @@ class TEControlSpec:
     loops: tuple = INNER_LOOPS
     loop_xmvs: tuple[int, ...] = tuple(lp.mv for lp in INNER_LOOPS)
     written_xmvs: tuple[int, ...] = (2, 3, 4, 5, 9, 11, 12)
+
+
+def alarm_crossings(xmeas) -> list[str]:
+    """One alarm text per XMEAS beyond its :data:`ALARM_LIMITS` (xmeas: the 41 XMEAS)."""
+    alarms = []
+    for cv, (lo, hi) in ALARM_LIMITS.items():
+        v = xmeas[cv - 1]
+        if v > hi or v < lo:
+            side, lim = ("above", hi) if v > hi else ("below", lo)
+            alarms.append(f"XMEAS{cv} = {v:.1f} {side} its alarm limit {lim:g} "
+                          f"(interlock ahead)")
+    return alarms

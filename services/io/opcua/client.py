@@ -40,6 +40,7 @@ from services.io.messages import Measurement, MessageError, MVMessage
 from services.io.opcua.certs import application_uri, load_certificates
 from services.io.opcua.namespace import node_name, unit_namespace
 from services.io.opcua.settings import NAMESPACE_URI, OPCUASettings
+from services.io.zenoh_session import PayloadSample
 
 __all__ = ["ControllerOPCUALink", "LinkError", "describe_error"]
 
@@ -68,19 +69,6 @@ def describe_error(exc: BaseException) -> str:
     if isinstance(exc, TimeoutError | asyncio.TimeoutError):
         return "the server did not answer in time"
     return f"{exc.__class__.__name__}: {exc}"
-
-
-class _Sample:
-    """A measurement payload shaped as a Zenoh sample (``payload.to_bytes()``)."""
-
-    __slots__ = ("payload", "_data")
-
-    def __init__(self, data: bytes) -> None:
-        self._data = data
-        self.payload = self
-
-    def to_bytes(self) -> bytes:
-        return self._data
 
 
 class ControllerOPCUALink:
@@ -308,7 +296,7 @@ class ControllerOPCUALink:
             log.warning("sample %s not usable: %s", seq, exc)
             return
         self.counters["samples"] += 1
-        self._callback(_Sample(payload))  # the controller's step, on this thread
+        self._callback(PayloadSample(payload))  # the controller's step, on this thread
 
     async def _write(self, ids, dvs) -> bool:
         client = self._client
