@@ -249,7 +249,8 @@ def test_grade_change_over_rest_with_the_controller_on_opcua(loop):
         assert st["cv"]["y"] == pytest.approx(5.0, abs=0.5)  # OPII: y = 5 (seed ch. 5)
     finally:
         api.close()
-    assert loop.plant.status()["mv_rejected"] == {"decode": 0, "sender": 0, "stale": 0}
+    assert loop.plant.status()["mv_rejected"] == {"decode": 0, "sender": 0, "stale": 0,
+                                                  "jump": 0}
 
 
 def test_controller_death_sheds_and_holds_then_returns_bumpless(loop):

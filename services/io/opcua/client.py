@@ -47,7 +47,8 @@ __all__ = ["ControllerOPCUALink", "LinkError", "describe_error"]
 log = logging.getLogger("ssmpc.opcua.client")
 
 #: The Status variables read with each sample, in this order, after the Measurements.
-SAMPLE_STATUS = ("ProcessTime", "AppliedMoves", "AppliedMoveSeq", "Shutdown", "Sample")
+SAMPLE_STATUS = ("ProcessTime", "AppliedMoves", "AppliedMoveSeq", "Shutdown", "Incarnation",
+                 "Sample")
 
 
 class LinkError(RuntimeError):
@@ -284,14 +285,15 @@ class ControllerOPCUALink:
         dvs = await client.uaclient.read_attributes(self._read_ids, ua.AttributeIds.Value)
         values = [None if dv.Value is None else dv.Value.Value for dv in dvs]
         ny = len(self.meas_names)
-        t, u, mv_seq, shutdown, seq = values[ny:]
+        t, u, mv_seq, shutdown, incarnation, seq = values[ny:]
         if not isinstance(seq, int) or seq < 0 or seq <= self._last_seq:
             return  # no sample yet, or one already delivered
         self._last_seq = seq
         try:
             payload = Measurement(unit=self.unit, seq=seq, t=float(t), y=tuple(values[:ny]),
                                   u=tuple(u or ()), mv_seq=int(mv_seq),
-                                  shutdown=bool(shutdown)).to_bytes()
+                                  shutdown=bool(shutdown),
+                                  incarnation=str(incarnation or "")).to_bytes()
         except (MessageError, TypeError, ValueError) as exc:
             log.warning("sample %s not usable: %s", seq, exc)
             return

@@ -37,6 +37,7 @@ PLANT_STATUS = (
     ("AppliedMoves", "DoubleArray", "MVs acting over the current sample interval"),
     ("AppliedMoveSeq", "Int64", "sequence number of the move acting now (-1: initial values)"),
     ("Shutdown", "Boolean", "the plant has tripped (interlocks)"),
+    ("Incarnation", "String", "this plant run's id (a new one when the plant restarts)"),
     ("WatchdogState", "String", "controller link: ok, or shed (heartbeat lost: valves held)"),
 )
 #: Status variables the controller writes (with its moves).

@@ -302,6 +302,8 @@ class PlantOPCUAServer:
         await write(self.nid("Status", "ProcessTime"), value, dv(float(msg.t), D))
         await write(self.nid("Status", "Shutdown"), value,
                     dv(bool(msg.shutdown), ua.VariantType.Boolean))
+        await write(self.nid("Status", "Incarnation"), value,
+                    dv(str(msg.incarnation), ua.VariantType.String))
         if self.state != "ok":  # no controller: the set points track the held moves, so
             # that a controller writing only some of them leaves the others where they are
             for nid, u in zip(self._setpoint_ids, msg.u):
