@@ -21,3 +21,21 @@ def stack(tmp_path):
     yield h, api
     api.close()
     h.close()
+
+
+@pytest.fixture
+def harness(tmp_path):
+    """Make a test_service_loop.Harness (controller and plant nodes over real Zenoh) with
+    ``harness(**kw)``; every one made is closed after the test."""
+    from test_service_loop import Harness
+
+    hs = []
+
+    def make(**kw):
+        h = Harness(tmp_path, **kw)
+        hs.append(h)
+        return h
+
+    yield make
+    for h in hs:
+        h.close()

@@ -10,26 +10,11 @@ import time
 
 import numpy as np
 import pytest
-from test_service_loop import Harness
 
 from services.io import keys
 from services.io.messages import Measurement, MVMessage
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
-
-
-@pytest.fixture
-def harness(tmp_path):
-    hs = []
-
-    def make(**kw):
-        h = Harness(tmp_path, **kw)
-        hs.append(h)
-        return h
-
-    yield make
-    for h in hs:
-        h.close()
 
 
 def _now_us():

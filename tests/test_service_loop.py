@@ -144,20 +144,6 @@ class Harness:
             s.close()
 
 
-@pytest.fixture
-def harness(tmp_path):
-    hs = []
-
-    def make(**kw):
-        h = Harness(tmp_path, **kw)
-        hs.append(h)
-        return h
-
-    yield make
-    for h in hs:
-        h.close()
-
-
 CSTR_OPII_Y = 5.0  # facts: OPII y = x2 = 5.0
 SETTLE_TOL = 0.02  # the unit's settle band (fraction of the unit scale 1.0)
 
