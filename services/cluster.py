@@ -95,6 +95,11 @@ def open_client(scheduler: str | None = None, workers: int | None = None,
         # loopback port (the default 8787 may be another cluster's)
         pre_spawn = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
         pre_spawn.update({var: "1" for var in THREAD_ENV})
+        # distributed's default MALLOC_TRIM_THRESHOLD_=65536 makes glibc hand freed
+        # memory back to the system at once; a closed loop allocates and frees small
+        # arrays every sample, and with it a TE run took 15-20 % more CPU (0.345 vs
+        # 0.286 s per 3 h run, measured). The workers keep glibc's default.
+        pre_spawn.pop("MALLOC_TRIM_THRESHOLD_", None)
         with dask.config.set({"distributed.worker.profile.enabled": False,
                               "distributed.nanny.pre-spawn-environ": pre_spawn}):
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
