@@ -514,7 +514,8 @@ class MultiModelController:
         self._deferred = (u, y, self.switcher.active)
         self.u_last = u
         extra: dict[str, Any] = {"switched": dec.switched, "best": dec.best,
-                                 "law_status": status}
+                                 "law_status": status,
+                                 "prediction_rms": self.index.rms_error()}
         # the soft output constraint's exact-penalty slack (not the timing slack);
         # None when the law has no soft constraint or did not solve this sample
         reported = info if isinstance(info, dict) and status != "law_failed" else {}

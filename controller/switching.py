@@ -135,6 +135,27 @@ class PerformanceIndex:
         self.J = self.settings.mu * e2 + self.settings.nu * self.integral
         return self.J
 
+    @property
+    def steady_gain(self) -> float:
+        """J over ``|e|^2`` for an error held constant long enough:
+        ``mu + nu dt / (1 - exp(-lambda dt))`` (``mu + nu t`` without forgetting, never
+        reached; then the sample count so far is not known here, and ``mu + nu dt``
+        is used)."""
+        s = self.settings
+        if self.decay < 1.0:
+            return s.mu + s.nu * self.dt / (1.0 - self.decay)
+        return s.mu + s.nu * self.dt
+
+    def rms_error(self) -> np.ndarray:
+        """Each model's J on a readable scale: the constant weighted error
+        ``|e|_W`` (output weights applied, so in the units of the outputs'
+        scales) that gives the same J, ``sqrt(J / steady_gain)``, shape (n_models,).
+
+        With the TE tuning (weights 1/scale^2; 20 kPa for pressures, 1 degC for
+        temperatures) 1.0 means the model misses the outputs by about one scale.
+        """
+        return np.sqrt(np.maximum(self.J, 0.0) / self.steady_gain)
+
     def copy_model(self, source: int, target: int) -> None:
         """Give model ``target`` the index history of ``source`` (re-initialization)."""
         self.integral[target] = self.integral[source]

@@ -31,6 +31,19 @@ def test_index_approaches_continuous_integral_for_small_dt():
     assert idx.J[0] == pytest.approx((1 - math.exp(-2.0 * T)) / 2.0, rel=2e-3)
 
 
+@pytest.mark.parametrize("mu, nu, lam", [(0.0, 1.0, 1.0), (1.0, 0.1, 0.5), (0.3, 2.0, 4.0)])
+def test_rms_error_reads_a_held_error_back_in_the_outputs_units(mu, nu, lam):
+    # two outputs with scales 20 and 1 (weights 1/scale^2); model 0 misses them by
+    # 10 and 0.5 (half a scale each), model 1 by 40 and 0 (two scales in one)
+    s = IndexSettings(mu=mu, nu=nu, forgetting=lam, min_dwell=0.1,
+                      output_weights=(1 / 20**2, 1.0))
+    idx = PerformanceIndex(s, 2, 0.01)
+    e = np.array([[10.0, 0.5], [40.0, 0.0]])
+    for _ in range(round(20 / lam / 0.01)):  # 20 forgetting times: the integral settled
+        idx.update(e)
+    np.testing.assert_allclose(idx.rms_error(), [math.sqrt(0.5**2 + 0.5**2), 2.0], rtol=1e-6)
+
+
 def test_mimo_errors_use_weighted_squared_norm():
     idx = PerformanceIndex(IndexSettings(mu=1, nu=0, output_weights=(1.0, 4.0)), 2, 0.1)
     J = idx.update(np.array([[1.0, 1.0], [2.0, 0.0]]))

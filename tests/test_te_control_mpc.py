@@ -158,13 +158,15 @@ SLACK_ACTIVE = 1e-6  # slack (units of output_scale, 20 kPa) counted as acting
 
 
 def test_idv1_from_mode3_the_soft_pressure_constraint_acts_before_the_interlock():
-    # IDV(1) from mode 3 drives the reactor pressure toward the 3000 kPa interlock: the
-    # high-pressure alarms come, the MPC's soft pressure limit (2950 kPa) acts (its
-    # exact-penalty slack becomes non-zero: the MPC predicts the limit cannot be held
-    # with the moves it may make), and the plant keeps running. Before the IDV the
-    # slack is zero.
+    # IDV(1) from mode 3 drives the reactor pressure toward the 3000 kPa interlock (to
+    # about 2905 kPa here): the high-pressure alarms come, the MPC's soft pressure limit
+    # acts (its exact-penalty slack becomes non-zero: the MPC predicts the limit cannot
+    # be held with the moves it may make), and the plant keeps running. Before the IDV
+    # the slack is zero. The soft limit is set to 2880 kPa, below the peak, so that it
+    # must act: with the default 2950 kPa the MPC rightly predicts it holds.
     t_idv = 1.0
-    run = run_te("ssmpc", TransitionPlan("mode3"), 5.0, idv={1: t_idv})
+    run = run_te("ssmpc", TransitionPlan("mode3"), 5.0, idv={1: t_idv},
+                 mpc=TEMPCOptions(pressure_soft_max=2880.0))
     assert run.shutdown is None
     assert run.margins["reactor pressure"]["max"] < 3000.0
     slack = run.constraint_slack

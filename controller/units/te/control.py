@@ -26,27 +26,37 @@ Layers (seed Fig. 7.2)
          outer production loop (XMEAS 17 -> A+C feed);
        - a high-pressure override cuts the A+C feed above 2900 kPa (all strategies).
 
-Known limit
-    With the default options the index keeps the model a grade change started
-    with (mode 0 through 0 -> 2 for at least 60 h; measured with noise on, fixed
-    models; settled at modes 0, 2, 3 it picks the right model in 100 % of
-    samples). The cause is not the coefficients' size (1e6-1e8 in the companion
-    basis) nor the basis: the index is fed equation errors
-    ``(d_j/omega)(y - H_j u)``, which weight each model's output error at low
-    frequency by ``d_j(0)/omega(0)``, and that weight differs between the models
-    by the ratio of their pole products (mode 2: 121 x mode 0, mode 3: 17 x)
-    whatever omega or the coordinates. ``TEMPCOptions(basis="orthonormal",
-    index_errors="steady_output")`` removes the weight: then the index picks the
-    right model at modes 0, 2, 3 (100 %) and moves to mode 2 at 1.7 h after the
-    0 -> 2 change, but then alternates between the mode-2 and mode-3 models and
-    the plant trips on reactor pressure at 7.0 h (also with hysteresis 0.5 and
-    a 1 h dwell: trip at 7.0 h). With ``index_hysteresis=0.9`` and
-    ``index_dwell_h=2.0`` as well (measured, fixed models, noise on): 100 % the
-    right model at modes 0, 2, 3 (24 h each); in 0 -> 2 -> 3 (changes at 1 h and
-    25 h, 48 h) no trip, mode 2 from 12.2 h, mode 3 from 27.0 h. That recipe is
-    not the default: the TE tests have not been run with it, and the adaptive
-    strategy's covariance floor would need rescaling for the orthonormal
-    regressors (see :mod:`controller.shared_basis`).
+Switching
+    The index compares the models on their output errors at low frequency on one
+    scale (``index_errors="steady_output"``: the seed's equation errors weight each
+    model's error by the product of its poles, mode 2's 121 times mode 0's, so the
+    model a grade change started with was kept for 60 h and more), on the
+    well-conditioned orthonormal shared state (:mod:`controller.shared_basis`), and J
+    is the discounted mean squared error over about an hour (mu = 0, nu = 1,
+    forgetting 1/h; the seed's mu = 1, nu = 0.1 made J the noisy error of one
+    sample), with a 20 % hysteresis and a 1 h dwell. Measured (strategy "fixed",
+    noise on, seeds 1-3, grade change at 1 h; h after the change):
+
+    ======================  ===================================================
+    settled 24 h, modes     the mode's own model active in 100 % of samples
+    0, 2, 3
+    0 -> 3                  mode-3 model from 1.2 h on
+    0 -> 2                  mode 2 at 1.2 h, mode 3 from 3.4-3.6 h, mode 2 for
+                            good from 8.4 h (the plan reaches mode 2 at 6.8 h)
+    2 -> 0                  mode 3 from 4.4-4.7 h, mode 0 for good from 8.4-8.8 h
+    0 -> 2 -> 3 (48 h)      no trip; mode 3 from 1.8 h after the second change
+    3 -> 0                  trips on reactor pressure at 3.8 h, as before this
+                            tuning (the reaction dies with the coolant valve shut:
+                            a limit of the 3 -> 0 grade plan, not of the index)
+    IDV 1, 2, 4, 6, 7, 8 at trips 4 of 18 (mode 2: IDV 6 at 13.4 h, IDV 7 at
+    modes 0, 2, 3 (24 h)    3.0 h; mode 3: IDV 7 at 5.8 h, IDV 8 at 6.5 h); 7 of
+                            18 with the seed's index on the companion basis
+    ======================  ===================================================
+
+    Strategy "ssmpc": the re-initialized adaptive model stays active through these
+    runs (a fixed model must beat it by the hysteresis to replace it), taking a fixed
+    model's parameters when that one predicts better. The per-model J as a weighted
+    RMS prediction error (units of the CV scales) is ``TERun.prediction_rms``.
 
 Pressure
     The seed's MPC writes the purge valve XMV(6) directly. On the original plant
@@ -375,6 +385,8 @@ class TEController:
             # the MPC's soft reactor-pressure constraint: its slack (None = no solve)
             info["constraint_slack"] = dec.extra.get("constraint_slack")
             info["law_status"] = dec.extra.get("law_status", status)
+            if "prediction_rms" in dec.extra:
+                info["prediction_rms"] = dec.extra["prediction_rms"]
             info.update((key, dec.extra[key]) for key in QP_WORK_KEYS if key in dec.extra)
         for j, xmv in enumerate(CORE_XMVS):
             if xmv is not None:
@@ -461,12 +473,13 @@ class TEMPCOptions:
     pressure_soft_max : float
         Soft upper limit of the reactor pressure in the MPC, kPa (interlock 3000).
     index_dwell_h : float
-        Minimum dwell of a model, h.
+        Minimum dwell of a model, h (1 h; see "Switching" above).
     nls_gain : float
         Adaptive gain of the normalized least squares (1/h), strategy (b).
     basis : {"companion", "orthonormal"}
         Coordinates of the models' shared state (:mod:`controller.shared_basis`;
-        orthonormal: omega's roots at the mode-0 model's poles).
+        orthonormal, the default: omega's roots at the mode-0 model's poles;
+        companion: the seed's eq. 3.12-3.13, coefficients up to 1e6-1e8 at n = 8).
     model_order : int
         Reduced order n of every mode's model.
     index_errors : {"equation", "steady_output"}
@@ -475,6 +488,10 @@ class TEMPCOptions:
     index_hysteresis : float
         Relative margin of the switching rule
         (:attr:`controller.switching.IndexSettings.hysteresis`), in [0, 1).
+    index_mu, index_nu, index_forgetting : float
+        Weights of the instantaneous and the discounted squared error of the
+        index (eq. 4.6) and its forgetting rate, 1/h
+        (:class:`controller.switching.IndexSettings`).
     target_weight : float or tuple of 5 float
         Weight (per (% or degC or kPa)^2) pulling each handle toward the grade's
         steady value (Ricker's optimum, along the plan's first-order path): the
@@ -498,13 +515,16 @@ class TEMPCOptions:
     move_weight: float = 1.0
     du_max: tuple = (50.0, 50.0, 20.0, 10.0, 50.0)
     pressure_soft_max: float = 2950.0
-    index_dwell_h: float = 0.25
+    index_dwell_h: float = 1.0
     nls_gain: float = 10.0
     target_weight: float | tuple = (1000.0, 1000.0, 10.0, 1000.0, 10.0)
-    basis: str = "companion"
+    basis: str = "orthonormal"
     model_order: int = 8
-    index_errors: str = "equation"
-    index_hysteresis: float = 0.0
+    index_errors: str = "steady_output"
+    index_hysteresis: float = 0.2
+    index_mu: float = 0.0
+    index_nu: float = 1.0
+    index_forgetting: float = 1.0
 
     def __post_init__(self) -> None:
         from controller.shared_basis import BASES
@@ -532,12 +552,23 @@ class TEMPCOptions:
                              f"{self.pressure_soft_max!r}")
 
 
-def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | None = None):
+#: Wall-clock budget of one MPC step in real time, ms (the 36 s sample leaves far more;
+#: a step over it takes the previous plan, :class:`controller.mpc.MPCController`).
+REALTIME_BUDGET_MS = 50.0
+
+
+def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | None = None,
+                  realtime: bool = True):
     """Multiple-model MPC on the five handles: (MultiModelController, P).
 
     Strategy ``"fixed"`` (a): fixed models of modes 0, 2, 3, the active one chosen by
     the performance index (eq. 4.6). ``"ssmpc"`` (b): the same plus a
     re-initialized adaptive model (§7.7), output weights halved (R7.15).
+
+    ``realtime=False`` (offline runs: studies, campaigns) lifts the wall-clock budget
+    of :data:`REALTIME_BUDGET_MS`: in simulated time a step that a busy machine slows
+    down must not take the fallback branch, or a run's moves would depend on the load
+    (the runs' step times are still measured and reported).
     """
     from controller.adaptation import NLSSettings
     from controller.mpc import MPCSettings
@@ -561,7 +592,8 @@ def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | No
                            Xi=w * np.asarray(opt.output_relative, dtype=float) / scale ** 2,
                            Lambda=np.full(5, opt.move_weight), u_min=lo, u_max=hi,
                            du_max=np.asarray(opt.du_max, dtype=float), y_max=y_max,
-                           slack_scale=scale, budget_ms=50.0,
+                           slack_scale=scale,
+                           budget_ms=REALTIME_BUDGET_MS if realtime else 1e9,
                            u_target=u0,
                            u_target_weight=np.broadcast_to(np.asarray(opt.target_weight,
                                                                       dtype=float), (5,)))
@@ -570,7 +602,8 @@ def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | No
     kinds = (["re-initialized"] if adaptive else []) + ["fixed"] * 3
     mm = MultiModelSettings(
         nls=NLSSettings(gain=opt.nls_gain),
-        index=IndexSettings(mu=1.0, nu=0.1, min_dwell=opt.index_dwell_h,
+        index=IndexSettings(mu=opt.index_mu, nu=opt.index_nu,
+                            forgetting=opt.index_forgetting, min_dwell=opt.index_dwell_h,
                             output_weights=tuple(1.0 / scale ** 2),
                             hysteresis=opt.index_hysteresis),
         u_min=tuple(lo), u_max=tuple(hi), param_margin=1.0, index_errors=opt.index_errors)
@@ -583,8 +616,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        sample_h: float = SAMPLE_H, plant_dt_s: float = 1.8,
                        ratio: RatioSettings | None = None,
                        mpc: TEMPCOptions | None = None,
-                       outer_a_loop: bool = True, production_loop: bool = True
-                       ) -> tuple[TEController, TEControlSpec]:
+                       outer_a_loop: bool = True, production_loop: bool = True,
+                       realtime: bool = True) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
     Parameters
@@ -602,6 +635,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         MPC tuning (strategies "fixed" and "ssmpc").
     outer_a_loop, production_loop : bool
         See :class:`TEController`.
+    realtime : bool
+        Keep the MPC's wall-clock budget (:func:`make_mpc_core`); False for offline
+        runs, whose moves must not depend on the machine's load.
 
     Returns
     -------
@@ -627,7 +663,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
     else:
         xv, ym = plan.xmv_ref(0.0), plan.xmeas_ref(0.0)
         u0 = np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
-        core, horizon = make_mpc_core(strategy, sample_h, u0, mpc)
+        core, horizon = make_mpc_core(strategy, sample_h, u0, mpc, realtime=realtime)
     ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon,
                        outer_a_loop, production_loop)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
@@ -661,6 +697,10 @@ class TERun:
     constraint_slack : ndarray (K,) or None
         Slack of the MPC's soft output constraint per sample (NaN: no solve or
         no MPC).
+    prediction_rms : ndarray (K, n_models) or None
+        Each model's index (eq. 4.6) as a weighted RMS prediction error in units
+        of the CVs' scales (:meth:`controller.switching.PerformanceIndex.rms_error`);
+        None without models.
     """
 
     strategy: str
@@ -679,6 +719,7 @@ class TERun:
     wall_s: float = 0.0
     meta: dict = field(default_factory=dict)
     constraint_slack: np.ndarray | None = None
+    prediction_rms: np.ndarray | None = None
 
     @property
     def margins(self) -> dict:
@@ -728,6 +769,8 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     """
     from plant_sim.tennessee_eastman import TESimulator
 
+    # offline: simulated time, no wall-clock budget (see make_mpc_core)
+    options.setdefault("realtime", False)
     ctl, spec = make_te_controller(strategy, plan, sample_h=sample_h, **options)
     mode = plan.start[4:]
     seeded = {} if plant_seed is None else {"seed": float(plant_seed)}
@@ -748,6 +791,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     act = np.empty(n, dtype=int)
     ms = np.empty(n)
     slack = np.full(n, np.nan)
+    rms: np.ndarray | None = None
     alarms: list[str] = []
     fallbacks = 0
     names: tuple[str, ...] = ()
@@ -774,6 +818,11 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
         act[k], ms[k] = dec.active_model, dec.solve_ms
         if dec.extra.get("constraint_slack") is not None:
             slack[k] = dec.extra["constraint_slack"]
+        r_k = dec.extra.get("prediction_rms")
+        if r_k is not None:
+            if rms is None:
+                rms = np.full((n, len(r_k)), np.nan)
+            rms[k] = r_k
         names = names or dec.model_names
         fallbacks += int(dec.fallback)
         for a in dec.alarms:
@@ -787,4 +836,4 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
                  sim.shutdown, names, tuple(alarms), fallbacks, time.perf_counter() - w0,
                  {"sample_h": spec.sample_h, "noise": noise, "input_snr": input_snr,
                   "idv": dict(idv or {}), "idv_off": dict(idv_off or {}),
-                  "plant_seed": plant_seed}, slack[:m])
+                  "plant_seed": plant_seed}, slack[:m], None if rms is None else rms[:m])
