@@ -7,7 +7,8 @@ opcua`` reads measurements and writes moves over OPC UA instead of Zenoh
 
 Each node opens its own Zenoh session (``--zenoh-config FILE`` or the embedded
 default: peer mode, loopback, multicast scouting off; ``--listen`` and
-``--connect`` add endpoints), prints ``ready <role> <unit>`` on stdout when it
+``--connect`` add endpoints; ``--credentials DIR`` authenticates it as its
+identity, :mod:`services.io.mesh_auth`), prints ``ready <role> <unit>`` on stdout when it
 serves, and stops cleanly on SIGINT/SIGTERM or after ``--duration`` wall
 seconds: telemetry flushed, checkpoint written, session closed.
 """
@@ -38,14 +39,31 @@ def add_mesh_arguments(p) -> None:
                    help="Zenoh mode of the embedded default (default peer)")
     g.add_argument("--lease-ms", type=int, default=None,
                    help="transport lease in ms (shorter: a dead peer is noticed sooner)")
+    g.add_argument("--credentials", metavar="DIR", default=None,
+                   help="mesh credentials directory (ssmpc credentials; <state-dir>/mesh of "
+                        "ssmpc up): the session authenticates as this command's identity")
 
 
-def session_settings(args):
+#: The mesh identity of each node command (services.io.mesh_auth); any other is ``cli``.
+ROLE_OF_COMMAND = {"plant": "plant", "opcua": "plant", "controller": "controller", "api": "api"}
+
+
+def session_settings(args, role: str | None = None):
+    """The node's :class:`~services.io.zenoh_session.SessionSettings`; with
+    ``--credentials`` it authenticates as ``role`` (default: its command's identity)."""
     from services.io.zenoh_session import SessionSettings
 
+    auth = {}
+    cred_dir = getattr(args, "credentials", None)
+    if cred_dir is not None:
+        from services.io.mesh_auth import node_credentials
+
+        role = role or ROLE_OF_COMMAND.get(getattr(args, "command", None), "cli")
+        cred = node_credentials(cred_dir, role)
+        auth = {"user": cred.user, "password": cred.password}
     return SessionSettings(config_file=args.zenoh_config, mode=args.mode,
                            listen=tuple(args.listen), connect=tuple(args.connect),
-                           lease_ms=args.lease_ms)
+                           lease_ms=args.lease_ms, **auth)
 
 
 def add_opcua_arguments(p, *, server: bool) -> None:
