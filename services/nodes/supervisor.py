@@ -169,6 +169,15 @@ def run_up(args) -> int:
     if args.restart_limit < 0:
         raise CLIError(f"restart_limit: must be >= 0, got {args.restart_limit}")
     os.makedirs(args.state_dir, exist_ok=True)
+    from services.io.mesh_router import node_arguments, open_router
+
+    # credentials not owner-only, or a router that cannot open: exit 2 before anything moves
+    mesh = open_router(args.state_dir, lease_ms=args.lease_ms)
+    if mesh.made:
+        print(f"mesh credentials made in {mesh.credentials_dir} (owner-only)", flush=True)
+    print(f"mesh: Zenoh router on {mesh.endpoint}, user/password per node and access "
+          f"control by identity (credentials in {mesh.credentials_dir})", flush=True)
+    join = node_arguments(mesh)
     opcua = []
     if args.io == "opcua":
         from services.io.opcua.certs import ensure_certificates
@@ -186,14 +195,6 @@ def run_up(args) -> int:
     if not args.resume:
         for path in _move_aside(args.state_dir, args.unit):
             print(f"previous run kept as {path}", flush=True)
-    from services.io.mesh_router import node_arguments, open_router
-
-    mesh = open_router(args.state_dir, lease_ms=args.lease_ms)
-    if mesh.made:
-        print(f"mesh credentials made in {mesh.credentials_dir} (owner-only)", flush=True)
-    print(f"mesh: Zenoh router on {mesh.endpoint}, user/password per node and access "
-          f"control by identity (credentials in {mesh.credentials_dir})", flush=True)
-    join = node_arguments(mesh)
     common = ["--unit", args.unit, "--speed", str(args.speed), "--lease-ms", str(args.lease_ms),
               *join]
     if args.unit_config:
