@@ -6,8 +6,18 @@ with the credentials of :mod:`services.io.mesh_auth` and the access-control list
 and listen on nothing themselves, so the router is the only way onto that mesh.
 ``ssmpc router --credentials DIR`` runs the same router for a mesh across hosts.
 
-Measured on the 2-core machine (one unit, loopback, lock-step CSTR loop): see
-``docs/security.md`` for the round trip through the router against direct peers.
+Cost, ``ssmpc bench loop --unit cstr --cases latency,mesh`` (lock-step loop,
+measurement out to move back, loopback, the 2-core machine at load average 12):
+
+=========  =====================================  ========  ===============
+case       link                                   p50 µs    samples/wall s
+=========  =====================================  ========  ===============
+latency    plant and controller as direct peers   779       435
+mesh       clients of this router (two hops)      1060      417
+=========  =====================================  ========  ===============
+
+Limits: user/password authenticates each node to the router, not the router to the
+nodes, and TCP links are not encrypted (``docs/security.md``).
 """
 
 from __future__ import annotations
