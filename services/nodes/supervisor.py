@@ -56,7 +56,8 @@ def register(sub) -> None:
     p.add_argument("--speed", type=float, default=1.0,
                    help="process seconds per wall second (default 1)")
     p.add_argument("--port", type=int, default=8000, help="API port on 127.0.0.1 (default 8000)")
-    p.add_argument("--state-dir", default=".", help="SQLite store and .rrd directory (default .)")
+    p.add_argument("--state-dir", default=".",
+                   help="SQLite store, .rrd and mesh credentials (<dir>/mesh) (default .)")
     p.add_argument("--unit-config", metavar="FILE", help="JSON overrides of the unit config")
     p.add_argument("--duration", type=float, default=None,
                    help="stop by itself after this many wall seconds")
