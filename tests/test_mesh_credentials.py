@@ -193,3 +193,19 @@ def test_a_bad_zenoh_config_with_credentials_is_an_error(tmp_path):
     proc = _run(["api", "--port", "1", "--zenoh-config", str(conf), "--credentials",
                  str(tmp_path / "mesh"), "--duration", "5"])
     _is_config_error(proc, "zenoh_config")
+
+
+@pytest.mark.parametrize("command, role", [("plant", "plant"), ("opcua", "plant"),
+                                           ("controller", "controller"), ("api", "api")])
+def test_each_node_command_authenticates_as_its_own_identity(tmp_path, command, role):
+    from services.cli.entry import build_parser
+    from services.nodes.run import session_settings
+
+    d = tmp_path / "mesh"
+    mesh_auth.make_credentials(d)
+    args = build_parser().parse_args([command, "--credentials", str(d)])
+    settings = session_settings(args)
+    assert settings.user == f"ssmpc-{role}"
+    assert settings.password == mesh_auth.node_credentials(d, role).password
+    assert settings.password not in repr(settings)
+    assert session_settings(build_parser().parse_args([command])).user is None
