@@ -9,10 +9,10 @@ gossip), and an optional short lease so that a frozen peer is noticed quickly
 A config file (``--zenoh-config FILE``, JSON5 as read by
 ``zenoh.Config.from_file``) replaces the embedded default entirely; command
 line ``--listen``/``--connect`` endpoints and the authentication below are then
-added on top of it. The file
-is read when the settings are made: invalid JSON5, an unknown field or a wrong
-value is a ``ValueError`` naming ``zenoh_config`` with Zenoh's reason and the line
-(the CLI prints it as ``error: ...`` and exits 2), never a traceback.
+added on top of it. The file is read when the settings are made: invalid JSON5,
+an unknown field or a wrong value is a ``ValueError`` naming ``zenoh_config`` with
+Zenoh's reason and the line (the CLI prints it as ``error: ...`` and exits 2),
+never a traceback.
 
 Authentication (:mod:`services.io.mesh_auth`, Zenoh's ``transport.auth.usrpwd``): a
 node opens its session with its role's user name and password; a router checks the
