@@ -6,15 +6,16 @@ with the credentials of :mod:`services.io.mesh_auth` and the access-control list
 and listen on nothing themselves, so the router is the only way onto that mesh.
 ``ssmpc router --credentials DIR`` runs the same router for a mesh across hosts.
 
-Cost, ``ssmpc bench loop --unit cstr --cases latency,mesh`` (lock-step loop,
-measurement out to move back, loopback, the 2-core machine at load average 12):
+Cost, ``ssmpc bench loop --unit U --cases latency,mesh`` (lock-step loop,
+measurement out to move back, loopback, the 2-core machine at load average 8-12;
+p50 µs, pairs side by side):
 
-=========  =====================================  ========  ===============
-case       link                                   p50 µs    samples/wall s
-=========  =====================================  ========  ===============
-latency    plant and controller as direct peers   779       435
-mesh       clients of this router (two hops)      1060      417
-=========  =====================================  ========  ===============
+=====  =====================================  ==================================
+unit   latency: plant and controller peers    mesh: clients of this router (ACL)
+=====  =====================================  ==================================
+cstr   779, 989, 1067                         1060, 1451, 914
+te     1950                                   2479
+=====  =====================================  ==================================
 
 Limits: user/password authenticates each node to the router, not the router to the
 nodes, and TCP links are not encrypted (``docs/security.md``).
