@@ -203,9 +203,32 @@ def test_each_node_command_authenticates_as_its_own_identity(tmp_path, command, 
 
     d = tmp_path / "mesh"
     mesh_auth.make_credentials(d)
-    args = build_parser().parse_args([command, "--credentials", str(d)])
+    args = build_parser().parse_args([command, "--mode", "client", "--credentials", str(d)])
     settings = session_settings(args)
     assert settings.user == f"ssmpc-{role}"
     assert settings.password == mesh_auth.node_credentials(d, role).password
     assert settings.password not in repr(settings)
     assert session_settings(build_parser().parse_args([command])).user is None
+
+
+@pytest.mark.parametrize("mode_args", [[], ["--mode", "peer"], ["--zenoh-config", "PEER"]])
+def test_a_node_with_credentials_refuses_to_be_a_peer(tmp_path, mode_args):
+    """A peer would listen for sessions nobody authenticates: with credentials a node
+    joins the router as a client, or does not start."""
+    from services.cli.entry import build_parser
+    from services.nodes.run import session_settings
+    from services.output import CLIError
+
+    d = tmp_path / "mesh"
+    mesh_auth.make_credentials(d)
+    peer = tmp_path / "peer.json5"
+    peer.write_text('{mode: "peer", scouting: {multicast: {enabled: false}}}\n')
+    argv = [str(peer) if a == "PEER" else a for a in mode_args]
+    args = build_parser().parse_args(["controller", *argv, "--credentials", str(d)])
+    with pytest.raises(CLIError, match="credentials: .*client.*not as a peer"):
+        session_settings(args)
+    client = tmp_path / "client.json5"
+    client.write_text('{mode: "client", connect: {endpoints: ["tcp/127.0.0.1:7447"]}}\n')
+    args = build_parser().parse_args(["controller", "--zenoh-config", str(client),
+                                      "--credentials", str(d)])
+    assert session_settings(args).user == "ssmpc-controller"

@@ -61,9 +61,27 @@ def session_settings(args, role: str | None = None):
         role = role or ROLE_OF_COMMAND.get(getattr(args, "command", None), "cli")
         cred = node_credentials(cred_dir, role)
         auth = {"user": cred.user, "password": cred.password}
-    return SessionSettings(config_file=args.zenoh_config, mode=args.mode,
-                           listen=tuple(args.listen), connect=tuple(args.connect),
-                           lease_ms=args.lease_ms, **auth)
+    settings = SessionSettings(config_file=args.zenoh_config, mode=args.mode,
+                               listen=tuple(args.listen), connect=tuple(args.connect),
+                               lease_ms=args.lease_ms, **auth)
+    if auth and _mode_of(settings) != "client":
+        # a peer listens, and what it accepts is not authenticated: a session there could
+        # answer this node's queries or feed it samples past the router's ACL
+        raise CLIError("credentials: a node with credentials joins the mesh's router as a "
+                       "Zenoh client (--mode client --connect ROUTER, or a client config "
+                       f"such as deploy/zenoh/client.json5), not as a {_mode_of(settings)}")
+    return settings
+
+
+def _mode_of(settings) -> str:
+    """The Zenoh mode a node's session will open in."""
+    import json
+
+    if settings.config_file is None:
+        return settings.mode
+    from services.io.zenoh_session import build_config
+
+    return json.loads(build_config(settings).get_json("mode"))
 
 
 def add_opcua_arguments(p, *, server: bool) -> None:
