@@ -235,3 +235,43 @@ def test_no_identity_but_its_own_holds_a_liveliness_token(mesh, operator):
     assert _wait_until(lambda: "ghost" in json.dumps(
         httpx.get(f"http://127.0.0.1:{mesh.port}/api/v1/units", timeout=10).json()))
     token.undeclare()
+
+
+def test_ssmpc_router_with_credentials_authenticates_and_filters(tmp_path):
+    """The router of a mesh across hosts (``ssmpc router --credentials``), alone."""
+    from services.io.mesh_auth import make_credentials
+
+    make_credentials(tmp_path / "mesh")
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "router", "--listen", endpoint,
+                             "--credentials", str(tmp_path / "mesh"), "--duration", "120"],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                            text=True)
+    sessions = []
+
+    def join(role):
+        cred = node_credentials(tmp_path / "mesh", role)
+        s = open_session(SessionSettings(mode="client", connect=(endpoint,), user=cred.user,
+                                         password=cred.password))
+        sessions.append(s)
+        return s
+
+    try:
+        assert "auth=usrpwd+acl" in proc.stdout.readline()
+        with pytest.raises(ValueError, match="cannot open the session"):
+            open_session(SessionSettings(mode="client", connect=(endpoint,)))
+        got = []
+        join("plant").declare_subscriber(keys.mv(UNIT), lambda s: got.append(
+            s.payload.to_bytes()))
+        api, controller = join("api"), join("controller")
+        time.sleep(0.5)
+        api.put(keys.mv(UNIT), b"from the api")
+        controller.put(keys.mv(UNIT), b"from the controller")
+        assert _wait_until(lambda: got)
+        time.sleep(0.3)
+        assert got == [b"from the controller"]
+    finally:
+        for s in sessions:
+            s.close()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(30)
