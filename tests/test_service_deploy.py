@@ -13,7 +13,7 @@ CONFIGS = sorted((DEPLOY / "zenoh").glob("*.json5"))
 def test_there_are_configs_for_each_mode():
     names = {p.name for p in CONFIGS}
     assert {"router.json5", "client.json5", "peer-loopback.json5", "router-tls.json5",
-            "router-acl.json5"} <= names
+            "router-acl.json5", "router-usrpwd-acl.json5"} <= names
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.name)
@@ -50,6 +50,21 @@ def test_systemd_units_start_ssmpc_subcommands():
         sub = exec_line.split()[1]
         assert sub in ("router", "plant", "controller", "api"), unit.name
         assert "--zenoh-config" in exec_line
+        assert "--credentials /etc/ssmpc/mesh" in exec_line, unit.name
+
+
+def test_the_usrpwd_router_template_has_the_acl_of_ssmpc_router():
+    import json
+
+    from services.io.acl import access_control
+
+    template = zenoh.Config.from_file(str(DEPLOY / "zenoh" / "router-usrpwd-acl.json5"))
+    built = zenoh.Config()
+    built.insert_json5("access_control", json.dumps(access_control()))
+    assert json.loads(template.get_json("access_control")) == json.loads(
+        built.get_json("access_control"))
+    assert json.loads(template.get_json("transport/auth/usrpwd/dictionary_file")) == \
+        "/etc/ssmpc/mesh/passwords"
 
 
 def test_loop_units_run_under_sched_fifo_with_only_that_privilege():

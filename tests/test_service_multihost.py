@@ -3,8 +3,10 @@ joined only through a Zenoh router (``ssmpc router``) in a fourth namespace.
 
 Each node namespace has one veth link to the router namespace on its own /24, so
 nodes can reach the router and nothing else: every message crosses the router.
-The nodes run in Zenoh client mode with ``--connect`` to the router. The
-operator client (``ssmpc transition``/``ssmpc status``) runs in the api's
+The nodes run in Zenoh client mode with ``--connect`` to the router, each with
+its identity's credentials (``ssmpc credentials``; the router ``--credentials``
+authenticates them and applies the access-control list), as deploy/README.md says.
+The operator client (``ssmpc transition``/``ssmpc status``) runs in the api's
 namespace. Needs root and iproute2; skipped otherwise.
 """
 
@@ -90,12 +92,16 @@ def test_transition_across_namespaces_through_a_router(netns, tmp_path):
     names, addrs = netns
     router_ep = "tcp/{}:7447"
     procs = []
+    made = _run(names["router"], "credentials", "--state-dir", str(tmp_path), "--json")
+    assert made.returncode == 0, made.stderr
+    cred = ["--credentials", str(tmp_path / "mesh")]
     try:
-        procs.append(_spawn(names["router"], "router", "--listen", "tcp/0.0.0.0:7447"))
-        _ready(procs[-1])
+        procs.append(_spawn(names["router"], "router", "--listen", "tcp/0.0.0.0:7447", *cred))
+        assert "auth=usrpwd+acl" in _ready(procs[-1])
         # the TE unit, mode 0 -> 2 as on one host; lock-step so that ~20 process hours
         # take seconds (each sample's MV crosses the router and comes back)
-        common = ["--unit", "te", "--speed", "1000", "--mode", "client", "--lease-ms", "1000"]
+        common = ["--unit", "te", "--speed", "1000", "--mode", "client", "--lease-ms", "1000",
+                  *cred]
         procs.append(_spawn(names["ctrl"], "controller", *common, "--connect",
                             router_ep.format(addrs["ctrl"][1]), "--state-dir", str(tmp_path)))
         _ready(procs[-1])
@@ -103,7 +109,7 @@ def test_transition_across_namespaces_through_a_router(netns, tmp_path):
                             router_ep.format(addrs["plant"][1])))
         _ready(procs[-1])
         procs.append(_spawn(names["api"], "api", "--mode", "client", "--connect",
-                            router_ep.format(addrs["api"][1]), "--port", "8000"))
+                            router_ep.format(addrs["api"][1]), "--port", "8000", *cred))
         _ready(procs[-1])
         # the api host has no route to the other hosts: only the router is reachable
         probe = ("import socket, errno\n"

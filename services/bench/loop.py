@@ -25,6 +25,10 @@ latency
     Lock-step loop: wall time from the plant publishing measurement k to it
     receiving the MV answering k (Zenoh both ways + decode + controller step +
     encode), µs, p50/p99 from the plant node's record.
+mesh
+    The ``latency`` case on the deployment of ``ssmpc up``: plant and controller as
+    Zenoh clients of an authenticated router (user/password per identity, access
+    control; :mod:`services.io.mesh_router`) in this process, instead of direct peers.
 jitter
     The machine's own scheduling noise, side by side: one thread that sleeps to
     1 ms boundaries for ``--jitter-seconds`` (before and after the speed ladder),
@@ -97,8 +101,9 @@ def add_arguments(parser) -> None:
                              "as ssmpc up does; default: off")
     parser.add_argument("--jitter-seconds", type=float, default=5.0,
                         help="wall seconds of each scheduling-jitter probe")
-    parser.add_argument("--cases", default="jitter,speed,latency,opcua,rest",
-                        help="comma-separated subset of jitter, speed, latency, opcua, rest")
+    parser.add_argument("--cases", default="jitter,speed,latency,mesh,opcua,rest",
+                        help="comma-separated subset of jitter, speed, latency, mesh, opcua, "
+                             "rest")
 
 
 class _Nodes:
@@ -107,12 +112,19 @@ class _Nodes:
     def __init__(self, unit: str, speed: float, lockstep: bool, api: bool, state_dir: str,
                  rt_priority: int | None = None, unit_config: str | None = None,
                  busy_poll: bool = False, telemetry: bool = False,
-                 plant_busy_poll: bool = False, io: str = "zenoh"):
+                 plant_busy_poll: bool = False, io: str = "zenoh", mesh: bool = False):
         from services.io.zenoh_session import free_port
         from services.nodes.supervisor import _spawn, _wait_ready
 
         self.procs = []
+        self.router = None
         state_dir = tempfile.mkdtemp(dir=state_dir)  # a fresh store: no restored checkpoint
+        join = []
+        if mesh:  # as ssmpc up: the nodes are clients of an authenticated router
+            from services.io.mesh_router import node_arguments, open_router
+
+            self.router = open_router(state_dir, lease_ms=1000)
+            join = node_arguments(self.router)
         ep_c, ep_p, ep_a = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
         self.ep_c, self.ep_p = ep_c, ep_p
         self.port = free_port()
@@ -122,10 +134,11 @@ class _Nodes:
         if unit_config is not None:
             common += ["--unit-config", unit_config]
         deadline = time.monotonic() + 120
-        ctrl = (["controller", *common, "--listen", ep_c, "--state-dir", state_dir]
+        ctrl = (["controller", *common, *(join or ["--listen", ep_c]), "--state-dir", state_dir]
                 + ([] if telemetry else ["--no-telemetry"])
                 + (["--busy-poll"] if busy_poll else []))
-        plant = (["plant", *common, "--listen", ep_p] + (["--lockstep"] if lockstep else [])
+        plant = (["plant", *common, *(join or ["--listen", ep_p])]
+                 + (["--lockstep"] if lockstep else [])
                  + (["--busy-poll"] if plant_busy_poll else []))
         try:
             if io == "opcua":  # the plant serves, the controller connects: plant first
@@ -141,7 +154,7 @@ class _Nodes:
                 c = _spawn(ctrl)
                 self.procs.append(c)
                 _wait_ready(c, "controller", deadline)
-                p = _spawn([*plant, "--connect", ep_c])
+                p = _spawn(plant if mesh else [*plant, "--connect", ep_c])
                 self.procs.append(p)
                 _wait_ready(p, "plant", deadline)
             if api:
@@ -157,6 +170,8 @@ class _Nodes:
         from services.nodes.supervisor import stop_children
 
         stop_children(self.procs)
+        if self.router is not None:
+            self.router.close()
 
 
 #: The parts of a held sample's round trip (:func:`held_split`).
@@ -190,7 +205,14 @@ def _query(session, key, action, args=None):
 def _client_session(nodes: _Nodes):
     from services.io.zenoh_session import SessionSettings, open_session
 
-    s = open_session(SessionSettings(connect=(nodes.ep_c, nodes.ep_p)))
+    if nodes.router is not None:  # the operator's identity on the authenticated mesh
+        from services.io.mesh_auth import node_credentials
+
+        cred = node_credentials(nodes.router.credentials_dir, "cli")
+        s = open_session(SessionSettings(mode="client", connect=(nodes.router.endpoint,),
+                                         user=cred.user, password=cred.password))
+    else:
+        s = open_session(SessionSettings(connect=(nodes.ep_c, nodes.ep_p)))
     time.sleep(0.5)
     return s
 
@@ -312,9 +334,10 @@ def speed_case(args, state_dir: str) -> dict:
             "te_equivalent_speed": TE_SAMPLE_PERIOD_S / wall_period}
 
 
-def latency_case_run(args, state_dir: str, io: str = "zenoh") -> dict:
+def latency_case_run(args, state_dir: str, io: str = "zenoh", mesh: bool = False) -> dict:
     """Lock-step loop (as fast as it goes): the plant's record of meas -> MV times, with
-    the controller linked by Zenoh (case ``latency``) or OPC UA (case ``opcua``)."""
+    the controller linked by Zenoh (case ``latency``; through the authenticated router of
+    ``ssmpc up``: case ``mesh``) or OPC UA (case ``opcua``)."""
     from services.io import keys
     from services.registry import load_unit_config
 
@@ -322,7 +345,7 @@ def latency_case_run(args, state_dir: str, io: str = "zenoh") -> dict:
     nodes = _Nodes(args.unit, 1.0, lockstep=True, api=False, state_dir=state_dir,
                    rt_priority=args.rt_priority, unit_config=args.unit_config,
                    busy_poll=args.busy_poll and io == "zenoh", telemetry=args.telemetry,
-                   plant_busy_poll=args.plant_busy_poll, io=io)
+                   plant_busy_poll=args.plant_busy_poll, io=io, mesh=mesh)
     s = _client_session(nodes)
     try:
         _wait_running(s, args.unit)
@@ -336,10 +359,15 @@ def latency_case_run(args, state_dir: str, io: str = "zenoh") -> dict:
     if lat is None:
         raise RuntimeError(f"the {io} loop answered no sample in {args.latency_seconds:g} s")
     rate = ps["samples"] / args.latency_seconds
-    extra = {} if io == "zenoh" else {
-        "link": "OPC UA Basic256Sha256/SignAndEncrypt, loopback",
-        "lockstep_timeouts": ps["lockstep_timeouts"], "sheds": ps["link"]["sheds"]}
-    return {"case": "latency" if io == "zenoh" else io, "unit": "us", **extra,
+    case = io if io != "zenoh" else "mesh" if mesh else "latency"
+    if case == "opcua":
+        extra = {"link": "OPC UA Basic256Sha256/SignAndEncrypt, loopback",
+                 "lockstep_timeouts": ps["lockstep_timeouts"], "sheds": ps["link"]["sheds"]}
+    elif case == "mesh":
+        extra = {"link": "Zenoh clients of the ssmpc up router (user/password, ACL), loopback"}
+    else:
+        extra = {"link": "Zenoh peers, loopback"}
+    return {"case": case, "unit": "us", **extra,
             "median": lat["p50_us"], "p99": lat["p99_us"], "max": lat["max_us"], "n": lat["n"],
             "plant_unit": args.unit, "mode": "lockstep",
             "samples_per_wall_s": rate, "lockstep_speed": rate * cfg.sample_period_s,
@@ -495,7 +523,7 @@ def jitter_case(args, when: str) -> dict:
 
 def run(args) -> list[dict]:
     cases = {c.strip() for c in args.cases.split(",") if c.strip()}
-    unknown = cases - {"jitter", "speed", "latency", "opcua", "rest"}
+    unknown = cases - {"jitter", "speed", "latency", "mesh", "opcua", "rest"}
     if unknown:
         raise ValueError(f"cases: unknown case(s) {', '.join(sorted(unknown))}")
     if "jitter" in cases and not (args.jitter_seconds > 0):
@@ -510,6 +538,8 @@ def run(args) -> list[dict]:
                 out.append(jitter_case(args, "after the speed ladder"))
         if "latency" in cases:
             out.append(latency_case_run(args, state_dir))
+        if "mesh" in cases:
+            out.append(latency_case_run(args, state_dir, mesh=True))
         if "opcua" in cases:
             out.append(latency_case_run(args, state_dir, io="opcua"))
         if "rest" in cases:

@@ -28,6 +28,7 @@ __all__ = ["main", "build_parser", "COMMAND_MODULES"]
 #: Modules that register ``ssmpc`` subcommands (``register(subparsers)``).
 COMMAND_MODULES = (
     "services.cli.campaign",
+    "services.cli.credentials",
     "services.cli.linearize",
     "services.nodes.run",
     "services.cli.operator",

@@ -8,10 +8,16 @@ gossip), and an optional short lease so that a frozen peer is noticed quickly
 
 A config file (``--zenoh-config FILE``, JSON5 as read by
 ``zenoh.Config.from_file``) replaces the embedded default entirely; command
-line ``--listen``/``--connect`` endpoints are then added on top of it. The file
-is read when the settings are made: invalid JSON5, an unknown field or a wrong
-value is a ``ValueError`` naming ``zenoh_config`` with Zenoh's reason and the line
-(the CLI prints it as ``error: ...`` and exits 2), never a traceback.
+line ``--listen``/``--connect`` endpoints and the authentication below are then
+added on top of it. The file is read when the settings are made: invalid JSON5,
+an unknown field or a wrong value is a ``ValueError`` naming ``zenoh_config`` with
+Zenoh's reason and the line (the CLI prints it as ``error: ...`` and exits 2),
+never a traceback.
+
+Authentication (:mod:`services.io.mesh_auth`, Zenoh's ``transport.auth.usrpwd``): a
+node opens its session with its role's user name and password; a router checks the
+sessions it accepts against a dictionary file and filters their messages with an
+access-control list (:mod:`services.io.acl`).
 """
 
 from __future__ import annotations
@@ -59,6 +65,12 @@ class SessionSettings:
         Transport lease in ms; None keeps Zenoh's default.
     multicast_scouting : bool
         Embedded default keeps it off.
+    user, password : str or None
+        Zenoh user/password authentication of this session (both or neither).
+    dictionary_file : str or None
+        Accept only sessions that authenticate against this ``user:password`` file.
+    access_control : dict or None
+        A Zenoh ``access_control`` block for the sessions this one accepts.
     """
 
     config_file: str | None = None
@@ -68,8 +80,18 @@ class SessionSettings:
     lease_ms: int | None = None
     multicast_scouting: bool = False
     extra: dict = field(default_factory=dict)
+    user: str | None = None
+    password: str | None = field(default=None, repr=False)
+    dictionary_file: str | None = None
+    access_control: dict | None = None
 
     def __post_init__(self) -> None:
+        if (self.user is None) != (self.password is None):
+            raise ValueError("credentials: a user name needs a password and a password a user")
+        if self.dictionary_file is not None and not Path(self.dictionary_file).is_file():
+            raise ValueError(f"credentials: dictionary {self.dictionary_file!r} does not exist")
+        if self.access_control is not None and not isinstance(self.access_control, dict):
+            raise ValueError("access_control: must be a mapping (Zenoh's access_control block)")
         if self.mode not in MODES:
             raise ValueError(f"mode: expected one of {MODES}, got {self.mode!r}")
         if self.lease_ms is not None and not (100 <= int(self.lease_ms) <= 600_000):
@@ -124,6 +146,7 @@ def build_config(settings: SessionSettings):
                 conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
         except Exception as exc:
             raise ValueError(f"listen/connect: {zenoh_reason(exc)}") from None
+        _insert_auth(conf, settings)
         return conf
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps(settings.mode))
@@ -138,7 +161,26 @@ def build_config(settings: SessionSettings):
         conf.insert_json5("transport/link/tx/lease", str(int(settings.lease_ms)))
     for key, value in settings.extra.items():
         conf.insert_json5(key, json.dumps(value))
+    _insert_auth(conf, settings)
     return conf
+
+
+def _insert_auth(conf, settings: SessionSettings) -> None:
+    """User/password, dictionary and access control of ``settings`` into ``conf``."""
+    entries = []
+    if settings.user is not None:
+        entries += [("transport/auth/usrpwd/user", settings.user),
+                    ("transport/auth/usrpwd/password", settings.password)]
+    if settings.dictionary_file is not None:
+        entries.append(("transport/auth/usrpwd/dictionary_file",
+                        str(Path(settings.dictionary_file).resolve())))
+    if settings.access_control is not None:
+        entries.append(("access_control", settings.access_control))
+    for key, value in entries:
+        try:
+            conf.insert_json5(key, json.dumps(value))
+        except Exception as exc:  # zenoh.ZError: a field Zenoh refuses
+            raise ValueError(f"{key.split('/')[0]}: {zenoh_reason(exc)}") from None
 
 
 def open_session(settings: SessionSettings | None = None):

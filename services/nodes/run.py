@@ -7,7 +7,8 @@ opcua`` reads measurements and writes moves over OPC UA instead of Zenoh
 
 Each node opens its own Zenoh session (``--zenoh-config FILE`` or the embedded
 default: peer mode, loopback, multicast scouting off; ``--listen`` and
-``--connect`` add endpoints), prints ``ready <role> <unit>`` on stdout when it
+``--connect`` add endpoints; ``--credentials DIR`` authenticates it as its
+identity, :mod:`services.io.mesh_auth`), prints ``ready <role> <unit>`` on stdout when it
 serves, and stops cleanly on SIGINT/SIGTERM or after ``--duration`` wall
 seconds: telemetry flushed, checkpoint written, session closed.
 """
@@ -38,14 +39,49 @@ def add_mesh_arguments(p) -> None:
                    help="Zenoh mode of the embedded default (default peer)")
     g.add_argument("--lease-ms", type=int, default=None,
                    help="transport lease in ms (shorter: a dead peer is noticed sooner)")
+    g.add_argument("--credentials", metavar="DIR", default=None,
+                   help="mesh credentials directory (ssmpc credentials; <state-dir>/mesh of "
+                        "ssmpc up): the session authenticates as this command's identity")
 
 
-def session_settings(args):
+#: The mesh identity of each node command (services.io.mesh_auth); any other is ``cli``.
+ROLE_OF_COMMAND = {"plant": "plant", "opcua": "plant", "controller": "controller", "api": "api"}
+
+
+def session_settings(args, role: str | None = None):
+    """The node's :class:`~services.io.zenoh_session.SessionSettings`; with
+    ``--credentials`` it authenticates as ``role`` (default: its command's identity)."""
     from services.io.zenoh_session import SessionSettings
 
-    return SessionSettings(config_file=args.zenoh_config, mode=args.mode,
-                           listen=tuple(args.listen), connect=tuple(args.connect),
-                           lease_ms=args.lease_ms)
+    auth = {}
+    cred_dir = getattr(args, "credentials", None)
+    if cred_dir is not None:
+        from services.io.mesh_auth import node_credentials
+
+        role = role or ROLE_OF_COMMAND.get(getattr(args, "command", None), "cli")
+        cred = node_credentials(cred_dir, role)
+        auth = {"user": cred.user, "password": cred.password}
+    settings = SessionSettings(config_file=args.zenoh_config, mode=args.mode,
+                               listen=tuple(args.listen), connect=tuple(args.connect),
+                               lease_ms=args.lease_ms, **auth)
+    if auth and _mode_of(settings) != "client":
+        # a peer listens, and what it accepts is not authenticated: a session there could
+        # answer this node's queries or feed it samples past the router's ACL
+        raise CLIError("credentials: a node with credentials joins the mesh's router as a "
+                       "Zenoh client (--mode client --connect ROUTER, or a client config "
+                       f"such as deploy/zenoh/client.json5), not as a {_mode_of(settings)}")
+    return settings
+
+
+def _mode_of(settings) -> str:
+    """The Zenoh mode a node's session will open in."""
+    import json
+
+    if settings.config_file is None:
+        return settings.mode
+    from services.io.zenoh_session import build_config
+
+    return json.loads(build_config(settings).get_json("mode"))
 
 
 def add_opcua_arguments(p, *, server: bool) -> None:

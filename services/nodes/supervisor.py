@@ -1,8 +1,14 @@
 """``ssmpc up``: plant + controller + api of one unit on the embedded default.
 
-Three child processes (``ssmpc plant|controller|api``) on a fresh set of
-loopback ports: the controller listens, the plant and the api connect to it
-(and to each other); Zenoh peer mode, multicast scouting off, Rerun to
+Three child processes (``ssmpc plant|controller|api``) joined by an authenticated
+Zenoh router that ``up`` runs in its own process on a fresh loopback port
+(:mod:`services.io.mesh_router`): on first start it makes one password per node
+identity in ``<state-dir>/mesh`` (owner-only; reused later), the nodes join as Zenoh
+clients with their identity's credentials and listen on nothing, and the router's
+access-control list lets only the controller move the plant, only the plant publish
+measurements, only the api (or an operator's ``cli`` identity) command the nodes, and
+each node hold only its own liveliness token (:mod:`services.io.acl`); multicast
+scouting off, Rerun to
 ``<state-dir>/ssmpc-<unit>.rrd``, API on 127.0.0.1:``--port``. The simulated
 plant starts afresh, so by default a previous run's store and recording are
 renamed with a time stamp (``--resume`` keeps the store, e.g. to continue). ``up`` waits
@@ -50,7 +56,8 @@ def register(sub) -> None:
     p.add_argument("--speed", type=float, default=1.0,
                    help="process seconds per wall second (default 1)")
     p.add_argument("--port", type=int, default=8000, help="API port on 127.0.0.1 (default 8000)")
-    p.add_argument("--state-dir", default=".", help="SQLite store and .rrd directory (default .)")
+    p.add_argument("--state-dir", default=".",
+                   help="SQLite store, .rrd and mesh credentials (<dir>/mesh) (default .)")
     p.add_argument("--unit-config", metavar="FILE", help="JSON overrides of the unit config")
     p.add_argument("--duration", type=float, default=None,
                    help="stop by itself after this many wall seconds")
@@ -154,7 +161,6 @@ def _move_aside(state_dir: str, unit: str) -> list[str]:
 
 def run_up(args) -> int:
     from api.auth import token_from_env
-    from services.io.zenoh_session import free_port
     from services.registry import load_unit_config
 
     load_unit_config(args.unit, args.unit_config)  # fail early on a bad unit/config
@@ -164,6 +170,15 @@ def run_up(args) -> int:
     if args.restart_limit < 0:
         raise CLIError(f"restart_limit: must be >= 0, got {args.restart_limit}")
     os.makedirs(args.state_dir, exist_ok=True)
+    from services.io.mesh_router import node_arguments, open_router
+
+    # credentials not owner-only, or a router that cannot open: exit 2 before anything moves
+    mesh = open_router(args.state_dir, lease_ms=args.lease_ms)
+    if mesh.made:
+        print(f"mesh credentials made in {mesh.credentials_dir} (owner-only)", flush=True)
+    print(f"mesh: Zenoh router on {mesh.endpoint}, user/password per node and access "
+          f"control by identity (credentials in {mesh.credentials_dir})", flush=True)
+    join = node_arguments(mesh)
     opcua = []
     if args.io == "opcua":
         from services.io.opcua.certs import ensure_certificates
@@ -181,8 +196,8 @@ def run_up(args) -> int:
     if not args.resume:
         for path in _move_aside(args.state_dir, args.unit):
             print(f"previous run kept as {path}", flush=True)
-    p_ctrl, p_plant, p_api = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
-    common = ["--unit", args.unit, "--speed", str(args.speed), "--lease-ms", str(args.lease_ms)]
+    common = ["--unit", args.unit, "--speed", str(args.speed), "--lease-ms", str(args.lease_ms),
+              *join]
     if args.unit_config:
         common += ["--unit-config", args.unit_config]
     stop = threading.Event()
@@ -211,22 +226,19 @@ def run_up(args) -> int:
 
     try:
         deadline = time.monotonic() + args.ready_timeout
-        controller = (["controller", *common, "--listen", p_ctrl, "--state-dir", args.state_dir]
+        controller = (["controller", *common, "--state-dir", args.state_dir]
                       + (["--busy-poll"] if args.busy_poll else []))
-        plant = (["opcua" if opcua else "plant", *common, "--listen", p_plant]
-                 + ([] if opcua else ["--connect", p_ctrl])
+        plant = (["opcua" if opcua else "plant", *common]
                  + (["--lockstep"] if args.lockstep else []) + opcua)
-        if opcua:  # the controller connects to the plant (its server, its mesh): plant first
+        if opcua:  # the controller connects to the plant's OPC UA server: plant first
             start("plant", plant, f"the {args.unit} simulation, OPC UA on "
                                   f"{args.opcua_endpoint}")
-            start("controller", [*controller, "--connect", p_plant, "--plant-io", "opcua",
-                                 *opcua],
+            start("controller", [*controller, "--plant-io", "opcua", *opcua],
                   f"models, controller and store in {args.state_dir}, linked by OPC UA")
         else:
             start("controller", controller, f"models, controller and store in {args.state_dir}")
             start("plant", plant, f"the {args.unit} simulation")
-        start("api", ["api", "--listen", p_api, "--connect", p_ctrl, "--connect", p_plant,
-                      "--lease-ms", str(args.lease_ms), "--port", str(args.port)],
+        start("api", ["api", *join, "--lease-ms", str(args.lease_ms), "--port", str(args.port)],
               f"REST on 127.0.0.1:{args.port}")
         print(f"ssmpc up: unit {args.unit} at {args.speed:g}x, API http://127.0.0.1:{args.port}"
               f" (Ctrl-C to stop)", flush=True)
@@ -259,4 +271,5 @@ def run_up(args) -> int:
             stop.wait(0.2)
     finally:
         stop_children(procs)
+        mesh.close()
     return 0

@@ -526,7 +526,7 @@ def _controller_main(argv: list[str] | None = None) -> int:
     from services.io.zenoh_session import open_session
 
     store = UnitStore(default_store_path(cfg.unit, args.state_dir), cfg.unit)
-    session = open_session(session_settings(args))
+    session = open_session(session_settings(args, role="controller"))
     node = None
     try:
         node = ControllerNode(cfg, session, store, None, speed=args.speed, controller=ctl)
