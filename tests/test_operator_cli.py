@@ -63,6 +63,9 @@ def test_status_text_view_fits_and_marks_limits(stack):
     lines = proc.stdout.splitlines()
     assert all(len(ln) <= STATUS_WIDTH for ln in lines), max(lines, key=len)
     assert any(ln.startswith("y ") for ln in lines) and any(ln.startswith("u ") for ln in lines)
+    # the models' index read as prediction errors, the active model by name
+    model_line = next(ln for ln in lines if ln.startswith("active model "))
+    assert "prediction error (RMS, CV scales)" in model_line
     # a status with an MV at its upper limit and an alarm naming a CV: both are marked
     st = json.loads(_cli(api, "status", "cstr", "--json", token=False).stdout.splitlines()[-1])
     for v in st["variables"]:

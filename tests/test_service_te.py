@@ -142,6 +142,11 @@ def test_rest_request_moves_te_from_mode0_to_mode2_over_zenoh(tmp_path):
         assert st["solve_ms"] is not None and st["deadline_misses"] >= 0
         # the state-shared MPC reports its models, their J (eq. 4.6) and its solve time
         assert st["active_model_name"] in st["J"] and len(st["J"]) >= 3
+        # ... and each J as the RMS prediction error it stands for (CV scales): the
+        # model in use is the one that predicts best (up to the 20 % hysteresis on J)
+        rms = st["prediction_rms"]
+        assert set(rms) == set(st["J"]) and all(v is not None and v >= 0 for v in rms.values())
+        assert rms[st["active_model_name"]] <= min(rms.values()) / 0.8 ** 0.5 + 1e-9
         assert st["solve_ms"] > 0
         assert st["fallback_moves"] >= 0  # timing-dependent; measured by `ssmpc bench loop`
     finally:

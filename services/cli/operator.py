@@ -194,9 +194,14 @@ def status_lines(st: dict, show_all: bool = False) -> list[str]:
                f"deadline misses {st['deadline_misses']}  fallback {st['fallback_moves']}  "
                f"failed {st.get('failed_samples', 0)}")
     J = {k: v for k, v in (st.get("J") or {}).items() if v is not None}
+    rms = {k: v for k, v in (st.get("prediction_rms") or {}).items() if v is not None}
     if st.get("active_model_name") or J:
-        js = "  ".join(f"{k} {v:.2e}" for k, v in J.items())
-        out.append(f"active model {st.get('active_model_name') or '-'}  J: {js}"[:STATUS_WIDTH])
+        if rms:  # the index as the prediction error it stands for, in CV scales
+            js = "prediction error (RMS, CV scales): " + "  ".join(
+                f"{k} {v:.2f}" for k, v in rms.items())
+        else:
+            js = "J: " + "  ".join(f"{k} {v:.2e}" for k, v in J.items())
+        out.append(f"active model {st.get('active_model_name') or '-'}  {js}"[:STATUS_WIDTH])
     alarms = st.get("alarms", [])[-5:]
     text = " ".join(alarms)
     variables = st.get("variables") or []

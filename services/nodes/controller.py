@@ -771,6 +771,11 @@ class ControllerNode:
                                       or d.active_model < 0
                                       else d.model_names[d.active_model]),
                 "J": {} if d is None else named(d.model_names, np.asarray(d.J)),
+                # J as the weighted RMS prediction error it stands for (units of the
+                # CVs' scales; PerformanceIndex.rms_error)
+                "prediction_rms": ({} if d is None or d.extra.get("prediction_rms") is None
+                                   else named(d.model_names,
+                                              np.asarray(d.extra["prediction_rms"]))),
                 "solve_ms": None if d is None else float(d.solve_ms),
                 "controller_status": None if d is None else d.status,
                 "deadline_misses": self.stats.misses,
