@@ -58,6 +58,13 @@ def test_final_mean_is_the_mean_of_the_last_hour():
     assert metrics.final_mean(t[:2], v[:2], 0.25) == pytest.approx(1.0)
 
 
+def test_trailing_mean_by_hand():
+    v = np.array([[1.0, 10.0], [3.0, 10.0], [5.0, 40.0], [7.0, 10.0]])
+    np.testing.assert_allclose(metrics.trailing_mean(v, 2),
+                               [[1, 10], [2, 10], [4, 25], [6, 25]])
+    np.testing.assert_allclose(metrics.trailing_mean(v[:, 0], 3), [1, 2, 3, 5])
+
+
 def test_active_model_share_by_name():
     share = metrics.active_model_share([0, 0, 1, 2, 1, 1, 0, 0], ("mode0", "mode2", "reinit"))
     assert share == pytest.approx({"mode0": 4 / 8, "mode2": 3 / 8, "reinit": 1 / 8})
@@ -81,11 +88,14 @@ def test_te_metrics_of_a_transition_by_hand():
     m = metrics.te_metrics(t, x, cost, active, ("reinit", "mode0", "mode2"), 0.5,
                            (1.0, "mode2"), None)
     assert m["tripped"] is False and m["trip"] is None
-    assert m["time_to_grade_h"] == pytest.approx(0.5)      # inside from 1.5 h, leg at 1.0
+    # the grade signals as 1 h trailing means (two samples): G at 1.5 h is
+    # (20 + 12.56) / 2 = 16.3, outside; at 2.0 h (12.56 + 11.16) / 2 = 11.86 and at
+    # 2.5 h 11.41, inside; the flow means 22.0, 22.75, 23.12, inside: in from 2.0 h
+    assert m["time_to_grade_h"] == pytest.approx(1.0)
     assert m["peak_pressure_kpa"] == pytest.approx(2900.0)
     assert m["mean_cost_usd_h"] == pytest.approx(125.0)
     assert m["final_cost_usd_h"] == pytest.approx(145.0)   # last hour: 140 and 150
-    assert m["transition_cost_usd"] == pytest.approx(60.0)  # 120 $/h x 0.5 h (t = 1.0)
+    assert m["transition_cost_usd"] == pytest.approx(125.0)  # (120 + 130) $/h x 0.5 h
     assert m["active_model_share"] == pytest.approx({"reinit": 3 / 6, "mode0": 2 / 6,
                                                      "mode2": 1 / 6})
     assert list(m) == ["tripped", "trip", "time_to_grade_h", "peak_pressure_kpa",
