@@ -257,3 +257,32 @@ def test_a_locked_store_answers_503_and_the_controller_recovers(stack2):
     assert r.status_code == 202
     assert c.get("/api/v1/units/cstr/status").json()["store"] == "ok"
     assert [t["id"] for t in c.get(POST).json()] == [r.json()["id"]]
+
+
+def test_an_abort_the_store_cannot_record_leaves_the_transition_running(stack2):
+    """A 503 abort changes nothing: the transition keeps running, and once the store
+    commits again a restart does not bring the unacknowledged abort back; an abort
+    that is acknowledged afterwards is on disk before its 200."""
+    h, api = stack2
+    c = api.client
+    h.wait_samples(3)
+    tid = c.post(POST, json={"grade": "OPII", "duration_h": 1.0}, headers=AUTH).json()["id"]
+    assert _until(lambda: c.get(f"{POST}/{tid}").json()["state"] == "running")
+    _disk_full(h.store)
+    _fill(h.store)
+    r = c.delete(f"{POST}/{tid}", headers=AUTH)
+    assert r.status_code == 503, (r.status_code, r.text)
+    h.wait_samples(5)  # the loop goes on with the transition it has
+    assert c.get(f"{POST}/{tid}").json()["state"] == "running"
+    assert c.get("/api/v1/units/cstr/status").json()["transition"]["state"] == "running"
+    h.store._db.execute("PRAGMA max_page_count=1073741823")  # room again
+    h.ctrl.checkpoint(wait=True)
+    h.stop_controller()
+    h.start_controller()
+    assert _until(lambda: api.mesh.alive("cstr", "controller"))
+    assert c.get(f"{POST}/{tid}").json()["state"] == "running"
+    assert "aborted" not in [e["state"] for e in h.store.events(tid)]
+    r = c.delete(f"{POST}/{tid}", headers=AUTH)
+    assert r.status_code == 200 and r.json()["state"] == "aborted", r.text
+    with UnitStore(h.store_path, "cstr") as store:
+        assert store.transition(tid)["state"] == "aborted"

@@ -45,6 +45,7 @@ and optional ``duration_s``; ``get`` / ``abort`` with ``id``; ``list``).
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import os
@@ -660,32 +661,54 @@ class ControllerNode:
         if not isinstance(tid, str):
             return Reply(422, error="id: expected a transition id")
         if op == "abort":
+            reply = self._abort(tid)
+            if reply is not None:
+                return reply
+        return Reply(200, self._view(tid))
+
+    #: Longest wait for the store to commit an abort, s (no sample runs meanwhile).
+    ABORT_COMMIT_TIMEOUT_S = 5.0
+
+    def _abort(self, tid: str) -> Reply | None:
+        """Abort transition ``tid``: committed to the store before anything changes.
+
+        The abort is worked out on a copy of the transitions first and its record
+        committed; only then does the node hold the set points (and tell the
+        controller). A store that cannot commit leaves everything as it was: 503, the
+        transition keeps running, and no checkpoint can later carry an abort the
+        store never recorded. No sample runs during the commit (the sample lock is
+        held), so the transition cannot end otherwise meanwhile. None when ``tid`` is
+        not in memory (the caller answers from the store).
+        """
+        with self._busy:
             with self._lock:
                 found = self.tm.find(tid)
-                active = found is not None
+                if found is None:
+                    return None
+                if found.terminal:
+                    return Reply(200, found.view(self.t, self.budget.speed))
+                t = self.t
+                trial = copy.deepcopy(self.tm).abort(tid, t)  # UnknownTransition: 404
+                if trial.state != "aborted":
+                    return Reply(200, found.view(self.t, self.budget.speed))
+                record = trial.as_dict()
+            try:  # committed before it is applied and acknowledged
+                self._worker.call(self._save_transition, record, "aborted", t, trial.detail,
+                                  timeout=self.ABORT_COMMIT_TIMEOUT_S)
+            except (sqlite3.Error, TimeoutError) as exc:
+                self._store_failed(f"abort of {tid}", exc)
+                return Reply(503, error="store: cannot commit; the abort is not applied and "
+                                        f"the transition goes on ({exc}); retry later")
+            with self._lock:
+                active = self.tm.find(tid) is self.tm.active
+                tr = self.tm.abort(tid, t)
                 if active:
-                    was = found.state
-                    tr = self.tm.abort(tid, self.t)
-                    changed = tr.state == "aborted" and was != "aborted"
-                    if changed:
-                        if tr is self.tm.active:
-                            self._notify(tr, "aborted")
-                        record, t = tr.as_dict(), self.t
-                    view = tr.view(self.t, self.budget.speed)
-            if active:
-                if changed:
-                    try:  # committed before it is acknowledged
-                        self._worker.call(self._save_transition, record, "aborted", t,
-                                          tr.detail)
-                    except (sqlite3.Error, TimeoutError) as exc:
-                        # the abort holds the set points (the safe side) but is not durable
-                        self._store_failed(f"abort of {tid}", exc)
-                        return Reply(503, error="store: cannot commit; the abort holds the "
-                                                f"set points but is not stored ({exc})")
-                    self._store_ok()
-                    self.checkpoint(wait=True)
-                return Reply(200, view)
-        return Reply(200, self._view(tid))
+                    self._notify(tr, "aborted")
+                view = tr.view(self.t, self.budget.speed)
+        self._store_ok()
+        self.checkpoint(wait=True)
+        self._drain()  # a measurement that came during the commit
+        return Reply(200, view)
 
     def _create(self, grade: str, duration, queue: bool, key: str | None) -> Reply:
         """A new transition (202), or, for a known idempotency ``key``, the one that key
