@@ -60,7 +60,7 @@ import numpy as np
 from controller.blas import single_threaded_blas
 from controller.interfaces import ControlDecision
 from controller.units.config import UnitConfig, build_plant, cv_scales, plausible_ranges, unit_info
-from controller.units.takeover import align_multimodel
+from controller.units.takeover import align_multimodel, continue_from_applied
 from controller.units.variables import at_limit, unit_variables
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
@@ -940,11 +940,13 @@ class ControllerNode:
                 self.alarms.append(f"controller returned an invalid move at sample {msg.seq}; "
                                    "held")
                 u, fb = hold, True
+                self._continue_from(hold, msg.seq)
             else:
                 fb = decision.fallback
             self._publish_mv(msg.seq, u, fb)
         else:
-            u = hold
+            u = hold  # the watchdog sent the held move: the law goes on from it
+            self._continue_from(hold, msg.seq)
         # the budget covers the move going out, not only its computation
         elapsed = time.perf_counter() - arrived
         self.sample_times.note(msg.seq, arrived, arrived + elapsed)
@@ -1016,6 +1018,18 @@ class ControllerNode:
                 self._publish_status()
             except Exception:
                 log.exception("status not published")
+
+    def _continue_from(self, u, seq: int) -> None:
+        """The plant keeps ``u``, not the move the controller computed for sample ``seq``
+        (past the deadline, or invalid): the controller goes on from ``u``
+        (:func:`~controller.units.takeover.continue_from_applied`)."""
+        try:
+            continue_from_applied(self.controller, u)
+        except Exception as exc:  # never stall the loop; the next step holds on its own
+            self._failures.note("taking over the held move failed", exc)
+            with self._lock:
+                self.alarms.append(f"sample {seq}: the controller could not take over the "
+                                   f"held move ({exc})")
 
     def _publish_status(self) -> None:
         from services.io.messages import SCHEMA_VERSION, encode
