@@ -14,7 +14,9 @@ Integrity. Opening a store runs ``PRAGMA quick_check`` and checks what this
 module wrote (every record decodes, names its id and a known state; every event
 belongs to a transition); a file that is not an SQLite database, a corrupt page
 or an inconsistent row is a :class:`StoreError` (the CLI says ``error: ...`` and
-exits 2; nothing is changed). A write either commits or raises (a busy lock is
+exits 2; nothing is changed), and so is a store that can be read but not written
+(the WAL's shared-memory index ``-shm`` or the file read-only, a full disk): the write
+lock is taken once at open. A write either commits or raises (a busy lock is
 waited for at most ``busy_timeout_s``): the caller acknowledges only what
 committed. A checkpoint is checked at both ends: NaN, infinities (``1e999``) or a
 non-object are refused when encoded (ValueError) and when loaded (StoreError).
@@ -122,6 +124,7 @@ class UnitStore:
                 self._db.executescript(_SCHEMA)
                 self._migrate()
             self._check_rows()
+            self._check_writable()
         except sqlite3.Error as exc:
             self._db.close()
             raise StoreError(f"store: {self.path} is not a usable store: {exc}") from None
@@ -165,6 +168,21 @@ class UnitStore:
             " ON t.id = e.transition_id WHERE t.id IS NULL").fetchone()[0]
         if orphan:
             raise StoreError(f"store: {self.path}: {orphan} events of unknown transitions")
+
+    def _check_writable(self) -> None:
+        """Take the write lock once and let it go: a store that could be read but not
+        written (the file, its ``-wal`` or its ``-shm`` shared-memory index read-only, a
+        full disk) is a StoreError now, not a degraded store after the first sample.
+        Another process holding the lock is not an error here (the writes wait for it)."""
+        try:
+            self._db.execute("BEGIN IMMEDIATE")
+            self._db.execute("ROLLBACK")
+        except sqlite3.OperationalError as exc:
+            if getattr(exc, "sqlite_errorname", "") in ("SQLITE_BUSY", "SQLITE_LOCKED"):
+                return
+            raise StoreError(f"store: {self.path} cannot be written ({exc}): the file, its "
+                             "-wal or its -shm (shared-memory index) is read-only, or the "
+                             "disk is full; fix that or move the store aside") from None
 
     def _migrate(self) -> None:
         """Bring a store made by an older version up to this schema (columns added)."""
