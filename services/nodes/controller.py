@@ -65,6 +65,7 @@ from controller.units.variables import at_limit, unit_variables
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.io.zenoh_session import declare_loop_publisher, declare_loop_subscriber
+from services.nodes.ramp_in import MoveHistory, RampIn
 from services.registry import build_controller
 from services.store import StoreError, UnitStore
 from services.telemetry import TelemetryLogger
@@ -296,6 +297,13 @@ class ControllerNode:
         # computed from there (see _align). Set before the subscriber is declared: on a
         # running plant a measurement can be processed before __init__ returns.
         self._align_pending = True
+        # the moves sent lately (their largest steps go into the checkpoint) and, after a
+        # resume on a running plant, the ramp-in that limits the moves to those steps
+        self._moves = MoveHistory(self.nu)
+        self._restored_steps: np.ndarray | None = None
+        self._ramp_in: RampIn | None = None
+        self._mv_span = np.array([v.hi - v.lo for v in self.variables if v.kind == "mv"],
+                                 float)
         self._restore()
         self._watchdog = Watchdog(period_hint_s=self.budget.wall_period_s)
         self._mv_pub = plant_link if plant_link is not None else declare_loop_publisher(
@@ -335,6 +343,14 @@ class ControllerNode:
                 self.mv_seq = int(st["mv_seq"])
                 self.stats.misses = int(st.get("deadline_misses", 0))
                 self.stats.fallbacks = int(st.get("fallback_moves", 0))
+                steps = st.get("recent_steps")
+                if steps is not None:
+                    steps = np.asarray(steps, float)
+                    if steps.shape != (self.nu,) or not np.all(np.isfinite(steps)) \
+                            or np.any(steps < 0):
+                        raise ValueError(f"recent_steps: expected {self.nu} finite values "
+                                         ">= 0")
+                    self._restored_steps = steps
                 self.k = int(cp["sample"])
                 self.t = float(cp["process_time"])
             except (KeyError, TypeError, ValueError, IndexError) as exc:
@@ -410,6 +426,11 @@ class ControllerNode:
                      "mv_seq": self.mv_seq, "deadline_misses": self.stats.misses,
                      "fallback_moves": self.stats.fallbacks,
                      "recording_id": getattr(self.telemetry, "recording_id", None)}
+            steps = self._moves.steps()
+            if steps is None:
+                steps = self._restored_steps
+            if steps is not None:
+                state["recent_steps"] = steps.tolist()
             k, t = max(self.k, 0), self.t
         # encoded here (the loop thread calls this only when the slack allows): in the
         # worker, json.dumps would hold the interpreter lock against the next step
@@ -871,6 +892,8 @@ class ControllerNode:
             align(u)
         else:
             align_multimodel(self.controller, u)
+        if self._restored_steps is not None and self._mv_span.shape == (self.nu,):
+            self._ramp_in = RampIn(self._restored_steps, self._mv_span)
         with self._lock:
             self.u_last = u
             self.alarms.append(f"resumed at sample {msg.seq} from the plant's move")
@@ -943,6 +966,8 @@ class ControllerNode:
                 self._continue_from(hold, msg.seq)
             else:
                 fb = decision.fallback
+                if self._ramp_in is not None:
+                    u = self._ramp_limited(u, hold, msg.seq)
             self._publish_mv(msg.seq, u, fb)
         else:
             u = hold  # the watchdog sent the held move: the law goes on from it
@@ -978,6 +1003,7 @@ class ControllerNode:
                 **_qp_work(decision.extra),
                 "waited_ms": (arrived + elapsed - t_begin) * 1e3 - cpu_ms})
             self.u_last = np.asarray(u, float)
+            self._moves.append(self.u_last)
             self.last_decision = decision
             for alarm in decision.alarms:
                 self.alarms.append(alarm)
@@ -1018,6 +1044,22 @@ class ControllerNode:
                 self._publish_status()
             except Exception:
                 log.exception("status not published")
+
+    def _ramp_limited(self, u, hold, seq: int):
+        """The move after a resume, limited by the ramp-in (:mod:`services.nodes.ramp_in`);
+        the controller goes on from the move sent."""
+        ramp = self._ramp_in
+        sent = ramp.limit(u, hold)
+        if ramp.done:
+            self._ramp_in = None
+            if ramp.samples:
+                with self._lock:
+                    self.alarms.append(f"ramp-in after the resume done at sample {seq} "
+                                       f"({ramp.samples} moves limited)")
+            return u
+        if sent is not u:
+            self._continue_from(sent, seq)
+        return sent
 
     def _continue_from(self, u, seq: int) -> None:
         """The plant keeps ``u``, not the move the controller computed for sample ``seq``

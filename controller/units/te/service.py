@@ -172,10 +172,11 @@ class TEServiceController:
         :data:`~controller.units.te.control.CORE_NAMES`) restarts from the matching
         valves and set points (re-initialized dynamics)."""
         self.u = np.asarray(u, dtype=float).copy()
-        alias = {"Tr_sp": "reactor_temperature_sp", "Pr_sp": "reactor_pressure_sp"}
-        idx = [self.mvs.index(alias.get(n, n)) if alias.get(n, n) in self.mvs else None
-               for n in CORE_NAMES]
-        if None not in idx:
+        take_over = getattr(self.ctl, "take_over", None)
+        if callable(take_over):
+            take_over()
+        idx = self._core_index()
+        if idx is not None:
             align_multimodel(getattr(self.ctl, "core", None), self.u[idx])
 
     def checkpoint(self) -> dict[str, Any]:
