@@ -35,8 +35,11 @@ telemetry to Rerun in batches; a checkpoint (controller state, last move,
 transition state) to SQLite every ``checkpoint_every`` samples or 5 wall
 seconds — on the first such sample with time for the snapshot before the next
 measurement, at the latest after 10 s — and at every transition state change. On start the node
-restores the checkpoint, so its first move equals the last one before the
-restart (bumpless).
+restores the checkpoint and, on a running plant, takes over the move the plant holds
+(:meth:`ControllerNode._align`); its moves then ramp in at no more than the largest
+recent step of each MV (:mod:`services.nodes.ramp_in`). Whenever the plant keeps
+another move than the one computed (a missed deadline, the ramp-in), the controller
+is told (``applied``) and goes on from what the plant got.
 
 Queries on ``ssmpc/<unit>/cmd/<action>`` with a :class:`~services.io.messages.Request`:
 ``status``, ``grades``, ``transition`` (``args.op``: ``create`` with ``grade``
