@@ -9,6 +9,9 @@ old or the new row, never half of one. Tables:
 - ``transition_events``: every state change, appended (the complete history).
 - ``checkpoint``: one row per unit: sample, process time and the node's state
   (controller checkpoint, last move, reference, active transition) as JSON.
+- ``recent_steps``: one row per unit: the largest single-sample step of each MV over
+  the node's latest moves (the ramp-in of a restarted node, ``services.nodes.ramp_in``),
+  written more often than the checkpoint because it costs next to nothing.
 
 Integrity. Opening a store runs ``PRAGMA quick_check`` and checks what this
 module wrote (every record decodes, names its id and a known state; every event
@@ -74,6 +77,12 @@ CREATE TABLE IF NOT EXISTS transition_events (
     process_time REAL,
     wall REAL NOT NULL,
     detail TEXT NOT NULL DEFAULT ''
+);
+CREATE TABLE IF NOT EXISTS recent_steps (
+    unit TEXT PRIMARY KEY,
+    sample INTEGER NOT NULL,
+    wall REAL NOT NULL,
+    steps TEXT NOT NULL
 );
 CREATE TABLE IF NOT EXISTS checkpoint (
     unit TEXT PRIMARY KEY,
@@ -290,6 +299,34 @@ class UnitStore:
                 if self._db.in_transaction:  # SQLite may have rolled back already
                     self._db.execute("ROLLBACK")
                 raise
+
+    def save_recent_steps(self, sample: int, steps) -> None:
+        """Replace the unit's recent MV steps (a list of finite numbers >= 0)."""
+        text = json.dumps([float(v) for v in steps], allow_nan=False)
+        with self._lock:
+            self._db.execute(
+                "INSERT INTO recent_steps (unit, sample, wall, steps) VALUES (?, ?, ?, ?)"
+                " ON CONFLICT(unit) DO UPDATE SET sample=excluded.sample,"
+                " wall=excluded.wall, steps=excluded.steps",
+                (self.unit, int(sample), time.time(), text))
+
+    def load_recent_steps(self) -> list[float] | None:
+        """The unit's recent MV steps, or None (none stored, or not a list of finite
+        numbers >= 0: the ramp-in then uses the checkpoint's)."""
+        with self._lock:
+            row = self._db.execute("SELECT steps FROM recent_steps WHERE unit=?",
+                                   (self.unit,)).fetchone()
+        if row is None:
+            return None
+        try:
+            steps = _decode(row[0])
+        except ValueError:
+            return None
+        if not (isinstance(steps, list) and steps
+                and all(isinstance(v, int | float) and not isinstance(v, bool) and v >= 0
+                        for v in steps)):
+            return None
+        return [float(v) for v in steps]
 
     def load_checkpoint(self) -> dict[str, Any] | None:
         """``{"sample", "process_time", "wall", "state"}`` or None.

@@ -68,7 +68,7 @@ from controller.units.variables import at_limit, unit_variables
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.io.zenoh_session import declare_loop_publisher, declare_loop_subscriber
-from services.nodes.ramp_in import MoveHistory, RampIn
+from services.nodes.ramp_in import STEP_WINDOW, MoveHistory, RampIn
 from services.registry import build_controller
 from services.store import StoreError, UnitStore
 from services.telemetry import TelemetryLogger
@@ -302,7 +302,7 @@ class ControllerNode:
         self._align_pending = True
         # the moves sent lately (their largest steps go into the checkpoint) and, after a
         # resume on a running plant, the ramp-in that limits the moves to those steps
-        self._moves = MoveHistory(self.nu)
+        self._moves = MoveHistory(self.nu, STEP_WINDOW)
         self._restored_steps: np.ndarray | None = None
         self._ramp_in: RampIn | None = None
         self._mv_span = np.array([v.hi - v.lo for v in self.variables if v.kind == "mv"],
@@ -362,6 +362,9 @@ class ControllerNode:
                                  "store aside to start afresh") from None
             self.restored_from = self.k
             log.info("restored checkpoint at sample %d", self.k)
+        stored = self.store.load_recent_steps()  # newer than the checkpoint's, if any
+        if stored is not None and len(stored) == self.nu:
+            self._restored_steps = np.asarray(stored, float)
         self._reconcile()
 
     def _reconcile(self) -> None:
@@ -1032,6 +1035,10 @@ class ControllerNode:
                 # in batches, but never more than a second behind (a live viewer)
                 self._last_flush = now
                 self._worker.submit(self.telemetry.flush)
+        if msg.seq % self.cfg.checkpoint_every == 0:
+            steps = self._moves.steps()  # tiny: written even when the checkpoint waits
+            if steps is not None:
+                self._worker.submit(self.store.save_recent_steps, msg.seq, steps.tolist())
         if (changes or ended or msg.seq % self.cfg.checkpoint_every == 0
                 or time.perf_counter() - self._last_checkpoint_wall > self.CHECKPOINT_WALL_S):
             self._checkpoint_due = True

@@ -11,8 +11,10 @@ checkpoint, offline): the first move jumped by 35.8 % on XMV2, 20 kPa (the MPC's
 limit) on the reactor pressure set point, 11.7 % on XMV9, against largest steps of 2.8
 %, 0.29 kPa and 0.15 % in the 20 samples before.
 
-What. The node keeps its last :attr:`MoveHistory.window` + 1 published moves and
-stores the largest single-sample step of each MV in its checkpoint. After a resume on
+What. The node keeps its last :data:`STEP_WINDOW` + 1 published moves and
+stores the largest single-sample step of each MV in its checkpoint and, every
+``checkpoint_every`` samples, in a row of its own (``UnitStore.save_recent_steps``;
+the checkpoint waits for a sample with slack, up to 10 wall s). After a resume on
 a running plant, each move is limited to that step from the previous one (an MV that
 did not move at all before gets :data:`FLOOR_FRACTION` of its instrument range, so that
 it is not frozen), and the controller is told the move the plant got
@@ -29,12 +31,20 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["FLOOR_FRACTION", "MIN_SAMPLES", "MoveHistory", "RampIn"]
+__all__ = ["FLOOR_FRACTION", "MIN_SAMPLES", "STEP_WINDOW", "MoveHistory", "RampIn"]
 
 #: Step per sample of the ramp-in for an MV that did not move before the restart, as a
 #: fraction of its instrument range (TE: 0.05 % of a valve, 0.225 kPa of the reactor
 #: pressure set point).
 FLOOR_FRACTION = 5e-4
+#: Steps looked back for the ramp-in's limits: half the 20 samples of the bumpless rule,
+#: so that a record written up to 10 samples before the kill (the store's writes run
+#: behind the loop; a SIGKILL loses the queued ones) still lies within the rule's window
+#: and its largest step is no larger than the rule's bound. With the whole 20 the
+#: record's window reached back before the rule's, and while a transition's moves
+#: shrank that allowed steps above the rule's bound on six or more of the 12 TE MVs
+#: (a kill at 1800x).
+STEP_WINDOW = 10
 #: Fewest samples the ramp-in lasts after a take-over.
 MIN_SAMPLES = 20
 
