@@ -304,6 +304,7 @@ class ControllerNode:
         # resume on a running plant, the ramp-in that limits the moves to those steps
         self._moves = MoveHistory(self.nu, STEP_WINDOW)
         self._restored_steps: np.ndarray | None = None
+        self._last_steps_wall = -math.inf
         self._ramp_in: RampIn | None = None
         self._mv_span = np.array([v.hi - v.lo for v in self.variables if v.kind == "mv"],
                                  float)
@@ -464,6 +465,8 @@ class ControllerNode:
     STATUS_MIN_WALL_S = 0.2
     #: A checkpoint is also due after this wall time (slow speeds: samples are far apart), s.
     CHECKPOINT_WALL_S = 5.0
+    #: Shortest wall time between two writes of the recent MV steps (the ramp-in's), s.
+    STEPS_WALL_S = 0.05
     #: Longest wall time between checkpoints however little slack the loop has, s.
     CHECKPOINT_MAX_WALL_S = 10.0
 
@@ -1035,9 +1038,11 @@ class ControllerNode:
                 # in batches, but never more than a second behind (a live viewer)
                 self._last_flush = now
                 self._worker.submit(self.telemetry.flush)
-        if msg.seq % self.cfg.checkpoint_every == 0:
-            steps = self._moves.steps()  # tiny: written even when the checkpoint waits
+        if t_disarmed - self._last_steps_wall >= self.STEPS_WALL_S:
+            # tiny: written every sample (at most every STEPS_WALL_S), the checkpoint waits
+            steps = self._moves.steps()
             if steps is not None:
+                self._last_steps_wall = t_disarmed
                 self._worker.submit(self.store.save_recent_steps, msg.seq, steps.tolist())
         if (changes or ended or msg.seq % self.cfg.checkpoint_every == 0
                 or time.perf_counter() - self._last_checkpoint_wall > self.CHECKPOINT_WALL_S):

@@ -12,9 +12,9 @@ limit) on the reactor pressure set point, 11.7 % on XMV9, against largest steps 
 %, 0.29 kPa and 0.15 % in the 20 samples before.
 
 What. The node keeps its last :data:`STEP_WINDOW` + 1 published moves and
-stores the largest single-sample step of each MV in its checkpoint and, every
-``checkpoint_every`` samples, in a row of its own (``UnitStore.save_recent_steps``;
-the checkpoint waits for a sample with slack, up to 10 wall s). After a resume on
+stores the largest single-sample step of each MV in its checkpoint and, every sample
+(at most every 50 wall ms), in a row of its own (``UnitStore.save_recent_steps``; the
+checkpoint waits for a sample with slack, up to 10 wall s). After a resume on
 a running plant, each move is limited to that step from the previous one (an MV that
 did not move at all before gets :data:`FLOOR_FRACTION` of its instrument range, so that
 it is not frozen), and the controller is told the move the plant got
