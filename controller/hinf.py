@@ -444,6 +444,12 @@ class HInfLaw:
         self._settled_start = True
         self._ramp_from = math.nan  # the first error, set at the first sample
 
+    def applied(self, u, computed) -> None:
+        """The plant got ``u`` instead of ``computed`` (the last move): the output offset
+        absorbs the difference, so the next move is ``u`` plus the law's own increment."""
+        self.u_hold += float(np.asarray(u, dtype=float).reshape(-1)[0]
+                             - np.asarray(computed, dtype=float).reshape(-1)[0])
+
     @staticmethod
     def _model_params(ssm, j: int) -> np.ndarray:
         n = ssm.n_deg

@@ -140,6 +140,13 @@ class MRACLaw:
         self.reset(u, y)
         self._align_u = float(np.asarray(u, dtype=float).reshape(-1)[0])
 
+    def applied(self, u, computed) -> None:
+        """The plant got ``u`` instead of ``computed``: the input filter ``w1`` (advanced
+        with ``computed`` in :meth:`compute`) is corrected to have seen ``u``."""
+        du = float(np.asarray(u, dtype=float).reshape(-1)[0]
+                   - np.asarray(computed, dtype=float).reshape(-1)[0])
+        self.w1 += (1.0 - self.decay) * du
+
     @staticmethod
     def plant_of(ssm, j: int) -> tuple[tuple[float, float, float, float], float]:
         """``(kp, z, a1, a0)`` of SISO model j and its steady input at y = 0."""

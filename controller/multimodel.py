@@ -619,6 +619,39 @@ class MultiModelController:
         self.initialized = False
         self._aligned = True
 
+    def applied(self, u) -> None:
+        """The plant got ``u`` instead of the last step's move (a missed deadline: the
+        move held): go on from ``u``.
+
+        Called before :meth:`finish_sample`: the shared state is advanced with the
+        applied ``u`` (the measured input, eq. 3.10) and ``u`` becomes the last move,
+        so the next move is computed from what the plant has. A law with
+        ``applied(u, computed)`` corrects its own states too (an output offset, an
+        input filter). Models, J values and the active model are kept.
+
+        Parameters
+        ----------
+        u : array_like, shape (m,)
+            The move in force (absolute units); clipped to the input limits.
+
+        Raises
+        ------
+        ValueError
+            When ``u`` has the wrong length or is not finite.
+        """
+        u = np.asarray(u, dtype=float).reshape(-1)
+        if u.shape != self.u_last.shape or not np.isfinite(u).all():
+            raise ValueError(f"u: expected {self.u_last.size} finite values, got {u!r}")
+        u = np.clip(u, self.u_min, self.u_max)
+        computed = self.u_last.copy()
+        if self._deferred is not None:
+            _, y, active = self._deferred
+            self._deferred = (u.copy(), y, active)
+        law_applied = getattr(self.law, "applied", None)
+        if callable(law_applied):
+            law_applied(u, computed)
+        self.u_last = u.copy()
+
     # -- persistence ---------------------------------------------------------------------
     def _steady_output_scale(self) -> np.ndarray:
         """omega(0)/d_j(0) per model (k,): 1 / |1 - theta2_j' n_ss|, n_ss the block's

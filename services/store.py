@@ -9,12 +9,17 @@ old or the new row, never half of one. Tables:
 - ``transition_events``: every state change, appended (the complete history).
 - ``checkpoint``: one row per unit: sample, process time and the node's state
   (controller checkpoint, last move, reference, active transition) as JSON.
+- ``recent_steps``: one row per unit: the largest single-sample step of each MV over
+  the node's latest moves (the ramp-in of a restarted node, ``services.nodes.ramp_in``),
+  written more often than the checkpoint because it costs next to nothing.
 
 Integrity. Opening a store runs ``PRAGMA quick_check`` and checks what this
 module wrote (every record decodes, names its id and a known state; every event
 belongs to a transition); a file that is not an SQLite database, a corrupt page
 or an inconsistent row is a :class:`StoreError` (the CLI says ``error: ...`` and
-exits 2; nothing is changed). A write either commits or raises (a busy lock is
+exits 2; nothing is changed), and so is a store that can be read but not written
+(the WAL's shared-memory index ``-shm`` or the file read-only, a full disk): the write
+lock is taken once at open. A write either commits or raises (a busy lock is
 waited for at most ``busy_timeout_s``): the caller acknowledges only what
 committed. A checkpoint is checked at both ends: NaN, infinities (``1e999``) or a
 non-object are refused when encoded (ValueError) and when loaded (StoreError).
@@ -73,6 +78,12 @@ CREATE TABLE IF NOT EXISTS transition_events (
     wall REAL NOT NULL,
     detail TEXT NOT NULL DEFAULT ''
 );
+CREATE TABLE IF NOT EXISTS recent_steps (
+    unit TEXT PRIMARY KEY,
+    sample INTEGER NOT NULL,
+    wall REAL NOT NULL,
+    steps TEXT NOT NULL
+);
 CREATE TABLE IF NOT EXISTS checkpoint (
     unit TEXT PRIMARY KEY,
     sample INTEGER NOT NULL,
@@ -122,6 +133,7 @@ class UnitStore:
                 self._db.executescript(_SCHEMA)
                 self._migrate()
             self._check_rows()
+            self._check_writable()
         except sqlite3.Error as exc:
             self._db.close()
             raise StoreError(f"store: {self.path} is not a usable store: {exc}") from None
@@ -165,6 +177,21 @@ class UnitStore:
             " ON t.id = e.transition_id WHERE t.id IS NULL").fetchone()[0]
         if orphan:
             raise StoreError(f"store: {self.path}: {orphan} events of unknown transitions")
+
+    def _check_writable(self) -> None:
+        """Take the write lock once and let it go: a store that could be read but not
+        written (the file, its ``-wal`` or its ``-shm`` shared-memory index read-only, a
+        full disk) is a StoreError now, not a degraded store after the first sample.
+        Another process holding the lock is not an error here (the writes wait for it)."""
+        try:
+            self._db.execute("BEGIN IMMEDIATE")
+            self._db.execute("ROLLBACK")
+        except sqlite3.OperationalError as exc:
+            if getattr(exc, "sqlite_errorname", "") in ("SQLITE_BUSY", "SQLITE_LOCKED"):
+                return
+            raise StoreError(f"store: {self.path} cannot be written ({exc}): the file, its "
+                             "-wal or its -shm (shared-memory index) is read-only, or the "
+                             "disk is full; fix that or move the store aside") from None
 
     def _migrate(self) -> None:
         """Bring a store made by an older version up to this schema (columns added)."""
@@ -272,6 +299,34 @@ class UnitStore:
                 if self._db.in_transaction:  # SQLite may have rolled back already
                     self._db.execute("ROLLBACK")
                 raise
+
+    def save_recent_steps(self, sample: int, steps) -> None:
+        """Replace the unit's recent MV steps (a list of finite numbers >= 0)."""
+        text = json.dumps([float(v) for v in steps], allow_nan=False)
+        with self._lock:
+            self._db.execute(
+                "INSERT INTO recent_steps (unit, sample, wall, steps) VALUES (?, ?, ?, ?)"
+                " ON CONFLICT(unit) DO UPDATE SET sample=excluded.sample,"
+                " wall=excluded.wall, steps=excluded.steps",
+                (self.unit, int(sample), time.time(), text))
+
+    def load_recent_steps(self) -> list[float] | None:
+        """The unit's recent MV steps, or None (none stored, or not a list of finite
+        numbers >= 0: the ramp-in then uses the checkpoint's)."""
+        with self._lock:
+            row = self._db.execute("SELECT steps FROM recent_steps WHERE unit=?",
+                                   (self.unit,)).fetchone()
+        if row is None:
+            return None
+        try:
+            steps = _decode(row[0])
+        except ValueError:
+            return None
+        if not (isinstance(steps, list) and steps
+                and all(isinstance(v, int | float) and not isinstance(v, bool) and v >= 0
+                        for v in steps)):
+            return None
+        return [float(v) for v in steps]
 
     def load_checkpoint(self) -> dict[str, Any] | None:
         """``{"sample", "process_time", "wall", "state"}`` or None.

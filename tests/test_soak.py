@@ -2,18 +2,21 @@
 kind once) and a focused run of the three node kills while a transition runs.
 
 What must hold: no lost transition record, no unhandled error, no preventable
-shutdown; after a controller restart the running transition continues and the first move
-equals a replay from the checkpoint the killed node left (bumpless).
+shutdown; after a controller restart the running transition continues, and the resume is
+bumpless: judged here from the moves the report records (the 20 samples before the kill,
+the move the plant held, the moves after), each of the first computed moves steps by no
+more than the largest single-sample move of its MV before the kill.
 """
 
 import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from services.soak.faults import default_faults, parse_faults
-from services.soak.run import REPORT_KEYS, SoakSettings, run_soak
+from services.soak.run import REPORT_KEYS, SoakSettings, bumpless_verdict, run_soak
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(400)]
 
@@ -29,6 +32,55 @@ def _check_shape(r):
         assert isinstance(r[key], int) and r[key] >= 0, key
     assert isinstance(r["shutdowns"], list)
     assert all(isinstance(n, int) for n in r["faults_injected"].values())
+
+
+JUDGED_MOVES = 3  # computed moves after a restart that the rule judges
+
+
+def _resume_steps(resume):
+    """(largest step after the restart / largest step before) per MV, from the recorded
+    moves alone: the first ``JUDGED_MOVES`` computed moves and any held ones between."""
+    before = np.asarray(resume["moves_before"], float)
+    assert before.shape[0] == 21, before.shape
+    bound = np.abs(before[1:] - before[:-1]).max(axis=0)
+    after, computed = [], 0
+    for m in resume["moves_after"]:
+        after.append(m["u"])
+        computed += not m["fallback"]
+        if computed == JUDGED_MOVES:
+            break
+    assert computed == JUDGED_MOVES, resume["moves_after"]
+    path = np.vstack([resume["held"], *after])
+    steps = np.abs(path[1:] - path[:-1]).max(axis=0)
+    return steps, bound
+
+
+def _check_bumpless(r):
+    """Every controller resume met the rule, and the report counts exactly those."""
+    resumes = r["details"]["controller_resumes"]
+    assert len(resumes) == r["details"]["restarts_by_node"].get("controller", 0)
+    met = 0
+    for resume in resumes:
+        steps, bound = _resume_steps(resume)
+        ok = bool(np.all(steps <= bound + 1e-9 * (1 + np.abs(resume["held"]))))
+        met += ok
+        assert ok, {"over": np.flatnonzero(steps > bound).tolist(), "steps": steps.tolist(),
+                    "bound": bound.tolist(), "t_h": resume["t_h"]}
+    assert r["bumpless_resumes"] == met
+
+
+def test_the_bumpless_verdict_counts_a_step_beyond_the_recent_ones():
+    before = [[10.0 + 0.5 * k, 2800.0 + (k % 2)] for k in range(21)]  # steps 0.5 and 1
+    held = before[-1]
+    smooth = [{"fallback": True, "u": held},
+              {"fallback": False, "u": [held[0] + 0.5, held[1] - 1.0]},
+              {"fallback": False, "u": [held[0] + 0.9, held[1] - 1.5]}]
+    assert bumpless_verdict(before, held, smooth)["bumpless"]
+    bump = [*smooth[:2], {"fallback": False, "u": [held[0] + 0.9, held[1] - 21.5]}]
+    v = bumpless_verdict(before, held, bump)
+    assert not v["bumpless"] and v["worst_mv"]["index"] == 1
+    first = [{"fallback": False, "u": [held[0] + 0.6, held[1]]}]  # 0.6 > 0.5 at once
+    assert not bumpless_verdict(before, held, first)["bumpless"]
 
 
 def _check_promise(r):
@@ -55,8 +107,7 @@ def test_ci_soak_every_fault_kind_once(tmp_path):
     expected = {w.name for w in default_faults(CI_HOURS, 36.0)}
     assert expected <= {k for k, n in r["faults_injected"].items() if n > 0}
     assert r["restarts"] == 3
-    (resume,) = r["details"]["controller_resumes"]
-    assert "max_bump" in resume and r["bumpless_resumes"] == int(resume["bumpless"])
+    _check_bumpless(r)
     assert r["deadline_misses"] >= 1  # the stalled solver
     assert r["transitions"]["requested"] >= 1
     probes = r["details"]["security_probes"]
@@ -66,6 +117,9 @@ def test_ci_soak_every_fault_kind_once(tmp_path):
 @pytest.mark.slow
 def test_node_kills_during_a_transition(tmp_path):
     faults = tuple(parse_faults("kill:controller@0.4h,kill:plant@0.5h,kill:api@0.6h", 36.0))
+    # at 1800x a loaded loop seldom has the slack for a checkpoint (one is forced every
+    # 10 wall s, 5 process hours): the ramp-in's steps come from their own small record,
+    # written every sample (with the checkpoint's, P_r* 2.85 kPa was allowed against 0.30)
     r = run_soak(SoakSettings(unit="te", hours=1.2, speed=1800.0, seed=5, faults=faults,
                               transition_gap_h=0.05, abort_probability=0.0, idv_gap_h=100.0,
                               state_dir=str(tmp_path / "state")))
@@ -81,11 +135,11 @@ def test_node_kills_during_a_transition(tmp_path):
     (check,) = d["transition_resume_checks"]
     assert check["before"] == "running" and check["after"] == "running" and check["ok"]
     assert check["active_after"] == check["transition"]
-    # the resume was judged (bumpless or not: test_faults_restart.py, a known gap) and the
-    # replay from the killed node's checkpoint ran
+    # the restarted controller took the plant over bumplessly (judged from the moves),
+    # and the replay from the killed node's checkpoint ran
+    _check_bumpless(r)
     (resume,) = d["controller_resumes"]
-    assert "max_bump" in resume and "first_move_vs_replay" in resume, resume
-    assert r["bumpless_resumes"] == int(resume["bumpless"])
+    assert "first_move_vs_replay" in resume, resume
     assert r["transitions"]["requested"] >= 1
 
 

@@ -76,3 +76,17 @@ def test_checkpoint_encoded_by_the_caller_is_stored_as_is(tmp_path):
     with pytest.raises(ValueError):
         UnitStore.encode_checkpoint({"x": [float("nan")]})  # refused before any write
     assert s.load_checkpoint()["sample"] == 7
+
+
+def test_recent_steps_are_replaced_and_read_back(tmp_path):
+    s = UnitStore(tmp_path / "u.sqlite", "cstr")
+    assert s.load_recent_steps() is None
+    s.save_recent_steps(3, [0.5, 0.0])
+    s.save_recent_steps(4, [0.25, 1.0])
+    assert s.load_recent_steps() == [0.25, 1.0]
+    with pytest.raises(ValueError):
+        s.save_recent_steps(5, [float("nan")])
+    assert s.load_recent_steps() == [0.25, 1.0]
+    s._db.execute("UPDATE recent_steps SET steps='[-1, \"x\"]'")  # not steps: ignored
+    assert s.load_recent_steps() is None
+    s.close()

@@ -257,3 +257,71 @@ def test_a_locked_store_answers_503_and_the_controller_recovers(stack2):
     assert r.status_code == 202
     assert c.get("/api/v1/units/cstr/status").json()["store"] == "ok"
     assert [t["id"] for t in c.get(POST).json()] == [r.json()["id"]]
+
+
+def test_an_abort_the_store_cannot_record_leaves_the_transition_running(stack2):
+    """A 503 abort changes nothing: the transition keeps running, and once the store
+    commits again a restart does not bring the unacknowledged abort back; an abort
+    that is acknowledged afterwards is on disk before its 200."""
+    h, api = stack2
+    c = api.client
+    h.wait_samples(3)
+    tid = c.post(POST, json={"grade": "OPII", "duration_h": 1.0}, headers=AUTH).json()["id"]
+    assert _until(lambda: c.get(f"{POST}/{tid}").json()["state"] == "running")
+    _disk_full(h.store)
+    _fill(h.store)
+    r = c.delete(f"{POST}/{tid}", headers=AUTH)
+    assert r.status_code == 503, (r.status_code, r.text)
+    h.wait_samples(5)  # the loop goes on with the transition it has
+    assert c.get(f"{POST}/{tid}").json()["state"] == "running"
+    assert c.get("/api/v1/units/cstr/status").json()["transition"]["state"] == "running"
+    h.store._db.execute("PRAGMA max_page_count=1073741823")  # room again
+    h.ctrl.checkpoint(wait=True)
+    h.stop_controller()
+    h.start_controller()
+    assert _until(lambda: api.mesh.alive("cstr", "controller"))
+    assert c.get(f"{POST}/{tid}").json()["state"] == "running"
+    assert "aborted" not in [e["state"] for e in h.store.events(tid)]
+    r = c.delete(f"{POST}/{tid}", headers=AUTH)
+    assert r.status_code == 200 and r.json()["state"] == "aborted", r.text
+    with UnitStore(h.store_path, "cstr") as store:
+        assert store.transition(tid)["state"] == "aborted"
+
+
+def _make_unwritable(path) -> bool:
+    """Make ``path`` unwritable for this process: read-only mode, or for root (whom modes
+    do not stop) the immutable attribute. False when neither works here."""
+    path.chmod(0o444)
+    try:
+        with open(path, "r+b"):
+            pass
+    except PermissionError:
+        return True
+    done = subprocess.run(["chattr", "+i", str(path)], capture_output=True)
+    return done.returncode == 0
+
+
+def _make_writable(path) -> None:
+    subprocess.run(["chattr", "-i", str(path)], capture_output=True)
+    path.chmod(0o644)
+
+
+def test_an_unwritable_shared_memory_index_is_refused_at_start(tmp_path):
+    """The WAL's shared-memory index (``-shm``) read-only: ``error:`` and exit 2 at start,
+    never a signal death or a controller that starts and cannot store anything."""
+    path = tmp_path / "ssmpc-cstr.sqlite"
+    store = UnitStore(path, "cstr")  # open: its -wal and -shm stay
+    store.save_transition({"id": "t0", "grade": "OPII", "state": "settled"}, event="settled")
+    shm = tmp_path / "ssmpc-cstr.sqlite-shm"
+    assert shm.exists()
+    if not _make_unwritable(shm):
+        store.close()
+        pytest.skip("cannot make a file unwritable here (root without chattr)")
+    try:
+        proc = _controller(tmp_path)
+    finally:
+        _make_writable(shm)
+        store.close()
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
+    assert proc.stderr.startswith("error: ") and "cannot be written" in proc.stderr
+    assert "Traceback" not in proc.stderr and "ready" not in proc.stdout

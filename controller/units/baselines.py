@@ -74,6 +74,10 @@ class PIBaseline:
         self.u = np.asarray(u, dtype=float).copy()
         self.e_prev = None
 
+    def applied(self, u) -> None:
+        """The plant got ``u`` instead of the last move: the velocity form goes on from it."""
+        self.u = np.clip(np.asarray(u, dtype=float), self.u_min, self.u_max)
+
     def checkpoint(self) -> dict[str, Any]:
         return {"u": self.u.tolist(),
                 "e_prev": None if self.e_prev is None else self.e_prev.tolist()}
@@ -120,6 +124,9 @@ class HoldController:
                                alarms=(f"invalid measurement at sample {k}",) if bad else ())
 
     def align(self, u) -> None:
+        self.u = np.asarray(u, dtype=float).copy()
+
+    def applied(self, u) -> None:
         self.u = np.asarray(u, dtype=float).copy()
 
     def checkpoint(self) -> dict[str, Any]:

@@ -8,13 +8,17 @@ bumpless) this means: its last move becomes the plant's, and its dynamic states 
 shared state, the law's) are re-initialized at the next sample from ``(u, y)``,
 exactly as at its first sample; the models' parameters, covariances and
 performance-index values are kept.
+
+The same holds within a run: when the plant keeps another move than the one the
+controller computed (a missed deadline: the move held), the controller goes on from
+the applied move (:func:`continue_from_applied`), not from the one that never went out.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["align_multimodel"]
+__all__ = ["align_multimodel", "continue_from_applied"]
 
 
 def align_multimodel(ctl, u) -> bool:
@@ -41,4 +45,27 @@ def align_multimodel(ctl, u) -> bool:
         return True
     ctl.u_last = u.copy()
     ctl.initialized = False
+    return True
+
+
+def continue_from_applied(ctl, u) -> bool:
+    """Tell a controller that the plant got ``u`` instead of its last move.
+
+    Parameters
+    ----------
+    ctl : object
+        The controller; one with ``applied(u)`` (the multiple-model controller, the unit
+        controllers) goes on from ``u``, anything else is left alone.
+    u : array_like (nu,)
+        The move in force.
+
+    Returns
+    -------
+    bool
+        False when the controller has no ``applied``.
+    """
+    applied = getattr(ctl, "applied", None)
+    if not callable(applied):
+        return False
+    applied(np.asarray(u, dtype=float))
     return True

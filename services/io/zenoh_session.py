@@ -198,7 +198,11 @@ def open_session(settings: SessionSettings | None = None):
     try:
         return zenoh.open(conf)
     except Exception as exc:  # zenoh.ZError
-        raise ValueError(f"zenoh: cannot open the session: {zenoh_reason(exc)}") from None
+        reason = zenoh_reason(exc)
+        if "shm" in reason.lower():  # its shared-memory segments live in /dev/shm
+            reason += (" (/dev/shm is full or not writable: free room there, or set "
+                       "transport/shared_memory/enabled to false in the Zenoh config)")
+        raise ValueError(f"zenoh: cannot open the session: {reason}") from None
 
 
 def declare_loop_publisher(session, key_expr):

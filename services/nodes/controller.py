@@ -35,8 +35,11 @@ telemetry to Rerun in batches; a checkpoint (controller state, last move,
 transition state) to SQLite every ``checkpoint_every`` samples or 5 wall
 seconds — on the first such sample with time for the snapshot before the next
 measurement, at the latest after 10 s — and at every transition state change. On start the node
-restores the checkpoint, so its first move equals the last one before the
-restart (bumpless).
+restores the checkpoint and, on a running plant, takes over the move the plant holds
+(:meth:`ControllerNode._align`); its moves then ramp in at no more than the largest
+recent step of each MV (:mod:`services.nodes.ramp_in`). Whenever the plant keeps
+another move than the one computed (a missed deadline, the ramp-in), the controller
+is told (``applied``) and goes on from what the plant got.
 
 Queries on ``ssmpc/<unit>/cmd/<action>`` with a :class:`~services.io.messages.Request`:
 ``status``, ``grades``, ``transition`` (``args.op``: ``create`` with ``grade``
@@ -45,6 +48,7 @@ and optional ``duration_s``; ``get`` / ``abort`` with ``id``; ``list``).
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import os
@@ -59,11 +63,12 @@ import numpy as np
 from controller.blas import single_threaded_blas
 from controller.interfaces import ControlDecision
 from controller.units.config import UnitConfig, build_plant, cv_scales, plausible_ranges, unit_info
-from controller.units.takeover import align_multimodel
+from controller.units.takeover import align_multimodel, continue_from_applied
 from controller.units.variables import at_limit, unit_variables
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.io.zenoh_session import declare_loop_publisher, declare_loop_subscriber
+from services.nodes.ramp_in import STEP_WINDOW, MoveHistory, RampIn
 from services.registry import build_controller
 from services.store import StoreError, UnitStore
 from services.telemetry import TelemetryLogger
@@ -295,6 +300,14 @@ class ControllerNode:
         # computed from there (see _align). Set before the subscriber is declared: on a
         # running plant a measurement can be processed before __init__ returns.
         self._align_pending = True
+        # the moves sent lately (their largest steps go into the checkpoint) and, after a
+        # resume on a running plant, the ramp-in that limits the moves to those steps
+        self._moves = MoveHistory(self.nu, STEP_WINDOW)
+        self._restored_steps: np.ndarray | None = None
+        self._last_steps_wall = -math.inf
+        self._ramp_in: RampIn | None = None
+        self._mv_span = np.array([v.hi - v.lo for v in self.variables if v.kind == "mv"],
+                                 float)
         self._restore()
         self._watchdog = Watchdog(period_hint_s=self.budget.wall_period_s)
         self._mv_pub = plant_link if plant_link is not None else declare_loop_publisher(
@@ -334,6 +347,14 @@ class ControllerNode:
                 self.mv_seq = int(st["mv_seq"])
                 self.stats.misses = int(st.get("deadline_misses", 0))
                 self.stats.fallbacks = int(st.get("fallback_moves", 0))
+                steps = st.get("recent_steps")
+                if steps is not None:
+                    steps = np.asarray(steps, float)
+                    if steps.shape != (self.nu,) or not np.all(np.isfinite(steps)) \
+                            or np.any(steps < 0):
+                        raise ValueError(f"recent_steps: expected {self.nu} finite values "
+                                         ">= 0")
+                    self._restored_steps = steps
                 self.k = int(cp["sample"])
                 self.t = float(cp["process_time"])
             except (KeyError, TypeError, ValueError, IndexError) as exc:
@@ -342,6 +363,9 @@ class ControllerNode:
                                  "store aside to start afresh") from None
             self.restored_from = self.k
             log.info("restored checkpoint at sample %d", self.k)
+        stored = self.store.load_recent_steps()  # newer than the checkpoint's, if any
+        if stored is not None and len(stored) == self.nu:
+            self._restored_steps = np.asarray(stored, float)
         self._reconcile()
 
     def _reconcile(self) -> None:
@@ -409,6 +433,11 @@ class ControllerNode:
                      "mv_seq": self.mv_seq, "deadline_misses": self.stats.misses,
                      "fallback_moves": self.stats.fallbacks,
                      "recording_id": getattr(self.telemetry, "recording_id", None)}
+            steps = self._moves.steps()
+            if steps is None:
+                steps = self._restored_steps
+            if steps is not None:
+                state["recent_steps"] = steps.tolist()
             k, t = max(self.k, 0), self.t
         # encoded here (the loop thread calls this only when the slack allows): in the
         # worker, json.dumps would hold the interpreter lock against the next step
@@ -436,6 +465,8 @@ class ControllerNode:
     STATUS_MIN_WALL_S = 0.2
     #: A checkpoint is also due after this wall time (slow speeds: samples are far apart), s.
     CHECKPOINT_WALL_S = 5.0
+    #: Shortest wall time between two writes of the recent MV steps (the ramp-in's), s.
+    STEPS_WALL_S = 0.05
     #: Longest wall time between checkpoints however little slack the loop has, s.
     CHECKPOINT_MAX_WALL_S = 10.0
 
@@ -660,32 +691,54 @@ class ControllerNode:
         if not isinstance(tid, str):
             return Reply(422, error="id: expected a transition id")
         if op == "abort":
+            reply = self._abort(tid)
+            if reply is not None:
+                return reply
+        return Reply(200, self._view(tid))
+
+    #: Longest wait for the store to commit an abort, s (no sample runs meanwhile).
+    ABORT_COMMIT_TIMEOUT_S = 5.0
+
+    def _abort(self, tid: str) -> Reply | None:
+        """Abort transition ``tid``: committed to the store before anything changes.
+
+        The abort is worked out on a copy of the transitions first and its record
+        committed; only then does the node hold the set points (and tell the
+        controller). A store that cannot commit leaves everything as it was: 503, the
+        transition keeps running, and no checkpoint can later carry an abort the
+        store never recorded. No sample runs during the commit (the sample lock is
+        held), so the transition cannot end otherwise meanwhile. None when ``tid`` is
+        not in memory (the caller answers from the store).
+        """
+        with self._busy:
             with self._lock:
                 found = self.tm.find(tid)
-                active = found is not None
+                if found is None:
+                    return None
+                if found.terminal:
+                    return Reply(200, found.view(self.t, self.budget.speed))
+                t = self.t
+                trial = copy.deepcopy(self.tm).abort(tid, t)  # UnknownTransition: 404
+                if trial.state != "aborted":
+                    return Reply(200, found.view(self.t, self.budget.speed))
+                record = trial.as_dict()
+            try:  # committed before it is applied and acknowledged
+                self._worker.call(self._save_transition, record, "aborted", t, trial.detail,
+                                  timeout=self.ABORT_COMMIT_TIMEOUT_S)
+            except (sqlite3.Error, TimeoutError) as exc:
+                self._store_failed(f"abort of {tid}", exc)
+                return Reply(503, error="store: cannot commit; the abort is not applied and "
+                                        f"the transition goes on ({exc}); retry later")
+            with self._lock:
+                active = self.tm.find(tid) is self.tm.active
+                tr = self.tm.abort(tid, t)
                 if active:
-                    was = found.state
-                    tr = self.tm.abort(tid, self.t)
-                    changed = tr.state == "aborted" and was != "aborted"
-                    if changed:
-                        if tr is self.tm.active:
-                            self._notify(tr, "aborted")
-                        record, t = tr.as_dict(), self.t
-                    view = tr.view(self.t, self.budget.speed)
-            if active:
-                if changed:
-                    try:  # committed before it is acknowledged
-                        self._worker.call(self._save_transition, record, "aborted", t,
-                                          tr.detail)
-                    except (sqlite3.Error, TimeoutError) as exc:
-                        # the abort holds the set points (the safe side) but is not durable
-                        self._store_failed(f"abort of {tid}", exc)
-                        return Reply(503, error="store: cannot commit; the abort holds the "
-                                                f"set points but is not stored ({exc})")
-                    self._store_ok()
-                    self.checkpoint(wait=True)
-                return Reply(200, view)
-        return Reply(200, self._view(tid))
+                    self._notify(tr, "aborted")
+                view = tr.view(self.t, self.budget.speed)
+        self._store_ok()
+        self.checkpoint(wait=True)
+        self._drain()  # a measurement that came during the commit
+        return Reply(200, view)
 
     def _create(self, grade: str, duration, queue: bool, key: str | None) -> Reply:
         """A new transition (202), or, for a known idempotency ``key``, the one that key
@@ -853,6 +906,8 @@ class ControllerNode:
             align(u)
         else:
             align_multimodel(self.controller, u)
+        if self._restored_steps is not None and self._mv_span.shape == (self.nu,):
+            self._ramp_in = RampIn(self._restored_steps, self._mv_span)
         with self._lock:
             self.u_last = u
             self.alarms.append(f"resumed at sample {msg.seq} from the plant's move")
@@ -922,11 +977,15 @@ class ControllerNode:
                 self.alarms.append(f"controller returned an invalid move at sample {msg.seq}; "
                                    "held")
                 u, fb = hold, True
+                self._continue_from(hold, msg.seq)
             else:
                 fb = decision.fallback
+                if self._ramp_in is not None:
+                    u = self._ramp_limited(u, hold, msg.seq)
             self._publish_mv(msg.seq, u, fb)
         else:
-            u = hold
+            u = hold  # the watchdog sent the held move: the law goes on from it
+            self._continue_from(hold, msg.seq)
         # the budget covers the move going out, not only its computation
         elapsed = time.perf_counter() - arrived
         self.sample_times.note(msg.seq, arrived, arrived + elapsed)
@@ -958,6 +1017,7 @@ class ControllerNode:
                 **_qp_work(decision.extra),
                 "waited_ms": (arrived + elapsed - t_begin) * 1e3 - cpu_ms})
             self.u_last = np.asarray(u, float)
+            self._moves.append(self.u_last)
             self.last_decision = decision
             for alarm in decision.alarms:
                 self.alarms.append(alarm)
@@ -983,6 +1043,12 @@ class ControllerNode:
                 # in batches, but never more than a second behind (a live viewer)
                 self._last_flush = now
                 self._worker.submit(self.telemetry.flush)
+        if t_disarmed - self._last_steps_wall >= self.STEPS_WALL_S:
+            # tiny: written every sample (at most every STEPS_WALL_S), the checkpoint waits
+            steps = self._moves.steps()
+            if steps is not None:
+                self._last_steps_wall = t_disarmed
+                self._worker.submit(self.store.save_recent_steps, msg.seq, steps.tolist())
         if (changes or ended or msg.seq % self.cfg.checkpoint_every == 0
                 or time.perf_counter() - self._last_checkpoint_wall > self.CHECKPOINT_WALL_S):
             self._checkpoint_due = True
@@ -998,6 +1064,34 @@ class ControllerNode:
                 self._publish_status()
             except Exception:
                 log.exception("status not published")
+
+    def _ramp_limited(self, u, hold, seq: int):
+        """The move after a resume, limited by the ramp-in (:mod:`services.nodes.ramp_in`);
+        the controller goes on from the move sent."""
+        ramp = self._ramp_in
+        sent = ramp.limit(u, hold)
+        if ramp.done:
+            self._ramp_in = None
+            if ramp.samples:
+                with self._lock:
+                    self.alarms.append(f"ramp-in after the resume done at sample {seq} "
+                                       f"({ramp.samples} moves limited)")
+            return u
+        if sent is not u:
+            self._continue_from(sent, seq)
+        return sent
+
+    def _continue_from(self, u, seq: int) -> None:
+        """The plant keeps ``u``, not the move the controller computed for sample ``seq``
+        (past the deadline, or invalid): the controller goes on from ``u``
+        (:func:`~controller.units.takeover.continue_from_applied`)."""
+        try:
+            continue_from_applied(self.controller, u)
+        except Exception as exc:  # never stall the loop; the next step holds on its own
+            self._failures.note("taking over the held move failed", exc)
+            with self._lock:
+                self.alarms.append(f"sample {seq}: the controller could not take over the "
+                                   f"held move ({exc})")
 
     def _publish_status(self) -> None:
         from services.io.messages import SCHEMA_VERSION, encode

@@ -249,8 +249,13 @@ def _warn_busy_poll_under_fifo(role: str, args) -> None:
 
 
 def _logging() -> None:
+    import faulthandler
+
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    # a fatal signal (SIGSEGV, SIGBUS from a mapped file that cannot be backed) leaves
+    # the Python stacks of every thread in the log instead of an empty one
+    faulthandler.enable(file=sys.stderr, all_threads=True)
 
 
 def _stop_event(duration: float | None) -> threading.Event:

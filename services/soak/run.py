@@ -43,11 +43,14 @@ Counting rules
   by itself, a 500/502 from the api, an unexpected status code to a probe
   (e.g. a write without the token that is not refused with 401), an exception
   in this orchestrator's threads.
-- *bumpless resume*: after a controller restart, every move it sends up to its
-  first computed one differs from the move the plant held by no more than the
-  largest single-sample move of that MV in the 20 samples before the kill (plus
-  1e-9). Reported beside it: whether that first computed move matches a replay
-  from the checkpoint the killed node left (``replay_matches``).
+- *bumpless resume* (:func:`bumpless_verdict`): after a controller restart, every
+  move it sends up to its :data:`FIRST_MOVES`-th computed one steps from the move
+  before it (the first from the move the plant held) by no more than the largest
+  single-sample move of that MV in the 20 samples before the kill (plus 1e-9 relative).
+  The moves are recorded in the report (``details.controller_resumes``: ``moves_before``,
+  ``held``, ``moves_after``), so the verdict can be checked from them. Reported beside
+  it: whether the first computed move matches a replay from the checkpoint the killed
+  node left (``replay_matches``).
 - *preventable shutdown*: a trip that the fault-free twin (:func:`fault_free_twin`: the
   same plant, seed, controller, transitions and IDVs offline, without faults or
   timing) does not have within 2 process hours, unless an IDV of ``unpreventable_idvs``
@@ -78,7 +81,7 @@ from services.io import keys
 from services.io.messages import MVMessage, Reply, Request
 from services.soak.faults import ChaosRelay, FaultWindow, default_faults, report_kind
 
-__all__ = ["SoakSettings", "Soak", "run_soak", "REPORT_KEYS"]
+__all__ = ["SoakSettings", "Soak", "run_soak", "REPORT_KEYS", "bumpless_verdict"]
 
 log = logging.getLogger("ssmpc.soak")
 
@@ -102,6 +105,10 @@ TE_GRADES = ("mode0", "mode2")
 #: them measures the controller, not the services.
 TE_IDVS = (2, 3, 4, 5, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20)
 LEASE_MS = 1000
+#: Computed moves after a controller restart judged by the bumpless rule.
+FIRST_MOVES = 3
+#: Samples before the kill whose largest single-sample move bounds the moves after it.
+BUMP_WINDOW = 20
 #: A restarted controller's first move matches the replay from its checkpoint within this
 #: relative tolerance. Diagnostic only: a controller whose solver has a wall-clock budget
 #: (the MPC's ``budget_ms``) can take another branch in the replay.
@@ -379,7 +386,7 @@ class Soak:
         self.unavailable = 0
         self.idv_on: dict[int, float] = {}
         self.idv_log: list[dict] = []
-        self._recent_mv: deque = deque(maxlen=21)
+        self._recent_mv: deque = deque(maxlen=BUMP_WINDOW + 1)
         self._recent_meas: dict[int, bytes] = {}
         self._await_resume: dict | None = None
         self._mv_lock = threading.Lock()
@@ -415,8 +422,10 @@ class Soak:
                 pending.setdefault("mvs", []).append(
                     (msg.meas_seq, msg.fallback, self._recent_meas.get(msg.meas_seq), u))
                 if not msg.fallback:
-                    pending["first_move"] = u
-                    self._await_resume = None
+                    pending.setdefault("first_move", u)
+                    pending["computed"] = pending.get("computed", 0) + 1
+                    if pending["computed"] >= FIRST_MOVES:
+                        self._await_resume = None
             self._recent_mv.append(u)
 
     # -- REST ---------------------------------------------------------------------------------
@@ -551,17 +560,19 @@ class Soak:
             if tid is not None:
                 self._poll_active()
                 before = self.seen_state.get(tid)
+            self.ctrl.kill()  # SIGKILL, and waited for
+            # the moves it sent up to its death (one may still be on its way to the relay)
+            # and the move the plant holds from now on
+            time.sleep(max(0.05, 2 * self.cfg.sample_period_s / self.s.speed))
             with self._mv_lock:
-                recent = np.asarray(self._recent_mv) if len(self._recent_mv) >= 2 else None
-                u_held = np.asarray(self.plant.runner.u, float)
-                thr = (np.max(np.abs(np.diff(recent, axis=0)), axis=0) if recent is not None
-                       else np.zeros_like(u_held)) + 1e-9 * (1 + np.abs(u_held))
-                resume = {"t_h": t / 3600.0, "killed_wall": time.perf_counter()}
+                recent = [u.tolist() for u in self._recent_mv]
+                resume = {"t_h": t / 3600.0, "killed_wall": time.perf_counter(),
+                          "moves_before": recent}
                 self._await_resume = resume
-            self.ctrl.kill()
+            u_held = np.asarray(self.plant.runner.u, float)
             copy = self._copy_store()
             self.ctrl.start(self.s.ready_timeout_s)
-            self._check_resume(resume, copy, u_held, thr)
+            self._check_resume(resume, copy, u_held)
             if tid is not None and before in ("pending", "running"):
                 # the restarted node must still be driving that transition (not only have
                 # it in its store): its status names it as the active one, or it ended
@@ -630,44 +641,43 @@ class Soak:
                 shutil.copyfile(src, dst / (src.name))
         return dst / self.store_path.name
 
-    def _check_resume(self, resume: dict, store_copy: Path, u_held, threshold) -> None:
-        """Bumpless: the restarted node's moves stay within one normal step of the move the
-        plant holds, and its first computed move equals a replay from its checkpoint."""
+    def _check_resume(self, resume: dict, store_copy: Path, u_held) -> None:
+        """Bumpless (:func:`bumpless_verdict`): the restarted node's first moves step by
+        no more than the largest recent step of each MV; beside it, whether its first
+        computed move equals a replay from its checkpoint."""
         t_end = time.monotonic() + 10.0
-        while time.monotonic() < t_end and "first_move" not in resume:
+        while time.monotonic() < t_end and resume.get("computed", 0) < FIRST_MOVES:
             time.sleep(0.02)
         with self._mv_lock:
             if self._await_resume is resume:
                 self._await_resume = None
         resume.pop("killed_wall", None)
+        computed = resume.pop("computed", 0)
         first, mvs = resume.pop("first_move", None), resume.pop("mvs", [])
+        resume["held"] = u_held.tolist()
+        resume["moves_after"] = [{"fallback": bool(m[1]), "u": np.asarray(m[3]).tolist()}
+                                 for m in mvs]
+        verdict = bumpless_verdict(resume["moves_before"], resume["held"],
+                                   resume["moves_after"])
+        resume.update(verdict)
+        if computed < FIRST_MOVES:
+            resume.update(bumpless=False, why=f"{computed} computed moves after the restart "
+                                              f"(of {FIRST_MOVES} judged)")
+        upto_first = mvs[:next((i + 1 for i, m in enumerate(mvs) if not m[1]), len(mvs))]
         try:
-            u_ckpt, u_replay, replayed = replay_first_move(self.cfg, store_copy, mvs)
+            u_ckpt, u_replay, replayed = replay_first_move(self.cfg, store_copy, upto_first)
             resume["samples_replayed"] = replayed
         except Exception as exc:
-            resume.update(bumpless=False, why=f"replay failed: {exc}")
+            resume["replay"] = f"failed: {exc}"
             self.resumes.append(resume)
             return
         resume["checkpoint_vs_held"] = float(np.max(np.abs(u_ckpt - u_held)))
-        # every move the restarted node sent, up to its first computed one, within the
-        # largest recent single-sample move of each MV from the move the plant held
-        sent = [m[3] for m in mvs] or [u_ckpt]
-        gap = np.max(np.abs(np.asarray(sent) - u_held), axis=0)
-        worst = int(np.argmax(gap - threshold))
-        resume["max_bump"] = float(gap.max())
-        resume["allowed"] = float(threshold.max())
-        resume["worst_mv"] = {"index": worst, "bump": float(gap[worst]),
-                              "allowed": float(threshold[worst])}
-        ok = bool(np.all(gap <= threshold))
-        if first is None:
-            resume.update(bumpless=False, why="no computed move after the restart")
-        elif u_replay is None:
-            resume.update(bumpless=ok, replay_matches=None)
+        if first is None or u_replay is None:
+            resume["replay_matches"] = None
         else:
             diff = float(np.max(np.abs(first - u_replay) / (1 + np.abs(u_replay))))
             resume["first_move_vs_replay"] = diff
             resume["replay_matches"] = diff <= REPLAY_RTOL
-            resume["bumpless"] = ok
         self.resumes.append(resume)
 
     def _stall_windows(self) -> list[str]:
@@ -985,6 +995,52 @@ class _RecordingSession:
 
     def declare_token(self, key, **kw):
         return _Entity()
+
+
+def bumpless_verdict(moves_before, held, moves_after) -> dict:
+    """The bumpless rule on recorded moves (module notes, *bumpless resume*).
+
+    Parameters
+    ----------
+    moves_before : sequence of (nu,) sequences
+        The MVs the controller sent before the kill, oldest first (the last
+        :data:`BUMP_WINDOW` + 1 of them).
+    held : sequence (nu,)
+        The move the plant held when the restarted controller took over.
+    moves_after : sequence of dict
+        ``{"fallback": bool, "u": (nu,)}`` the restarted controller sent, in order, up to
+        its :data:`FIRST_MOVES`-th computed one.
+
+    Returns
+    -------
+    dict
+        ``bumpless`` (bool), ``bound`` (nu,: the largest single-sample move of each MV
+        before the kill), ``max_step_ratio`` (largest step after / bound over the MVs
+        that moved before), ``worst_mv`` (index, step, bound) and ``why`` when not
+        bumpless.
+    """
+    before = np.asarray(moves_before, dtype=float)
+    u_held = np.asarray(held, dtype=float)
+    if before.ndim != 2 or len(before) < 2:
+        return {"bumpless": False, "why": "fewer than two moves recorded before the kill"}
+    if not moves_after:
+        return {"bumpless": False, "why": "no move after the restart"}
+    bound = np.max(np.abs(np.diff(before, axis=0)), axis=0)
+    path = np.vstack([u_held] + [np.asarray(m["u"], dtype=float) for m in moves_after])
+    steps = np.max(np.abs(np.diff(path, axis=0)), axis=0)
+    allowed = bound + 1e-9 * (1 + np.abs(u_held))
+    over = steps - allowed
+    worst = int(np.argmax(over))
+    moved = bound > 0
+    ratio = float(np.max(steps[moved] / bound[moved])) if np.any(moved) else None
+    out = {"bumpless": bool(np.all(over <= 0)), "bound": bound.tolist(),
+           "max_step_ratio": ratio,
+           "worst_mv": {"index": worst, "step": float(steps[worst]),
+                        "bound": float(bound[worst])}}
+    if not out["bumpless"]:
+        out["why"] = (f"MV {worst} stepped {steps[worst]:.6g} after the restart, "
+                      f"largest step before {bound[worst]:.6g}")
+    return out
 
 
 def replay_first_move(cfg, store_path: Path, mvs):

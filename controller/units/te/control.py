@@ -416,6 +416,29 @@ class TEController:
             t_next = self._t_last + self.sample_h
             self._refs_ahead = (t_next, self.plan, self._plan_refs(t_next))
 
+    def take_over(self) -> None:
+        """Before the first sample after a take-over of a running plant (a restart from a
+        checkpoint): the velocity-form outer loops (the G loop on the D share, the A-feed
+        and production trims) forget their previous errors, which are those of the
+        checkpoint's sample; the first sample then adds no proportional kick from the
+        error's change over the outage (the PI baseline's ``align`` does the same). The
+        integral parts and the trims reached are kept."""
+        self.e_g_prev = self.e_a_prev = self.e_p_prev = None
+        self._refs_ahead = None
+
+    def applied(self, core_u) -> None:
+        """The plant got the core handles ``core_u`` (5,) instead of the last move (a
+        missed deadline): the core goes on from them (the MPC's shared state and last
+        move, the PI baseline's velocity form). The other XMVs are positional (the
+        plan's values and the ratio's D share), nothing to correct."""
+        u = np.asarray(core_u, dtype=float)
+        if self.core is None:
+            return
+        if callable(getattr(self.core, "applied", None)):
+            self.core.applied(u)
+        elif isinstance(getattr(self.core, "u", None), np.ndarray):  # VelocityPI
+            self.core.u = np.clip(u, self.core.u_min, self.core.u_max)
+
     def checkpoint(self) -> dict[str, Any]:
         return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,
                 "override": self.override, "a_trim": self.a_trim, "e_a_prev": self.e_a_prev,

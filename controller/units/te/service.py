@@ -150,15 +150,33 @@ class TEServiceController:
         :meth:`controller.units.te.control.TEController.finish_sample`)."""
         self.ctl.finish_sample()
 
+    def _core_index(self) -> list[int] | None:
+        """Positions of the core's five handles (:data:`CORE_NAMES`) in the move, or None
+        when the unit's MVs do not carry them all."""
+        alias = {"Tr_sp": "reactor_temperature_sp", "Pr_sp": "reactor_pressure_sp"}
+        idx = [self.mvs.index(alias.get(n, n)) if alias.get(n, n) in self.mvs else None
+               for n in CORE_NAMES]
+        return None if None in idx else idx
+
+    def applied(self, u) -> None:
+        """The plant got ``u`` instead of the last move (a missed deadline): the
+        controller goes on from it (:meth:`TEController.applied` for the core)."""
+        self.u = np.asarray(u, dtype=float).copy()
+        idx = self._core_index()
+        applied = getattr(self.ctl, "applied", None)
+        if idx is not None and callable(applied):
+            applied(self.u[idx])
+
     def align(self, u) -> None:
         """Take over the plant's move: the core (five handles,
         :data:`~controller.units.te.control.CORE_NAMES`) restarts from the matching
         valves and set points (re-initialized dynamics)."""
         self.u = np.asarray(u, dtype=float).copy()
-        alias = {"Tr_sp": "reactor_temperature_sp", "Pr_sp": "reactor_pressure_sp"}
-        idx = [self.mvs.index(alias.get(n, n)) if alias.get(n, n) in self.mvs else None
-               for n in CORE_NAMES]
-        if None not in idx:
+        take_over = getattr(self.ctl, "take_over", None)
+        if callable(take_over):
+            take_over()
+        idx = self._core_index()
+        if idx is not None:
             align_multimodel(getattr(self.ctl, "core", None), self.u[idx])
 
     def checkpoint(self) -> dict[str, Any]:
