@@ -618,6 +618,24 @@ class MultiModelController:
         self.initialized = False
         self._aligned = True
 
+    def track_applied(self, u) -> None:
+        """The move actually in force over the coming sample is ``u``, not this sample's
+        decision (a controller in warm mode, an MV the operator holds): the shared state
+        advances with it and the next move starts from it (clipped to the input limits).
+
+        Raises
+        ------
+        ValueError
+            When ``u`` has the wrong length or is not finite.
+        """
+        u = np.asarray(u, dtype=float).reshape(-1)
+        if u.shape != self.u_last.shape or not np.isfinite(u).all():
+            raise ValueError(f"u: expected {self.u_last.size} finite values, got {u!r}")
+        u = np.minimum(np.maximum(u, self.u_min), self.u_max)
+        if self._deferred is not None:
+            self._deferred = (u.copy(), self._deferred[1], self._deferred[2])
+        self.u_last = u.copy()
+
     # -- persistence ---------------------------------------------------------------------
     def _steady_output_scale(self) -> np.ndarray:
         """omega(0)/d_j(0) per model (k,): 1 / |1 - theta2_j' n_ss|, n_ss the block's

@@ -1,0 +1,128 @@
+"""The operator's per-variable settings on the TE supervisory controller (seed §7.4/7.7
+cascade, :mod:`controller.units.te.control`), applied before each step.
+
+What each kind of variable offers (:meth:`TEOperatorLayer.capabilities`):
+
+- the MPC's five handles (XMV 3, XMV 4, P_r*, T_r*, XMV 11; MPC strategies):
+  ``manual`` and ``off`` hold the handle at its value and the MPC plans the other
+  handles around it (its moves are fixed at zero in the QP, its last move is the held
+  value); operator limits are the QP's hard input limits of the sample;
+- the other MVs (E/D ratio XMV 2, plan-driven XMV 5, 9, 12, the level set points):
+  held or limited on the move itself (:class:`controller.units.operator.OperatedController`);
+  a held XMV 2 keeps the ratio loop tracking the valve, so ``auto`` resumes from it;
+- the MPC's five CVs (XMEAS 7, 11, 13, 16, 18): ``off`` removes the CV from the
+  objective (its weight Ξ is 0) and from the soft limits; operator limits are soft
+  output limits of the sample (the QP is rebuilt when the set of CVs with a limit or
+  switched off changes: ~3 ms for the four models, measured on this 2-core machine);
+- the outer loops' CVs (XMEAS 17 production, 23 A in feed, 40 G in product): ``off``
+  holds that loop's integral (:meth:`~controller.units.te.control.TEController.
+  hold_outer_loops`); no operator limits (no constraint acts on them);
+- every other XMEAS is measured only (a 422 says so).
+
+In warm mode every outer loop holds its integral (its output is not written, so it
+must not wind up) and the ratio loop tracks the applied E feed valve.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from controller.operator_modes import CV_MODES, MV_MODES
+
+__all__ = ["TEOperatorLayer", "CORE_CV_NAMES"]
+
+#: The MPC's CVs as unit CV names (:data:`controller.units.te.control.CORE_CVS`).
+CORE_CV_NAMES = ("XMEAS7", "XMEAS11", "XMEAS13", "XMEAS16", "XMEAS18")
+_OUTER = {"XMEAS17": "production loop (XMEAS 17 -> A+C feed target)",
+          "XMEAS23": "A-in-feed loop (XMEAS 23 -> A feed target)",
+          "XMEAS40": "G-in-product loop (XMEAS 40 -> D share of the D+E feed)"}
+
+
+class TEOperatorLayer:
+    """Applies an :class:`~controller.units.operator.OperatorView` to one TE controller.
+
+    Parameters
+    ----------
+    ctl : controller.units.te.control.TEController
+    mvs : tuple of str
+        The unit's MV names (move order).
+    core_idx : list of int or None
+        For each of the five handles its index in ``mvs`` (None: not an MV of the unit).
+    """
+
+    def __init__(self, ctl, mvs: tuple[str, ...], core_idx) -> None:
+        self.ctl = ctl
+        self.mvs = tuple(mvs)
+        self.core_idx = list(core_idx)
+        law = getattr(getattr(ctl, "core", None), "law", None)
+        self.law = law if callable(getattr(law, "set_operator_limits", None)) else None
+        self.base = None if self.law is None else self.law.settings
+        self._shape: tuple | None = None  # (CVs on, finite output-limit rows) in force
+        self.retunes = 0
+
+    @property
+    def has_mpc(self) -> bool:
+        return self.law is not None and None not in self.core_idx
+
+    def capabilities(self, cv_names, mv_names) -> dict[str, dict]:
+        caps: dict[str, dict] = {}
+        for n in mv_names:
+            caps[n] = {"modes": MV_MODES, "limits": True, "controlled": True}
+        for n in cv_names:
+            if self.has_mpc and n in CORE_CV_NAMES:
+                caps[n] = {"modes": CV_MODES, "limits": True, "controlled": True}
+            elif self.has_mpc and n in _OUTER:
+                caps[n] = {"modes": CV_MODES, "limits": False, "controlled": True,
+                           "note": f"held by the {_OUTER[n]}, no constraint acts on it"}
+            else:
+                caps[n] = {"note": "measured only: no loop of this strategy's supervisory "
+                                   "controller acts on it"}
+        return caps
+
+    def apply(self, view, cv_names) -> None:
+        """Before the step: the view's held handles, limits and CVs off."""
+        cv_index = {n: i for i, n in enumerate(cv_names)}
+        held = {int(n[5:]) for n in _OUTER if n in cv_index and not view.cv_on[cv_index[n]]}
+        if view.mode == "warm":
+            held = set(getattr(self.ctl, "OUTER_LOOP_CVS", ()))
+        hold = getattr(self.ctl, "hold_outer_loops", None)
+        if callable(hold):  # not in the decentralized baseline
+            hold(held)
+        if not self.has_mpc:
+            return
+        idx = self.core_idx
+        fixed = view.mv_held[idx] & np.isfinite(view.mv_value[idx])
+        core = self.ctl.core
+        if fixed.any():
+            u_last = core.u_last.copy()
+            u_last[fixed] = view.mv_value[idx][fixed]
+            core.u_last = u_last
+        b = self.base
+        u_min = np.maximum(b.u_min, view.mv_lo[idx])
+        u_max = np.minimum(b.u_max, view.mv_hi[idx])
+        ci = [cv_index[n] for n in CORE_CV_NAMES]
+        on = view.cv_on[ci]
+        y_min = np.where(on, np.maximum(b.y_min, view.cv_lo[ci]), -math.inf)
+        y_max = np.where(on, np.minimum(b.y_max, view.cv_hi[ci]), math.inf)
+        shape = (tuple(on), tuple(np.isfinite(y_min)), tuple(np.isfinite(y_max)))
+        if shape != self._shape:
+            if shape == (tuple([True] * 5), tuple(np.isfinite(b.y_min)),
+                         tuple(np.isfinite(b.y_max))):
+                settings = b  # the tuned settings themselves
+            else:
+                settings = replace(b, Xi=np.where(on, b.Xi, 0.0), y_min=y_min, y_max=y_max)
+            if self._shape is not None or settings is not b:
+                self.law.retune(settings, core.ssm)
+                self.retunes += 1
+            self._shape = shape
+        plain = (not fixed.any() and np.array_equal(u_min, b.u_min)
+                 and np.array_equal(u_max, b.u_max) and np.array_equal(y_min, b.y_min)
+                 and np.array_equal(y_max, b.y_max))
+        if plain:
+            self.law.set_operator_limits()  # the tuned problem exactly
+        else:
+            self.law.set_operator_limits(fixed=fixed, u_min=u_min, u_max=u_max,
+                                         y_min=y_min, y_max=y_max)

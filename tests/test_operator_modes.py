@@ -1,0 +1,198 @@
+"""Operator control, the pure part (controller.operator_modes, controller.units.operator):
+controller modes, per-variable modes, ramped limits by hand, validation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controller.interfaces import ControlDecision
+from controller.operator_modes import (
+    OperatorError,
+    OperatorState,
+    RampedLimit,
+    UnknownVariable,
+    VariableCommand,
+    VariableSpec,
+)
+from controller.units.operator import OperatedController
+
+SPECS = (
+    VariableSpec("T", "cv", -math.inf, 170.0, 0.0, 170.0, ("auto", "off"), True, True),
+    VariableSpec("F", "cv", note="measured only"),
+    VariableSpec("V1", "mv", 0.0, 100.0, 0.0, 100.0, ("auto", "manual", "off"), True, True),
+    VariableSpec("V2", "mv", 0.0, 100.0, 0.0, 100.0, ("auto", "manual", "off"), True, True),
+)
+
+
+def state() -> OperatorState:
+    return OperatorState(SPECS)
+
+
+def test_a_high_limit_ramps_at_its_rate_by_hand():
+    # 100 -> 60 at 20 %/h from t = 1 h: 100, 90, 80, 70, 60, 60 at 1, 1.5, 2, 2.5, 3, 5 h
+    r = RampedLimit(100.0, 60.0, 1.0, 20.0)
+    assert [r.at(t) for t in (0.0, 1.0, 1.5, 2.0, 2.5, 3.0, 5.0)] == \
+        [100.0, 100.0, 90.0, 80.0, 70.0, 60.0, 60.0]
+    # a low limit raised 10 -> 16 at 4 per h: 12 after half an hour
+    assert RampedLimit(10.0, 16.0, 0.0, 4.0).at(0.5) == 12.0
+    assert RampedLimit(10.0, 16.0, 0.0).at(0.0) == 16.0  # no rate: at once
+
+
+def test_an_operator_limit_starts_from_the_limit_in_force():
+    s = state().command("V1", VariableCommand(hi=60.0, ramp_per_h=20.0), 1.0, current=40.0)
+    # the valve's own limit (100) is where the new one starts
+    assert s.effective_limits("V1", 1.0) == (0.0, 100.0)
+    assert s.effective_limits("V1", 2.0) == (0.0, 80.0)
+    assert s.effective_limits("V1", 4.0) == (0.0, 60.0)
+    # changed again half way: from where it is (90 at 1.5 h), to 70, at the same rate
+    s = s.command("V1", VariableCommand(hi=70.0), 1.5, current=40.0)
+    assert s.effective_limits("V1", 1.5)[1] == 90.0
+    assert s.effective_limits("V1", 2.0)[1] == 80.0
+    assert s.effective_limits("V1", 9.0)[1] == 70.0
+
+
+def test_a_new_limit_without_one_in_force_closes_in_from_the_value():
+    # T has no low limit: a low limit of 120 with the value at 100 starts at 100
+    s = state().command("T", VariableCommand(lo=120.0, ramp_per_h=5.0), 0.0, current=100.0)
+    assert s.effective_limits("T", 0.0) == (100.0, 170.0)
+    assert s.effective_limits("T", 2.0) == (110.0, 170.0)
+    # the value inside the new limit: the limit holds at once
+    s = state().command("T", VariableCommand(lo=90.0, ramp_per_h=5.0), 0.0, current=100.0)
+    assert s.effective_limits("T", 0.0) == (90.0, 170.0)
+
+
+def test_mv_modes_manual_holds_the_value_off_the_last_one():
+    s = state().command("V1", VariableCommand(mode="manual", value=42.0), 0.0, current=30.0)
+    assert (s.control("V1").mode, s.control("V1").value) == ("manual", 42.0)
+    s = s.command("V1", VariableCommand(mode="manual"), 0.0, current=30.0)
+    assert s.control("V1").value == 42.0  # manual again: the operator's value stays
+    s = s.command("V2", VariableCommand(mode="off"), 0.0, current=55.5)
+    assert (s.control("V2").mode, s.control("V2").value) == ("off", 55.5)
+    s = s.command("V1", VariableCommand(mode="auto"), 0.0, current=42.0)
+    assert (s.control("V1").mode, s.control("V1").value) == ("auto", None)
+    # manual without a value holds the current one
+    s = s.command("V1", VariableCommand(mode="manual"), 0.0, current=12.5)
+    assert s.control("V1").value == 12.5
+    assert [s.variable_mode(n) for n in ("T", "F", "V1", "V2")] == ["auto", None, "manual",
+                                                                     "off"]
+
+
+def test_controller_mode_transitions():
+    s = state()
+    assert s.mode == "on"
+    for m in ("warm", "off", "on", "off", "warm", "on"):
+        s = s.with_mode(m)
+        assert s.mode == m
+    with pytest.raises(OperatorError, match="mode"):
+        s.with_mode("auto")
+
+
+@pytest.mark.parametrize("name, cmd, match", [
+    ("V1", {"lo": 70.0, "hi": 60.0}, "lo 70 above hi 60"),
+    ("V1", {"hi": 120.0}, "outside V1's engineering range"),
+    ("V1", {"mode": "manual", "value": -1.0}, "outside"),
+    ("V1", {"value": 5.0}, "needs mode 'manual'"),
+    ("T", {"mode": "manual"}, "cannot be 'manual'"),
+    ("T", {"hi": 180.0}, "outside"),
+    ("F", {"mode": "off"}, "measured only"),
+    ("F", {"lo": 1.0}, "no operator limits"),
+    ("V1", {"ramp_per_h": 0.0}, "ramp_per_h"),
+])
+def test_bad_commands_are_refused_with_a_message(name, cmd, match):
+    with pytest.raises(OperatorError, match=match) as err:
+        state().command(name, VariableCommand.from_args(cmd), 0.0, current=50.0)
+    assert err.value.status == 422
+
+
+@pytest.mark.parametrize("args, match", [
+    ({}, "nothing to change"), ({"mode": "on"}, "mode: expected"),
+    ({"lo": float("nan")}, "finite"), ({"hi": float("inf")}, "finite"),
+    ({"value": True}, "expected a number"), ({"value": "1"}, "expected a number"),
+    ({"speed": 1.0}, "unknown field"), ([], "expected an object"),
+])
+def test_malformed_command_arguments(args, match):
+    with pytest.raises(OperatorError, match=match):
+        VariableCommand.from_args(args)
+
+
+def test_unknown_variable_is_a_404():
+    with pytest.raises(UnknownVariable) as err:
+        state().command("XMV99", VariableCommand(mode="auto"), 0.0, None)
+    assert err.value.status == 404
+
+
+def test_checkpoint_round_trip_keeps_ramps_and_modes():
+    s = (state().with_mode("warm")
+         .command("V1", VariableCommand(mode="manual", value=42.0), 0.0, 30.0)
+         .command("T", VariableCommand(hi=150.0, ramp_per_h=10.0), 1.0, 140.0))
+    back = state().restore(s.checkpoint())
+    assert back.mode == "warm" and back.control("V1") == s.control("V1")
+    assert back.effective_limits("T", 2.0) == (-math.inf, 160.0)
+    with pytest.raises(ValueError):
+        state().restore({"mode": "on", "variables": [{"name": "nope"}]})
+
+
+class Recorder:
+    """A controller that asks for u = 10 + k and records what it is told."""
+
+    def __init__(self):
+        self.tracked, self.aligned, self.views, self.steps = [], [], [], 0
+
+    def step(self, k, t, y, reference):
+        self.steps += 1
+        return ControlDecision(u=np.array([10.0 + k, 20.0 + k]))
+
+    def set_operator(self, view):
+        self.views.append(view)
+
+    def track_applied(self, u):
+        self.tracked.append(np.asarray(u).copy())
+
+    def align(self, u):
+        self.aligned.append(np.asarray(u).copy())
+
+    def checkpoint(self):
+        return {}
+
+    def restore(self, state):
+        pass
+
+
+def operated():
+    inner = Recorder()
+    op = OperatedController(inner, SPECS, ("T", "F"), ("V1", "V2"), time_unit_s=3600.0)
+    return inner, op
+
+
+def test_off_computes_nothing_warm_writes_nothing_and_tracks_the_plant():
+    inner, op = operated()
+    applied = np.array([1.0, 2.0])
+    op.set_state(op.state.with_mode("off"))
+    assert op.step(0, 0.0, [0, 0], None, applied) is None and inner.steps == 0
+    op.set_state(op.state.with_mode("warm"))
+    dec = op.step(1, 0.01, [0, 0], None, applied)
+    # leaving off takes over the plant's move; warm reports the computed move, the
+    # applied one stays and the controller is told so
+    assert len(inner.aligned) == 1 and np.array_equal(inner.aligned[0], applied)
+    assert np.array_equal(dec.u, applied) and np.array_equal(dec.extra["computed_u"], [11, 21])
+    assert np.array_equal(inner.tracked[-1], applied) and not op.writes
+    op.set_state(op.state.with_mode("on"))
+    dec = op.step(2, 0.02, [0, 0], None, applied)
+    assert np.array_equal(dec.u, [12.0, 22.0]) and op.writes
+    assert len(inner.aligned) == 1  # warm -> on needs no take-over: it tracked
+
+
+def test_held_and_limited_mvs_are_written_exactly_and_the_controller_told():
+    inner, op = operated()
+    st = op.state.command("V1", VariableCommand(mode="manual", value=33.3), 0.0, 10.0)
+    st = st.command("V2", VariableCommand(hi=21.0), 0.0, 20.0)
+    op.set_state(st)
+    dec = op.step(5, 0.0, [0, 0], None, np.array([10.0, 20.0]))
+    assert np.array_equal(dec.u, [33.3, 21.0])
+    assert np.array_equal(inner.tracked[-1], [33.3, 21.0])
+    v = inner.views[-1]
+    assert v.mv_mode == ("manual", "auto") and v.mv_held.tolist() == [True, False]
+    assert v.mv_hi[1] == 21.0 and v.cv_on.tolist() == [True, True]
