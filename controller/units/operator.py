@@ -42,7 +42,7 @@ import numpy as np
 from controller.operator_modes import MV_MODES, OperatorState, VariableSpec
 from controller.units.takeover import align_multimodel
 
-__all__ = ["OperatorView", "OperatedController", "operator_specs"]
+__all__ = ["OperatorView", "OperatedController", "operate", "operator_specs"]
 
 
 @dataclass(frozen=True)
@@ -266,3 +266,26 @@ class OperatedController:
     def operator_restore(self, state: dict) -> None:
         """Resume the operator's settings (ValueError when they do not fit the unit)."""
         self.set_state(self.state.restore(state))
+
+
+def operate(cfg, plant, controller, grades) -> OperatedController:
+    """The unit's controller under operator control, with its variables' specs.
+
+    Parameters
+    ----------
+    cfg : controller.units.config.UnitConfig
+    plant : plant_sim.base.Plant
+    controller : SampleController
+        The unit's controller (:func:`services.registry.build_controller`).
+    grades : dict
+        The unit's grades (the CVs' instrument ranges follow from them,
+        :func:`controller.units.config.plausible_ranges`).
+    """
+    from controller.units.config import plausible_ranges, unit_info
+    from controller.units.variables import unit_variables
+
+    info = unit_info(cfg, plant)
+    lo, hi = plausible_ranges(cfg, plant, grades)
+    cv_range = {n: (float(a), float(b)) for n, a, b in zip(info.cv_names, lo, hi)}
+    specs = operator_specs(unit_variables(cfg, plant), cv_range, controller)
+    return OperatedController(controller, specs, info.cv_names, info.mv_names)
