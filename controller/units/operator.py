@@ -170,6 +170,7 @@ class OperatedController:
         self.state = OperatorState(tuple(specs))
         self.time_unit_s = float(time_unit_s)
         self._resume = False  # the next sample that computes takes over the plant's move
+        self._cached: tuple | None = None  # (state, ramping, view) of the last sample
 
     def __getattr__(self, name: str) -> Any:
         # the inner controller's optional hooks (on_transition, check_grade, horizon, ...)
@@ -196,6 +197,19 @@ class OperatedController:
         return OperatorView.of(self.state, t * self.time_unit_s / 3600.0, self.cv_names,
                                self.mv_names)
 
+    def _view_at(self, state: OperatorState, t: float) -> OperatorView:
+        """The view at ``t``; the previous one (the same object) while the state is the
+        same and no limit is on its way, so that a controller can tell nothing changed."""
+        cached = self._cached
+        if cached is not None and cached[0] is state and not cached[1]:
+            return cached[2]
+        t_h = t * self.time_unit_s / 3600.0
+        view = OperatorView.of(state, t_h, self.cv_names, self.mv_names)
+        ramping = any(c.limits_at(t_h) != (c.lo.end, c.hi.end)
+                      for c in state.controls.values())
+        self._cached = (state, ramping, view)
+        return view
+
     # -- the sample -------------------------------------------------------------------
     def step(self, k: int, t: float, y, reference, u_applied):
         """One sample; None in ``off``, else the decision (written only in ``on``).
@@ -213,8 +227,7 @@ class OperatedController:
         if self._resume:
             self._resume = False
             self.align(u_applied)
-        view = OperatorView.of(state, t * self.time_unit_s / 3600.0, self.cv_names,
-                               self.mv_names)
+        view = self._view_at(state, t)
         hook = getattr(self.inner, "set_operator", None)
         if callable(hook):
             hook(view)

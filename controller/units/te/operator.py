@@ -62,6 +62,7 @@ class TEOperatorLayer:
         self.base = None if self.law is None else self.law.settings
         self._shape: tuple | None = None  # (CVs on, finite output-limit rows) in force
         self.retunes = 0
+        self._last_view = None
 
     @property
     def has_mpc(self) -> bool:
@@ -83,7 +84,11 @@ class TEOperatorLayer:
         return caps
 
     def apply(self, view, cv_names) -> None:
-        """Before the step: the view's held handles, limits and CVs off."""
+        """Before the step: the view's held handles, limits and CVs off (the same view
+        object as last time and nothing held: nothing to do)."""
+        if view is self._last_view and not view.mv_held.any():
+            return
+        self._last_view = view
         cv_index = {n: i for i, n in enumerate(cv_names)}
         held = {int(n[5:]) for n in _OUTER if n in cv_index and not view.cv_on[cv_index[n]]}
         if view.mode == "warm":

@@ -1,0 +1,124 @@
+"""The controller node's operator commands: ``cmd/mode`` and ``cmd/variable`` (REST
+``PUT .../mode`` and ``PATCH .../variables/{name}``).
+
+``mode``: ``args = {"mode": "off"|"warm"|"on"}``. ``variable``: ``args = {"name": ...,
+"mode"?, "value"?, "lo"?, "hi"?, "ramp_per_h"?}``
+(:class:`controller.operator_modes.VariableCommand`). Both may carry ``"by"``, the
+identity that made the action (at most 128 printable characters).
+
+A command is validated against the unit's variables (unknown variable 404, anything
+else that cannot be applied 422 with a message), takes effect at the next sample
+(:class:`controller.units.operator.OperatedController` reads its state once per
+sample) and is committed with a checkpoint before it is acknowledged; a store that
+cannot commit puts the previous settings back and answers 503. Every accepted action
+goes to :func:`record_action` and the recording's event log.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from controller.operator_modes import OperatorError, VariableCommand
+from services.io.messages import Reply
+
+__all__ = ["handle", "record_action", "variable_view"]
+
+log = logging.getLogger("ssmpc.controller")
+
+#: Longest identity (``by``) stored with an action, characters.
+BY_MAX = 128
+
+
+def record_action(node, action: dict) -> None:
+    """Hand an accepted operator action to the durable event log.
+
+    The store's operator-action record, where the store offers one
+    (``record_action(action, process_time)``); until then a no-op. ``action``:
+    ``{"action": "mode"|"variable", "by": str|None, ...the command...}``.
+    """
+    recorder = getattr(node.store, "record_action", None)
+    if callable(recorder):
+        node._worker.submit(recorder, dict(action), node.t)
+
+
+def _by(args: dict) -> str | None:
+    by = args.get("by")
+    if by is None:
+        return None
+    if not (isinstance(by, str) and 0 < len(by) <= BY_MAX and by.isprintable()):
+        raise OperatorError(f"by: expected 1..{BY_MAX} printable characters")
+    return by
+
+
+def variable_view(node, name: str) -> dict:
+    """One entry of the status's ``variables`` (call with the node's lock held)."""
+    for v in node._variables_view():
+        if v["name"] == name:
+            return v
+    raise KeyError(name)
+
+
+def _current(node, name: str) -> float | None:
+    """The variable's value now: a CV's measurement, an MV's applied value."""
+    info = node.info
+    if name in info.mv_names:
+        x = float(node.u_last[info.mv_names.index(name)])
+    elif name in info.cv_names:
+        x = float(node.y[info.cv_names.index(name)])
+    else:
+        return None
+    return x if math.isfinite(x) else None
+
+
+def handle(node, action: str, args: dict) -> Reply:
+    """Apply one operator command on ``node`` (a :class:`~services.nodes.controller.
+    ControllerNode`); the reply's data: ``mode`` the controller mode, ``variable`` the
+    variable's status entry."""
+    try:
+        by = _by(args)
+        op = node.operated
+        with node._lock:
+            old = op.state
+            if action == "mode":
+                unknown = sorted(set(args) - {"mode", "by"})
+                if unknown:
+                    raise OperatorError(f"{unknown[0]}: unknown field (known: mode)")
+                mode = args.get("mode")
+                new = old.with_mode(mode if isinstance(mode, str) else "")
+                record = {"action": "mode", "by": by, "mode": new.mode, "previous": old.mode}
+            else:
+                name = args.get("name")
+                if not isinstance(name, str):
+                    raise OperatorError("name: expected a variable name")
+                fields = {k: v for k, v in args.items() if k not in ("name", "by")}
+                cmd = VariableCommand.from_args(fields)
+                new = old.command(name, cmd, node.t / 3600.0, _current(node, name))
+                record = {"action": "variable", "by": by, "name": name,
+                          **{k: v for k, v in fields.items() if v is not None}}
+            op.set_state(new)
+    except OperatorError as exc:
+        return Reply(exc.status, error=str(exc))
+    before = node.store_error
+    node.checkpoint(wait=True)  # committed before it is acknowledged
+    if node.store_error is not before:  # this checkpoint failed (a new reason)
+        with node._lock:
+            if op.state is new:
+                op.set_state(old)
+        return Reply(503, error=f"store: cannot commit; the {action} command was not "
+                                f"applied ({node.store_error})")
+    node._store_ok()
+    record_action(node, record)
+    text = (f"operator: mode {old.mode} -> {new.mode}" if action == "mode" else
+            "operator: " + " ".join(f"{k}={v}" for k, v in record.items()
+                                    if k not in ("action", "by")))
+    if by:
+        text += f" (by {by})"
+    log.info("%s", text)
+    with node._lock:
+        if node.telemetry is not None:
+            node.telemetry.event(node.k, node.t, text)
+        if action == "mode":
+            return Reply(200, {"unit": node.cfg.unit, "mode": new.mode,
+                               "previous": old.mode})
+        return Reply(200, variable_view(node, record["name"]))
