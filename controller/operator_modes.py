@@ -20,13 +20,14 @@ Times are process hours. Everything is immutable; a command returns a new
 :class:`OperatorState`, so a reader on another thread sees either the old state or
 the new one, never half of it.
 
-Ramp rule (:meth:`OperatorState.command`): a new limit starts from the limit in force
-at that moment (the operator's ramp so far, or the variable's own limit) and moves to
-the new value at ``ramp_per_h``; without a finite limit in force it starts at the
-variable's current value when that lies beyond the new limit, else the new limit holds
-at once. Without a rate (none given now or before) a limit moves at once. Hand check:
-a high limit from 100 to 60 at 20 per hour is 100, 90, 80, 60 at 0, 0.5, 1, >= 2 h
-(``tests/test_operator_modes.py``).
+Ramp rule (:meth:`OperatorState.command`): a relaxed limit moves from the limit in
+force at that moment (the operator's ramp so far, or the variable's own limit) to the
+new value at ``ramp_per_h``; a tightened one from the limit in force or, when the
+variable's value is inside that, from the value (a limit that does not bind yet need
+not wait), and at once when the value already satisfies the new limit. A limit
+removed goes at once, and without a rate (none given now or before) every limit moves
+at once. Hand check: a high limit tightened from 100 to 60 at 20 per hour with the
+value at 95 is 95, 85, 75, 60 at 0, 0.5, 1, >= 1.75 h (``tests/test_operator_modes.py``).
 """
 
 from __future__ import annotations
@@ -381,10 +382,16 @@ class OperatorState:
 def _ramp(in_force: float, end: float, t_h: float, rate: float, current: float | None,
           sign: float) -> RampedLimit:
     """A limit from the one in force to ``end`` (module docstring's rule); ``sign`` -1
-    for a low limit, +1 for a high one."""
-    start = in_force
-    if not math.isfinite(start):
-        beyond = (current is not None and math.isfinite(current) and math.isfinite(end)
-                  and sign * (current - end) > 0)
-        start = float(current) if beyond else end
-    return RampedLimit(start, end, t_h, rate)
+    for a low limit, +1 for a high one (the arithmetic is done on ``sign * limit``,
+    where a high limit tightens downward)."""
+    known = current is not None and math.isfinite(current)
+    if not math.isfinite(end) or sign * end >= sign * in_force:
+        start = in_force  # relaxed (or removed, at once): from the limit in force
+    elif known:
+        # tightened: from the limit in force, or from the value when that is inside it
+        # (the limit does not bind before it reaches the value); at once when the
+        # value is inside the new limit already
+        start = sign * max(sign * end, min(sign * in_force, sign * float(current)))
+    else:
+        start = in_force if math.isfinite(in_force) else end
+    return RampedLimit(start if math.isfinite(start) else end, end, t_h, rate)

@@ -41,27 +41,21 @@ def test_a_high_limit_ramps_at_its_rate_by_hand():
     assert RampedLimit(10.0, 16.0, 0.0).at(0.0) == 16.0  # no rate: at once
 
 
-def test_an_operator_limit_starts_from_the_limit_in_force():
-    s = state().command("V1", VariableCommand(hi=60.0, ramp_per_h=20.0), 1.0, current=40.0)
-    # the valve's own limit (100) is where the new one starts
-    assert s.effective_limits("V1", 1.0) == (0.0, 100.0)
-    assert s.effective_limits("V1", 2.0) == (0.0, 80.0)
-    assert s.effective_limits("V1", 4.0) == (0.0, 60.0)
-    # changed again half way: from where it is (90 at 1.5 h), to 70, at the same rate
-    s = s.command("V1", VariableCommand(hi=70.0), 1.5, current=40.0)
-    assert s.effective_limits("V1", 1.5)[1] == 90.0
-    assert s.effective_limits("V1", 2.0)[1] == 80.0
-    assert s.effective_limits("V1", 9.0)[1] == 70.0
-
-
-def test_a_new_limit_without_one_in_force_closes_in_from_the_value():
-    # T has no low limit: a low limit of 120 with the value at 100 starts at 100
-    s = state().command("T", VariableCommand(lo=120.0, ramp_per_h=5.0), 0.0, current=100.0)
-    assert s.effective_limits("T", 0.0) == (100.0, 170.0)
-    assert s.effective_limits("T", 2.0) == (110.0, 170.0)
-    # the value inside the new limit: the limit holds at once
-    s = state().command("T", VariableCommand(lo=90.0, ramp_per_h=5.0), 0.0, current=100.0)
-    assert s.effective_limits("T", 0.0) == (90.0, 170.0)
+def test_a_tightened_limit_starts_where_it_would_bind():
+    # the valve's own high limit is 100; the value 95: the new limit 60 starts at 95
+    s = state().command("V1", VariableCommand(hi=60.0, ramp_per_h=20.0), 1.0, current=95.0)
+    assert [s.effective_limits("V1", t)[1] for t in (1.0, 1.5, 2.0, 2.75, 4.0)] == \
+        [95.0, 85.0, 75.0, 60.0, 60.0]
+    # relaxed half way (85 at 1.5 h) to 90: from where it is, at the same rate
+    s = s.command("V1", VariableCommand(hi=90.0), 1.5, current=84.0)
+    assert [s.effective_limits("V1", t)[1] for t in (1.5, 1.75, 2.0, 3.0)] == \
+        [85.0, 90.0, 90.0, 90.0]
+    # tightened with the value inside the new limit already: at once
+    s = s.command("V1", VariableCommand(hi=70.0), 2.0, current=40.0)
+    assert s.effective_limits("V1", 2.0) == (0.0, 70.0)
+    # relaxed from a limit in force: ramps up from it
+    s = s.command("V1", VariableCommand(hi=80.0, ramp_per_h=4.0), 2.0, current=40.0)
+    assert s.effective_limits("V1", 3.0) == (0.0, 74.0)
 
 
 def test_mv_modes_manual_holds_the_value_off_the_last_one():
@@ -127,10 +121,10 @@ def test_unknown_variable_is_a_404():
 def test_checkpoint_round_trip_keeps_ramps_and_modes():
     s = (state().with_mode("warm")
          .command("V1", VariableCommand(mode="manual", value=42.0), 0.0, 30.0)
-         .command("T", VariableCommand(hi=150.0, ramp_per_h=10.0), 1.0, 140.0))
+         .command("T", VariableCommand(hi=150.0, ramp_per_h=10.0), 1.0, 165.0))
     back = state().restore(s.checkpoint())
     assert back.mode == "warm" and back.control("V1") == s.control("V1")
-    assert back.effective_limits("T", 2.0) == (-math.inf, 160.0)
+    assert back.effective_limits("T", 2.0) == (-math.inf, 155.0), back.control("T")
     with pytest.raises(ValueError):
         state().restore({"mode": "on", "variables": [{"name": "nope"}]})
 

@@ -44,8 +44,10 @@ class Loop:
         return self.run.t / 3600.0
 
     def command(self, name, **kw):
-        i = self.op.mv_names.index(name) if name in self.op.mv_names else None
-        current = None if i is None else float(self.run.u[i])
+        if name in self.op.mv_names:
+            current = float(self.run.u[self.op.mv_names.index(name)])
+        else:
+            current = float(self.run.y()[self.op.cv_names.index(name)])
         self.op.set_state(self.op.state.command(name, VariableCommand(**kw), self.t_h, current))
 
     def samples(self, n):
@@ -134,3 +136,18 @@ def test_off_and_warm_to_on_are_bumpless(mode):
     bad = [(n, f, u) for n, f, u, s in zip(lp.op.mv_names, first, usual, span)
            if f > u + 1e-5 * s]
     assert not bad, f"first move beyond the usual one-sample move: {bad}"
+
+
+def test_an_mv_limit_ramps_in_and_is_never_exceeded():
+    lp = Loop()
+    lp.samples(30)
+    j = lp.op.mv_names.index("XMV3")
+    u3 = float(lp.run.u[j])
+    t0 = lp.t_h
+    lp.command("XMV3", hi=u3 - 2.0, ramp_per_h=4.0)  # 2 % lower, at 4 %/h: in 0.5 h
+    lp.samples(100)
+    w = np.array(lp.written[30:])[:, j]
+    t = t0 + CFG.sample_period_s / 3600.0 * np.arange(w.size)
+    limit = np.maximum(u3 - 4.0 * (t - t0), u3 - 2.0)  # the ramp, by hand
+    assert np.all(w <= limit + 1e-9)
+    assert w[-1] == pytest.approx(u3 - 2.0, abs=1e-9)  # the A feed presses on its limit

@@ -11,9 +11,11 @@ What each kind of variable offers (:meth:`TEOperatorLayer.capabilities`):
   held or limited on the move itself (:class:`controller.units.operator.OperatedController`);
   a held XMV 2 keeps the ratio loop tracking the valve, so ``auto`` resumes from it;
 - the MPC's five CVs (XMEAS 7, 11, 13, 16, 18): ``off`` removes the CV from the
-  objective (its weight Ξ is 0) and from the soft limits; operator limits are soft
-  output limits of the sample (the QP is rebuilt when the set of CVs with a limit or
-  switched off changes: ~3 ms for the four models, measured on this 2-core machine);
+  objective (its weight Ξ is 0) and from the soft limits (the QP is rebuilt when the
+  set of CVs switched off changes: ~3 ms for the four models, measured on this 2-core
+  machine). No operator limits (:data:`SOFT_LIMITS_UNSAFE`): :meth:`TEOperatorLayer.
+  apply` would make them the sample's soft output limits, but the MPC as tuned trips
+  the plant when one binds;
 - the outer loops' CVs (XMEAS 17 production, 23 A in feed, 40 G in product): ``off``
   holds that loop's integral (:meth:`~controller.units.te.control.TEController.
   hold_outer_loops`); no operator limits (no constraint acts on them);
@@ -34,6 +36,14 @@ from controller.operator_modes import CV_MODES, MV_MODES
 
 __all__ = ["TEOperatorLayer", "CORE_CV_NAMES"]
 
+#: Why the MPC's CVs take no operator limits (measured with noise on, from mode 0): the
+#: TE MPC's soft output limits below a CV's value drive the condenser cooling XMV 11 to
+#: 0 and the plant trips on reactor pressure: its own soft pressure limit at 2695 kPa
+#: (``TEMPCOptions(pressure_soft_max=2695)``, no operator code involved) at 0.59 h, an
+#: operator high limit on XMEAS 11 at 79.5 degC at 0.69 h.
+SOFT_LIMITS_UNSAFE = ("the TE MPC's soft output limits below the value drive XMV 11 the "
+                      "wrong way and trip the plant on reactor pressure; limit the loop's "
+                      "set point instead (reactor_pressure_sp, reactor_temperature_sp)")
 #: The MPC's CVs as unit CV names (:data:`controller.units.te.control.CORE_CVS`).
 CORE_CV_NAMES = ("XMEAS7", "XMEAS11", "XMEAS13", "XMEAS16", "XMEAS18")
 _OUTER = {"XMEAS17": "production loop (XMEAS 17 -> A+C feed target)",
@@ -74,7 +84,8 @@ class TEOperatorLayer:
             caps[n] = {"modes": MV_MODES, "limits": True, "controlled": True}
         for n in cv_names:
             if self.has_mpc and n in CORE_CV_NAMES:
-                caps[n] = {"modes": CV_MODES, "limits": True, "controlled": True}
+                caps[n] = {"modes": CV_MODES, "limits": False, "controlled": True,
+                           "note": SOFT_LIMITS_UNSAFE}
             elif self.has_mpc and n in _OUTER:
                 caps[n] = {"modes": CV_MODES, "limits": False, "controlled": True,
                            "note": f"held by the {_OUTER[n]}, no constraint acts on it"}
