@@ -309,6 +309,8 @@ class ControllerNode:
         self._watchdog = Watchdog(period_hint_s=self.budget.wall_period_s)
         self._mv_pub = plant_link if plant_link is not None else declare_loop_publisher(
             session, keys.mv(cfg.unit))
+        self.plant_link = plant_link
+        operator_commands.publish_mode(self)  # a restored mode to the DCS too
         self._status_pub = session.declare_publisher(keys.status(cfg.unit))
         self.busy_poll = bool(busy_poll)
         self._sub = plant_link.subscribe(self._on_meas) if plant_link is not None \

@@ -22,7 +22,7 @@ import math
 from controller.operator_modes import OperatorError, VariableCommand
 from services.io.messages import Reply
 
-__all__ = ["handle", "record_action", "variable_view"]
+__all__ = ["handle", "publish_mode", "record_action", "variable_view"]
 
 log = logging.getLogger("ssmpc.controller")
 
@@ -31,15 +31,21 @@ BY_MAX = 128
 
 
 def record_action(node, action: dict) -> None:
-    """Hand an accepted operator action to the durable event log.
+    """The one place an accepted operator action goes to the durable event log.
 
-    The store's operator-action record, where the store offers one
-    (``record_action(action, process_time)``); until then a no-op. ``action``:
-    ``{"action": "mode"|"variable", "by": str|None, ...the command...}``.
+    A no-op until the store records operator actions (the events of ``GET .../events``);
+    then this calls its recorder. ``action``: ``{"action": "mode"|"variable", "by":
+    str|None, ...the command...}``, accepted at process time ``node.t`` (s).
     """
-    recorder = getattr(node.store, "record_action", None)
-    if callable(recorder):
-        node._worker.submit(recorder, dict(action), node.t)
+    return None
+
+
+def publish_mode(node) -> None:
+    """Tell the plant link the controller mode, where it reports one (the OPC UA link
+    writes it to the DCS's ``Status/ControllerMode`` with its heartbeat)."""
+    link = getattr(node, "plant_link", None)
+    if link is not None and hasattr(link, "controller_mode"):
+        link.controller_mode = node.operated.mode
 
 
 def _by(args: dict) -> str | None:
@@ -108,6 +114,7 @@ def handle(node, action: str, args: dict) -> Reply:
         return Reply(503, error=f"store: cannot commit; the {action} command was not "
                                 f"applied ({node.store_error})")
     node._store_ok()
+    publish_mode(node)
     record_action(node, record)
     text = (f"operator: mode {old.mode} -> {new.mode}" if action == "mode" else
             "operator: " + " ".join(f"{k}={v}" for k, v in record.items()
