@@ -29,6 +29,18 @@ inside its operator limits, and a move so changed is handed back to the controll
 from its ``operator_capabilities(cv_names, mv_names)`` (name -> ``{"modes", "limits",
 "note"}``); without it: MVs ``auto``/``manual``/``off`` with limits (enforced on the
 move), CVs none.
+
+Cost per TE sample (``ssmpc bench operator-step``, the cases taking turns, 299 samples
+each, this 2-core machine at load 6.8 shared with other work; medians):
+
+==========================================  ==========
+the TE controller alone                     0.52 ms
+operated, default settings                  0.535 ms
+operated, XMV 11 in manual and XMEAS 18 off 0.65 ms
+==========================================  ==========
+
+The default path returns the controller's own decision (no copies); the view of the
+settings is rebuilt only when they change or a limit is on its way.
 """
 
 from __future__ import annotations
@@ -73,6 +85,12 @@ class OperatorView:
     cv_on: np.ndarray
     cv_lo: np.ndarray
     cv_hi: np.ndarray
+
+    @property
+    def plain(self) -> bool:
+        """Every MV in auto without operator limits: the move is the controller's."""
+        return all(m == "auto" for m in self.mv_mode) and not (
+            np.isfinite(self.mv_lo).any() or np.isfinite(self.mv_hi).any())
 
     @property
     def mv_held(self) -> np.ndarray:
@@ -171,6 +189,7 @@ class OperatedController:
         self.time_unit_s = float(time_unit_s)
         self._resume = False  # the next sample that computes takes over the plant's move
         self._cached: tuple | None = None  # (state, ramping, view) of the last sample
+        self._plain = True  # that view's MVs all auto without limits
 
     def __getattr__(self, name: str) -> Any:
         # the inner controller's optional hooks (on_transition, check_grade, horizon, ...)
@@ -208,6 +227,7 @@ class OperatedController:
         ramping = any(c.limits_at(t_h) != (c.lo.end, c.hi.end)
                       for c in state.controls.values())
         self._cached = (state, ramping, view)
+        self._plain = view.plain
         return view
 
     # -- the sample -------------------------------------------------------------------
@@ -232,6 +252,8 @@ class OperatedController:
         if callable(hook):
             hook(view)
         dec = self.inner.step(k, t, y, reference)
+        if state.mode == "on" and self._plain:
+            return dec  # nothing to enforce (the usual sample: no copies)
         u = self.enforce(np.asarray(dec.u, dtype=float), view)
         extra = dict(dec.extra)
         if state.mode == "warm":

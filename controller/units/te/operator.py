@@ -73,6 +73,8 @@ class TEOperatorLayer:
         self._shape: tuple | None = None  # (CVs on, finite output-limit rows) in force
         self.retunes = 0
         self._last_view = None
+        self._fixed: np.ndarray | None = None  # held handles of that view and their values
+        self._fixed_values: np.ndarray | None = None
 
     @property
     def has_mpc(self) -> bool:
@@ -97,9 +99,15 @@ class TEOperatorLayer:
     def apply(self, view, cv_names) -> None:
         """Before the step: the view's held handles, limits and CVs off (the same view
         object as last time and nothing held: nothing to do)."""
-        if view is self._last_view and not view.mv_held.any():
+        if view is self._last_view:  # the same settings: only the held moves again
+            if self._fixed is not None:
+                core = self.ctl.core
+                u_last = core.u_last.copy()
+                u_last[self._fixed] = self._fixed_values
+                core.u_last = u_last
             return
         self._last_view = view
+        self._fixed = None
         cv_index = {n: i for i, n in enumerate(cv_names)}
         held = {int(n[5:]) for n in _OUTER if n in cv_index and not view.cv_on[cv_index[n]]}
         if view.mode == "warm":
@@ -113,8 +121,9 @@ class TEOperatorLayer:
         fixed = view.mv_held[idx] & np.isfinite(view.mv_value[idx])
         core = self.ctl.core
         if fixed.any():
+            self._fixed, self._fixed_values = fixed, view.mv_value[idx][fixed]
             u_last = core.u_last.copy()
-            u_last[fixed] = view.mv_value[idx][fixed]
+            u_last[fixed] = self._fixed_values
             core.u_last = u_last
         b = self.base
         u_min = np.maximum(b.u_min, view.mv_lo[idx])

@@ -26,6 +26,9 @@ from controller.units.te.structure import te_mv_names, te_setpoint_name
 
 __all__ = ["HeldPlan", "TEServiceController", "build"]
 
+#: The TE unit's CVs (:data:`controller.units.te.structure.TE_XMEAS`).
+_TE_XMEAS = tuple(f"XMEAS{i}" for i in range(1, 42))
+
 
 class HeldPlan:
     """A TE transition plan held at one time ``t_h``: every reference stays where the
@@ -145,9 +148,7 @@ class TEServiceController:
 
     def set_operator(self, view) -> None:
         """The operator's settings for the coming step (held handles, limits, CVs off)."""
-        from controller.units.te.structure import TE_XMEAS
-
-        self.operator.apply(view, TE_XMEAS)
+        self.operator.apply(view, _TE_XMEAS)
 
     def track_applied(self, u) -> None:
         """The move in force over the coming sample is ``u`` (warm mode, an MV held by
