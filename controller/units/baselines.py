@@ -74,6 +74,13 @@ class PIBaseline:
         self.u = np.asarray(u, dtype=float).copy()
         self.e_prev = None
 
+    def track_applied(self, u) -> None:
+        """Output tracking: the move in force is ``u`` (warm mode, an MV held by the
+        operator); the velocity form goes on from it, so a release is bumpless."""
+        u = np.asarray(u, dtype=float).reshape(-1)
+        if u.shape == self.u.shape and np.all(np.isfinite(u)):
+            self.u = np.minimum(np.maximum(u, self.u_min), self.u_max)
+
     def checkpoint(self) -> dict[str, Any]:
         return {"u": self.u.tolist(),
                 "e_prev": None if self.e_prev is None else self.e_prev.tolist()}
@@ -120,6 +127,10 @@ class HoldController:
                                alarms=(f"invalid measurement at sample {k}",) if bad else ())
 
     def align(self, u) -> None:
+        self.u = np.asarray(u, dtype=float).copy()
+
+    def track_applied(self, u) -> None:
+        """The move in force is ``u`` (an MV held by the operator): hold that one."""
         self.u = np.asarray(u, dtype=float).copy()
 
     def checkpoint(self) -> dict[str, Any]:
