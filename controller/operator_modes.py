@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 __all__ = ["CONTROLLER_MODES", "CV_MODES", "MV_MODES", "OperatorError", "UnknownVariable",
@@ -257,11 +258,15 @@ class OperatorState:
             raise OperatorError(f"mode: expected one of {', '.join(CONTROLLER_MODES)}")
 
     # -- reading ----------------------------------------------------------------------
+    @cached_property
+    def _by_name(self) -> dict[str, VariableSpec]:
+        return {s.name: s for s in self.specs}
+
     def spec(self, name: str) -> VariableSpec:
-        for s in self.specs:
-            if s.name == name:
-                return s
-        raise UnknownVariable(f"variable: no variable {name!r} on this unit")
+        s = self._by_name.get(name) if isinstance(name, str) else None
+        if s is None:
+            raise UnknownVariable(f"variable: no variable {name!r} on this unit")
+        return s
 
     def control(self, name: str) -> VariableControl:
         """The operator's settings of ``name`` (the defaults when never set)."""
