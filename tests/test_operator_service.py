@@ -163,3 +163,34 @@ def test_mode_and_variable_from_the_command_line(te, capsys):
     with pytest.raises(SystemExit) as exc:  # argparse's own refusal, exit 2
         main(["mode", "te", "standby", *extra])
     assert exc.value.code == 2 and "invalid choice" in capsys.readouterr().err
+
+
+def test_an_operator_action_the_store_cannot_commit_is_503_and_not_applied(stack):
+    import sqlite3
+
+    h, api = stack  # the CSTR unit: MV u, CV y
+    c = api.client
+    h.wait_samples(3)
+    other = sqlite3.connect(str(h.store_path), isolation_level=None)
+    other.execute("BEGIN IMMEDIATE")  # another process holds the write lock
+    try:
+        r = c.patch("/api/v1/units/cstr/variables/u", headers=AUTH,
+                    json={"mode": "manual", "value": 1.0})
+        assert r.status_code == 503 and "store" in r.json()["detail"], r.text
+        v, _ = _variable_of(api, "cstr", "u")
+        assert v["mode"] == "auto"  # not applied
+    finally:
+        other.execute("ROLLBACK")
+        other.close()
+    r = c.patch("/api/v1/units/cstr/variables/u", headers=AUTH,
+                json={"mode": "manual", "value": 1.0})
+    assert r.status_code == 200 and r.json()["mode"] == "manual"
+    # the CSTR's controller offers no CV modes: refused with the reason
+    r = c.patch("/api/v1/units/cstr/variables/y", headers=AUTH, json={"mode": "off"})
+    assert r.status_code == 422 and "no CV modes" in r.json()["detail"]
+    _wait(lambda: h.plant.status()["u"][0] == 1.0, what="the CSTR's u held at 1.0")
+
+
+def _variable_of(api, unit, name):
+    st = api.client.get(f"/api/v1/units/{unit}/status").json()
+    return next(v for v in st["variables"] if v["name"] == name), st
