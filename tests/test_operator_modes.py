@@ -190,3 +190,22 @@ def test_held_and_limited_mvs_are_written_exactly_and_the_controller_told():
     v = inner.views[-1]
     assert v.mv_mode == ("manual", "auto") and v.mv_held.tolist() == [True, False]
     assert v.mv_hi[1] == 21.0 and v.cv_on.tolist() == [True, True]
+
+
+def test_the_status_text_view_shows_the_mode_and_held_variables():
+    from services.cli.operator import STATUS_WIDTH, status_lines
+
+    var = {"tag": "", "description": "", "unit": "%", "value": 30.0, "target": None,
+           "lo": 0.0, "hi": 100.0, "at_limit": None}
+    st = {"unit": "te", "plant": "te", "sample": 5, "process_time_s": 180.0,
+          "budget_ms": 18.0, "deadline_misses": 0, "fallback_moves": 0,
+          "controller_mode": "warm", "controller_status": "solved", "alarms": [],
+          "variables": [{**var, "name": "XMV3", "kind": "mv", "mode": "manual",
+                         "target": 30.0},
+                        {**var, "name": "XMV4", "kind": "mv", "mode": "off"},
+                        {**var, "name": "XMV5", "kind": "mv", "mode": "auto"}]}
+    lines = status_lines(st)
+    assert lines[1].startswith("controller WARM solved")
+    flags = {ln.split()[0]: ln.split()[-1] for ln in lines if ln.startswith("XMV")}
+    assert flags == {"XMV3": "MAN", "XMV4": "OFF", "XMV5": "%"}
+    assert all(len(ln) <= STATUS_WIDTH for ln in lines)
