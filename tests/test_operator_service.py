@@ -194,3 +194,19 @@ def test_an_operator_action_the_store_cannot_commit_is_503_and_not_applied(stack
 def _variable_of(api, unit, name):
     st = api.client.get(f"/api/v1/units/{unit}/status").json()
     return next(v for v in st["variables"] if v["name"] == name), st
+
+
+def test_no_transition_without_the_controller_on_and_no_warm_during_one(stack):
+    h, api = stack
+    c = api.client
+    h.wait_samples(3)
+    post = "/api/v1/units/cstr/transitions"
+    tid = c.post(post, headers=AUTH, json={"grade": "OPII", "duration_h": 1.0}).json()["id"]
+    r = c.put("/api/v1/units/cstr/mode", headers=AUTH, json={"mode": "warm"})
+    assert r.status_code == 409 and tid in r.json()["detail"], r.text
+    assert c.delete(f"{post}/{tid}", headers=AUTH).status_code == 200
+    assert c.put("/api/v1/units/cstr/mode", headers=AUTH, json={"mode": "off"}).status_code == 200
+    r = c.post(post, headers=AUTH, json={"grade": "OPIII"})
+    assert r.status_code == 409 and "off" in r.json()["detail"], r.text
+    assert c.put("/api/v1/units/cstr/mode", headers=AUTH, json={"mode": "on"}).status_code == 200
+    assert c.post(post, headers=AUTH, json={"grade": "OPIII"}).status_code == 202

@@ -729,6 +729,9 @@ class ControllerNode:
                     return Reply(422, error="Idempotency-Key: already used by another request "
                                             f"(transition {record['id']})")
                 return Reply(202, Transition.from_dict(record).view(self.t, self.budget.speed))
+        if self.operated.mode != "on":  # nobody would move the plant along it
+            return Reply(409, error=f"controller: {self.operated.mode}, it writes no moves; "
+                                    "put it on (mode on) before a transition")
         # A controller that knows grades it cannot hold refuses them now, not
         # inside a later sample (the transition would run toward nothing).
         check = getattr(self.controller, "check_grade", None)

@@ -7,11 +7,13 @@
 identity that made the action (at most 128 printable characters).
 
 A command is validated against the unit's variables (unknown variable 404, anything
-else that cannot be applied 422 with a message), takes effect at the next sample
-(:class:`controller.units.operator.OperatedController` reads its state once per
-sample) and is committed with a checkpoint before it is acknowledged; a store that
-cannot commit puts the previous settings back and answers 503. Every accepted action
-goes to :func:`record_action` and the recording's event log.
+else that cannot be applied 422 with a message; ``off`` or ``warm`` while a transition
+is under way 409: nobody would move the plant along it, abort it first), takes
+effect at the next sample (:class:`controller.units.operator.OperatedController`
+reads its state once per sample) and is committed with a checkpoint before it is
+acknowledged; a store that cannot commit puts the previous settings back and answers
+503. Every accepted action goes to :func:`record_action` and the recording's event
+log.
 """
 
 from __future__ import annotations
@@ -38,6 +40,12 @@ def record_action(node, action: dict) -> None:
     str|None, ...the command...}``, accepted at process time ``node.t`` (s).
     """
     return None
+
+
+class Conflict(OperatorError):
+    """A command the unit's state refuses now (409)."""
+
+    status = 409
 
 
 def publish_mode(node) -> None:
@@ -92,6 +100,13 @@ def handle(node, action: str, args: dict) -> Reply:
                     raise OperatorError(f"{unknown[0]}: unknown field (known: mode)")
                 mode = args.get("mode")
                 new = old.with_mode(mode if isinstance(mode, str) else "")
+                tm = node.tm
+                under_way = ([tm.active] if tm.active is not None and not tm.active.terminal
+                             else []) + list(tm.queued)
+                if new.mode != "on" and under_way:
+                    raise Conflict(f"mode: transition {under_way[0].id} to "
+                                   f"{under_way[0].grade} is {under_way[0].state}; abort "
+                                   f"it before the controller goes {new.mode}")
                 record = {"action": "mode", "by": by, "mode": new.mode, "previous": old.mode}
             else:
                 name = args.get("name")
