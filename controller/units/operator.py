@@ -28,7 +28,10 @@ inside its operator limits, and a move so changed is handed back to the controll
 (``track_applied``) as the one in force. What a controller offers per variable comes
 from its ``operator_capabilities(cv_names, mv_names)`` (name -> ``{"modes", "limits",
 "note"}``); without it: MVs ``auto``/``manual``/``off`` with limits (enforced on the
-move), CVs none.
+move), and for a state-shared MPC on exactly the unit's CVs and MVs (the two-phase
+reactor) CVs ``auto``/``off`` with limits too, through
+:class:`~controller.units.mpc_operator.MPCOperatorLayer`; other controllers' CVs
+none.
 
 Cost per TE sample (``ssmpc bench operator-step``, the cases taking turns, 299 samples
 each, this 2-core machine at load 6.8 shared with other work; medians):
@@ -51,7 +54,8 @@ from typing import Any
 
 import numpy as np
 
-from controller.operator_modes import MV_MODES, OperatorState, VariableSpec
+from controller.operator_modes import CV_MODES, MV_MODES, OperatorState, VariableSpec
+from controller.units.mpc_operator import MPCOperatorLayer
 from controller.units.takeover import align_multimodel
 
 __all__ = ["OperatorView", "OperatedController", "operate", "operator_specs"]
@@ -139,10 +143,13 @@ def operator_specs(variables, cv_range: dict[str, tuple[float, float]],
     mv_names = [v.name for v in variables if v.kind == "mv"]
     caps_fn = getattr(controller, "operator_capabilities", None)
     caps = caps_fn(tuple(cv_names), tuple(mv_names)) if callable(caps_fn) else None
+    mpc = _square_mpc(controller, len(cv_names), len(mv_names))
     out = []
     for v in variables:
         if caps is not None:
             cap = caps.get(v.name, {})
+        elif v.kind == "cv" and mpc:
+            cap = {"modes": CV_MODES, "limits": True, "controlled": True}
         elif v.kind == "mv":
             cap = {"modes": MV_MODES, "limits": True, "controlled": True}
         elif v.kind == "cv":
@@ -160,6 +167,16 @@ def operator_specs(variables, cv_range: dict[str, tuple[float, float]],
                                 bool(cap.get("controlled", bool(cap.get("modes")))),
                                 str(cap.get("note", ""))))
     return tuple(out)
+
+
+def _square_mpc(controller, ny: int, nu: int) -> bool:
+    """A state-shared MPC on exactly the unit's CVs and MVs without hooks of its own:
+    :class:`~controller.units.mpc_operator.MPCOperatorLayer` applies the settings."""
+    if callable(getattr(controller, "set_operator", None)) or not MPCOperatorLayer.fits(
+            controller):
+        return False
+    s = controller.law.settings
+    return (s.ny, s.nu) == (ny, nu)
 
 
 class OperatedController:
@@ -187,6 +204,11 @@ class OperatedController:
         self.cv_names, self.mv_names = tuple(cv_names), tuple(mv_names)
         self.state = OperatorState(tuple(specs))
         self.time_unit_s = float(time_unit_s)
+        #: the generic MPC layer (a state-shared MPC on the unit's vectors), else None
+        self.mpc_layer = (MPCOperatorLayer(inner, range(len(self.mv_names)),
+                                           range(len(self.cv_names)))
+                          if _square_mpc(inner, len(self.cv_names), len(self.mv_names))
+                          else None)
         self._resume = False  # the next sample that computes takes over the plant's move
         self._cached: tuple | None = None  # (state, ramping, view) of the last sample
         self._plain = True  # that view's MVs all auto without limits
@@ -251,6 +273,8 @@ class OperatedController:
         hook = getattr(self.inner, "set_operator", None)
         if callable(hook):
             hook(view)
+        elif self.mpc_layer is not None:
+            self.mpc_layer.apply(view)
         dec = self.inner.step(k, t, y, reference)
         if state.mode == "on" and self._plain:
             return dec  # nothing to enforce (the usual sample: no copies)

@@ -5,8 +5,9 @@ What each kind of variable offers (:meth:`TEOperatorLayer.capabilities`):
 
 - the MPC's five handles (XMV 3, XMV 4, P_r*, T_r*, XMV 11; MPC strategies):
   ``manual`` and ``off`` hold the handle at its value and the MPC plans the other
-  handles around it (its moves are fixed at zero in the QP, its last move is the held
-  value); operator limits are the QP's hard input limits of the sample;
+  handles around it (:class:`~controller.units.mpc_operator.MPCOperatorLayer`: its
+  moves are fixed at zero in the QP, its last move is the held value); operator limits
+  are the QP's hard input limits of the sample;
 - the other MVs (E/D ratio XMV 2, plan-driven XMV 5, 9, 12, the level set points):
   held or limited on the move itself (:class:`controller.units.operator.OperatedController`);
   a held XMV 2 keeps the ratio loop tracking the valve, so ``auto`` resumes from it;
@@ -27,12 +28,8 @@ must not wind up) and the ratio loop tracks the applied E feed valve.
 
 from __future__ import annotations
 
-import math
-from dataclasses import replace
-
-import numpy as np
-
 from controller.operator_modes import CV_MODES, MV_MODES
+from controller.units.mpc_operator import MPCOperatorLayer
 
 __all__ = ["TEOperatorLayer", "CORE_CV_NAMES"]
 
@@ -64,21 +61,20 @@ class TEOperatorLayer:
     """
 
     def __init__(self, ctl, mvs: tuple[str, ...], core_idx) -> None:
+        from controller.units.te.structure import TE_XMEAS
+
         self.ctl = ctl
         self.mvs = tuple(mvs)
         self.core_idx = list(core_idx)
-        law = getattr(getattr(ctl, "core", None), "law", None)
-        self.law = law if callable(getattr(law, "set_operator_limits", None)) else None
-        self.base = None if self.law is None else self.law.settings
-        self._shape: tuple | None = None  # (CVs on, finite output-limit rows) in force
-        self.retunes = 0
+        core = getattr(ctl, "core", None)
+        self.mpc = (MPCOperatorLayer(core, self.core_idx,
+                                     [TE_XMEAS.index(n) for n in CORE_CV_NAMES])
+                    if None not in self.core_idx and MPCOperatorLayer.fits(core) else None)
         self._last_view = None
-        self._fixed: np.ndarray | None = None  # held handles of that view and their values
-        self._fixed_values: np.ndarray | None = None
 
     @property
     def has_mpc(self) -> bool:
-        return self.law is not None and None not in self.core_idx
+        return self.mpc is not None
 
     def capabilities(self, cv_names, mv_names) -> dict[str, dict]:
         caps: dict[str, dict] = {}
@@ -97,57 +93,16 @@ class TEOperatorLayer:
         return caps
 
     def apply(self, view, cv_names) -> None:
-        """Before the step: the view's held handles, limits and CVs off (the same view
-        object as last time and nothing held: nothing to do)."""
-        if view is self._last_view:  # the same settings: only the held moves again
-            if self._fixed is not None:
-                core = self.ctl.core
-                u_last = core.u_last.copy()
-                u_last[self._fixed] = self._fixed_values
-                core.u_last = u_last
-            return
-        self._last_view = view
-        self._fixed = None
-        cv_index = {n: i for i, n in enumerate(cv_names)}
-        held = {int(n[5:]) for n in _OUTER if n in cv_index and not view.cv_on[cv_index[n]]}
-        if view.mode == "warm":
-            held = set(getattr(self.ctl, "OUTER_LOOP_CVS", ()))
-        hold = getattr(self.ctl, "hold_outer_loops", None)
-        if callable(hold):  # not in the decentralized baseline
-            hold(held)
-        if not self.has_mpc:
-            return
-        idx = self.core_idx
-        fixed = view.mv_held[idx] & np.isfinite(view.mv_value[idx])
-        core = self.ctl.core
-        if fixed.any():
-            self._fixed, self._fixed_values = fixed, view.mv_value[idx][fixed]
-            u_last = core.u_last.copy()
-            u_last[fixed] = self._fixed_values
-            core.u_last = u_last
-        b = self.base
-        u_min = np.maximum(b.u_min, view.mv_lo[idx])
-        u_max = np.minimum(b.u_max, view.mv_hi[idx])
-        ci = [cv_index[n] for n in CORE_CV_NAMES]
-        on = view.cv_on[ci]
-        y_min = np.where(on, np.maximum(b.y_min, view.cv_lo[ci]), -math.inf)
-        y_max = np.where(on, np.minimum(b.y_max, view.cv_hi[ci]), math.inf)
-        shape = (tuple(on), tuple(np.isfinite(y_min)), tuple(np.isfinite(y_max)))
-        if shape != self._shape:
-            if shape == (tuple([True] * 5), tuple(np.isfinite(b.y_min)),
-                         tuple(np.isfinite(b.y_max))):
-                settings = b  # the tuned settings themselves
-            else:
-                settings = replace(b, Xi=np.where(on, b.Xi, 0.0), y_min=y_min, y_max=y_max)
-            if self._shape is not None or settings is not b:
-                self.law.retune(settings, core.ssm)
-                self.retunes += 1
-            self._shape = shape
-        plain = (not fixed.any() and np.array_equal(u_min, b.u_min)
-                 and np.array_equal(u_max, b.u_max) and np.array_equal(y_min, b.y_min)
-                 and np.array_equal(y_max, b.y_max))
-        if plain:
-            self.law.set_operator_limits()  # the tuned problem exactly
-        else:
-            self.law.set_operator_limits(fixed=fixed, u_min=u_min, u_max=u_max,
-                                         y_min=y_min, y_max=y_max)
+        """Before the step: the view's held handles, limits and CVs off."""
+        if view is not self._last_view:
+            self._last_view = view
+            cv_index = {n: i for i, n in enumerate(cv_names)}
+            held = {int(n[5:]) for n in _OUTER
+                    if n in cv_index and not view.cv_on[cv_index[n]]}
+            if view.mode == "warm":
+                held = set(getattr(self.ctl, "OUTER_LOOP_CVS", ()))
+            hold = getattr(self.ctl, "hold_outer_loops", None)
+            if callable(hold):  # not in the decentralized baseline
+                hold(held)
+        if self.mpc is not None:
+            self.mpc.apply(view)
