@@ -165,10 +165,23 @@ def test_mode_and_variable_from_the_command_line(te, capsys):
     assert exc.value.code == 2 and "invalid choice" in capsys.readouterr().err
 
 
-def test_an_operator_action_the_store_cannot_commit_is_503_and_not_applied(stack):
+def test_an_operator_action_the_store_cannot_commit_is_503_and_not_applied(harness):
+
+    # the CSTR unit (MV u, CV y). A command's checkpoint waits behind the loop's own
+    # writes, each failing after the 1 s busy timeout while the store is locked: the loop
+    # checkpoints here only on its wall-clock period (5 s), and the api waits longer
+    # than its default 2 s to hear the 503
+    h = harness(telemetry=False, checkpoint_every=10**9)
+    api = ApiServer(h, timeout_s=8.0)
+    try:
+        _store_locked_then_free(h, api)
+    finally:
+        api.close()
+
+
+def _store_locked_then_free(h, api):
     import sqlite3
 
-    h, api = stack  # the CSTR unit: MV u, CV y
     c = api.client
     h.wait_samples(3)
     other = sqlite3.connect(str(h.store_path), isolation_level=None)
