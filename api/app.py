@@ -279,12 +279,14 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
                           404: {**_ERR, "description": "unknown unit or variable"}})
     async def patch_variable(body: VariableRequest, request: Request, unit: str = UNIT,
                              name: str = VARIABLE) -> dict:
-        args = {"name": name, **body.model_dump(exclude_none=True), "by": _who(request)}
+        args = {"name": name, **body.model_dump(exclude_none=True),
+                "identity": _who(request)}
         return await call(unit, "variable", args, _VARIABLE)
 
     @app.put("/api/v1/units/{unit}/mode", response_model=ModeView,
              dependencies=[Depends(write_guard)], responses=WRITE_ERRORS)
     async def put_mode(body: ModeRequest, request: Request, unit: str = UNIT) -> dict:
-        return await call(unit, "mode", {"mode": body.mode, "by": _who(request)}, _MODE)
+        return await call(unit, "mode", {"mode": body.mode, "identity": _who(request)},
+                          _MODE)
 
     return app

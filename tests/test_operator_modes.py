@@ -209,3 +209,24 @@ def test_the_status_text_view_shows_the_mode_and_held_variables():
     flags = {ln.split()[0]: ln.split()[-1] for ln in lines if ln.startswith("XMV")}
     assert flags == {"XMV3": "MAN", "XMV4": "OFF", "XMV5": "%"}
     assert all(len(ln) <= STATUS_WIDTH for ln in lines)
+
+
+def test_an_accepted_action_goes_to_the_nodes_event_log_where_it_has_one():
+    from services.nodes.operator_commands import record_action
+
+    class Node:
+        def __init__(self):
+            self.calls = []
+
+        def record_action(self, what, detail, identity):
+            self.calls.append((what, detail, identity))
+            return "503" if detail.get("mode") == "off" else None
+
+    node = Node()
+    assert record_action(node, {"action": "mode", "mode": "warm", "previous": "on"},
+                         "operator") is None
+    assert node.calls == [("mode", {"mode": "warm", "previous": "on"}, "operator")]
+    # the log's refusal is the answer; without an identity the action is anonymous
+    assert record_action(node, {"action": "mode", "mode": "off"}, None) == "503"
+    assert node.calls[-1][2] == "anonymous"
+    assert record_action(object(), {"action": "mode", "mode": "on"}, "x") is None  # no log

@@ -3,8 +3,8 @@
 
 ``mode``: ``args = {"mode": "off"|"warm"|"on"}``. ``variable``: ``args = {"name": ...,
 "mode"?, "value"?, "lo"?, "hi"?, "ramp_per_h"?}``
-(:class:`controller.operator_modes.VariableCommand`). Both may carry ``"by"``, the
-identity that made the action (at most 128 printable characters).
+(:class:`controller.operator_modes.VariableCommand`). Both may carry the
+identity that made the action as ``"identity"`` (at most 128 printable characters).
 
 A command is validated against the unit's variables (unknown variable 404, anything
 else that cannot be applied 422 with a message; ``off`` or ``warm`` while a transition
@@ -28,18 +28,28 @@ __all__ = ["handle", "publish_mode", "record_action", "variable_view"]
 
 log = logging.getLogger("ssmpc.controller")
 
-#: Longest identity (``by``) stored with an action, characters.
-BY_MAX = 128
+#: Longest identity stored with an action, characters.
+IDENTITY_MAX = 128
 
 
-def record_action(node, action: dict) -> None:
+def record_action(node, action: dict, identity: str | None):
     """The one place an accepted operator action goes to the durable event log.
 
-    A no-op until the store records operator actions (the events of ``GET .../events``);
-    then this calls its recorder. ``action``: ``{"action": "mode"|"variable", "by":
-    str|None, ...the command...}``, accepted at process time ``node.t`` (s).
+    The node's ``record_action(what, detail, identity)`` where it has one (it commits
+    the event before the action is acknowledged and answers a :class:`Reply` 503 when
+    the store cannot); until then a no-op. ``action``: ``{"action": "mode"|"variable",
+    ...the command...}``.
+
+    Returns
+    -------
+    Reply or None
+        The reply to send instead of the acknowledgement, None once recorded.
     """
-    return None
+    recorder = getattr(node, "record_action", None)
+    if not callable(recorder):
+        return None
+    detail = {k: v for k, v in action.items() if k != "action"}
+    return recorder(action["action"], detail, identity or "anonymous")
 
 
 class Conflict(OperatorError):
@@ -56,13 +66,13 @@ def publish_mode(node) -> None:
         link.controller_mode = node.operated.mode
 
 
-def _by(args: dict) -> str | None:
-    by = args.get("by")
-    if by is None:
+def _identity(args: dict) -> str | None:
+    who = args.get("identity")
+    if who is None:
         return None
-    if not (isinstance(by, str) and 0 < len(by) <= BY_MAX and by.isprintable()):
-        raise OperatorError(f"by: expected 1..{BY_MAX} printable characters")
-    return by
+    if not (isinstance(who, str) and 0 < len(who) <= IDENTITY_MAX and who.isprintable()):
+        raise OperatorError(f"identity: expected 1..{IDENTITY_MAX} printable characters")
+    return who
 
 
 def variable_view(node, name: str) -> dict:
@@ -90,12 +100,12 @@ def handle(node, action: str, args: dict) -> Reply:
     ControllerNode`); the reply's data: ``mode`` the controller mode, ``variable`` the
     variable's status entry."""
     try:
-        by = _by(args)
+        by = _identity(args)
         op = node.operated
         with node._lock:
             old = op.state
             if action == "mode":
-                unknown = sorted(set(args) - {"mode", "by"})
+                unknown = sorted(set(args) - {"mode", "identity"})
                 if unknown:
                     raise OperatorError(f"{unknown[0]}: unknown field (known: mode)")
                 mode = args.get("mode")
@@ -107,15 +117,15 @@ def handle(node, action: str, args: dict) -> Reply:
                     raise Conflict(f"mode: transition {under_way[0].id} to "
                                    f"{under_way[0].grade} is {under_way[0].state}; abort "
                                    f"it before the controller goes {new.mode}")
-                record = {"action": "mode", "by": by, "mode": new.mode, "previous": old.mode}
+                record = {"action": "mode", "mode": new.mode, "previous": old.mode}
             else:
                 name = args.get("name")
                 if not isinstance(name, str):
                     raise OperatorError("name: expected a variable name")
-                fields = {k: v for k, v in args.items() if k not in ("name", "by")}
+                fields = {k: v for k, v in args.items() if k not in ("name", "identity")}
                 cmd = VariableCommand.from_args(fields)
                 new = old.command(name, cmd, node.t / 3600.0, _current(node, name))
-                record = {"action": "variable", "by": by, "name": name,
+                record = {"action": "variable", "name": name,
                           **{k: v for k, v in fields.items() if v is not None}}
             op.set_state(new)
     except OperatorError as exc:
@@ -129,11 +139,16 @@ def handle(node, action: str, args: dict) -> Reply:
         return Reply(503, error=f"store: cannot commit; the {action} command was not "
                                 f"applied ({node.store_error})")
     node._store_ok()
+    refused = record_action(node, record, by)
+    if refused is not None:  # the event log cannot commit it: not applied either
+        with node._lock:
+            if op.state is new:
+                op.set_state(old)
+        return refused
     publish_mode(node)
-    record_action(node, record)
     text = (f"operator: mode {old.mode} -> {new.mode}" if action == "mode" else
             "operator: " + " ".join(f"{k}={v}" for k, v in record.items()
-                                    if k not in ("action", "by")))
+                                    if k != "action"))
     if by:
         text += f" (by {by})"
     log.info("%s", text)
