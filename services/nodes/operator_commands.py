@@ -144,6 +144,7 @@ def handle(node, action: str, args: dict) -> Reply:
         with node._lock:
             if op.state is new:
                 op.set_state(old)
+        node.checkpoint(wait=True)  # the old settings on disk again (as far as it can)
         return refused
     publish_mode(node)
     text = (f"operator: mode {old.mode} -> {new.mode}" if action == "mode" else
