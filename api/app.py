@@ -11,6 +11,9 @@
 ``GET .../transitions/{id}``               state, progress, ISE so far, ETA
 ``DELETE .../transitions/{id}``            abort and hold the current set points
 ``GET/POST /api/v1/units/{unit}/disturbances``  plant disturbances (TE IDVs), by command
+``PATCH .../variables/{name}``             operator action on a CV or MV (mode, value,
+                                           limits, ramp)
+``PUT /api/v1/units/{unit}/mode``          controller mode off / warm / on
 =========================================  ===========================================
 
 Errors: unknown unit/grade/transition → 404; malformed body (NaN, infinities,
@@ -50,11 +53,15 @@ from api.schemas import (
     ErrorBody,
     GradesView,
     Health,
+    ModeRequest,
+    ModeView,
     StatusView,
     TransitionRequest,
     TransitionView,
     UnitLiveliness,
     UnitsResponse,
+    VariableRequest,
+    VariableView,
 )
 from services.io.messages import Reply
 
@@ -77,6 +84,8 @@ WRITE_ERRORS = {**READ_ERRORS,
                 422: {**_ERR, "description": "malformed body"},
                 429: {**_ERR, "description": "the transition queue is full"}}
 TID = Path(..., min_length=1, max_length=64, description="transition id")
+VARIABLE = Path(..., min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$",
+                description="a CV or MV name, e.g. XMEAS7 or reactor_pressure_sp")
 #: Codes of a node's error reply passed on as they are (anything else is a 502).
 PASSED_ON = (400, 404, 409, 422, 429, 503)
 
@@ -88,6 +97,8 @@ _VIEWS = TypeAdapter(list[TransitionView])
 _STATUS = TypeAdapter(StatusView)
 _GRADES = TypeAdapter(GradesView)
 _OBJECT = TypeAdapter(dict[str, Any])
+_VARIABLE = TypeAdapter(VariableView)
+_MODE = TypeAdapter(ModeView)
 _NUMBERS = TypeAdapter(dict[str, float])
 
 
@@ -139,6 +150,13 @@ def _checked(data, adapter: TypeAdapter, who: str):
         raise HTTPException(status_code=502, detail=f"{who} sent a malformed reply: "
                             f"{_validation_message(exc.errors())}") from exc
     return adapter.dump_python(value)
+
+
+def _who(request: Request) -> str:
+    """The identity stored with an operator action: the api and the client's address
+    (one bearer token is shared, so the address is what tells operators apart)."""
+    client = request.client
+    return f"api ({client.host})" if client is not None else "api"
 
 
 def _idempotency_key(raw: str | None) -> str | None:
@@ -254,5 +272,21 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
     async def set_disturbance(body: DisturbanceRequest, unit: str = UNIT) -> dict:
         return await call_plant(unit, "disturbance", {"name": body.name, "value": body.value},
                                 _OBJECT)
+
+    @app.patch("/api/v1/units/{unit}/variables/{name}", response_model=VariableView,
+               dependencies=[Depends(write_guard)],
+               responses={**WRITE_ERRORS,
+                          404: {**_ERR, "description": "unknown unit or variable"}})
+    async def patch_variable(body: VariableRequest, request: Request, unit: str = UNIT,
+                             name: str = VARIABLE) -> dict:
+        args = {"name": name, **body.model_dump(exclude_none=True),
+                "identity": _who(request)}
+        return await call(unit, "variable", args, _VARIABLE)
+
+    @app.put("/api/v1/units/{unit}/mode", response_model=ModeView,
+             dependencies=[Depends(write_guard)], responses=WRITE_ERRORS)
+    async def put_mode(body: ModeRequest, request: Request, unit: str = UNIT) -> dict:
+        return await call(unit, "mode", {"mode": body.mode, "identity": _who(request)},
+                          _MODE)
 
     return app

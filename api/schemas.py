@@ -14,9 +14,10 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
-__all__ = ["DisturbanceRequest", "TransitionRequest", "TransitionView", "Health",
+__all__ = ["DisturbanceRequest", "ModeRequest", "ModeView", "VariableRequest",
+           "VariableView", "TransitionRequest", "TransitionView", "Health",
            "UnitLiveliness", "UnitsResponse", "ErrorBody", "GradesView", "StatusView",
            "valid_unicode"]
 
@@ -58,6 +59,72 @@ class DisturbanceRequest(BaseModel):
                        description="IDV1..IDV20 for TE (value 1 = on, 0 = off), or a "
                                    "disturbance variable of a unit plant")
     value: float = Field(allow_inf_nan=False, ge=-1e12, le=1e12, description="new value")
+
+
+_NUMBER = {"allow_inf_nan": False, "ge": -1e12, "le": 1e12}
+
+
+class VariableRequest(BaseModel):
+    """``PATCH /api/v1/units/{unit}/variables/{name}``: an operator action on one CV or MV.
+
+    Fields left out are unchanged; the controller checks the rest against the
+    variable (its engineering range, what its controller offers for it) and applies it
+    at the next sample.
+    """
+
+    model_config = _STRICT
+
+    mode: Literal["auto", "manual", "off"] | None = Field(
+        default=None, description="CV: auto (in the objective and its limits) or off (out "
+        "of both); MV: auto (moved by the controller), manual (held at value, the other "
+        "MVs planned around it) or off (out of the problem, held at its last value)")
+    value: float | None = Field(default=None, **_NUMBER, description=(
+        "manual MV: the value to hold, engineering units (default: the applied value)"))
+    lo: float | None = Field(default=None, **_NUMBER, description=(
+        "operator low limit, engineering units, inside the variable's engineering range"))
+    hi: float | None = Field(default=None, **_NUMBER, description=(
+        "operator high limit, engineering units, inside the variable's engineering range"))
+    ramp_per_h: float | None = Field(default=None, gt=0, le=1e12, allow_inf_nan=False,
+                                     description="rate a changed limit moves from the one "
+                                     "in force, engineering units per process hour "
+                                     "(default: the variable's last rate, else at once)")
+
+    @model_validator(mode="after")
+    def _limits_ordered(self):
+        if self.lo is not None and self.hi is not None and self.lo > self.hi:
+            raise ValueError("lo must not be above hi")
+        return self
+
+
+class ModeRequest(BaseModel):
+    """``PUT /api/v1/units/{unit}/mode``: the controller mode."""
+
+    model_config = _STRICT
+
+    mode: Literal["off", "warm", "on"] = Field(description=(
+        "off: nothing computed or written (the plant keeps its regulatory layer and last "
+        "values); warm: computed and reported, nothing written, the models track the "
+        "plant; on: moves written. Bumpless both ways"))
+
+
+class ModeView(BaseModel):
+    unit: str
+    mode: Literal["off", "warm", "on"]
+    previous: Literal["off", "warm", "on"]
+
+
+class VariableView(BaseModel):
+    """One entry of the status's ``variables``."""
+
+    model_config = ConfigDict(extra="allow")
+
+    name: str
+    kind: Literal["cv", "mv", "dv"]
+    mode: Literal["auto", "manual", "off"] | None
+    value: float | None
+    target: float | None
+    lo: float | None
+    hi: float | None
 
 
 class TransitionView(BaseModel):

@@ -621,7 +621,7 @@ class MultiModelController:
 
     def applied(self, u) -> None:
         """The plant got ``u`` instead of the last step's move (a missed deadline: the
-        move held): go on from ``u``.
+        move held; a controller in warm mode; an MV the operator holds): go on from ``u``.
 
         Called before :meth:`finish_sample`: the shared state is advanced with the
         applied ``u`` (the measured input, eq. 3.10) and ``u`` becomes the last move,

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Hashable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -208,6 +208,8 @@ class MPCController:
         self.d: np.ndarray | None = None
         self.d_prev: np.ndarray | None = None
         self.u_target = settings.u_target.copy()
+        self.op_limits: tuple | None = None  # (u_min, u_max, y_min, y_max), see below
+        self.op_fixed: np.ndarray | None = None
 
     def set_input_target(self, u_target) -> None:
         """Input targets (resting values) from this sample on, shape (nu,), input units.
@@ -230,6 +232,43 @@ class MPCController:
             raise ValueError(f"u_target: expected {self.settings.nu} finite values, got "
                              f"{arr.tolist()}")
         self.u_target = arr.copy()
+
+    def set_operator_limits(self, fixed=None, u_min=None, u_max=None, y_min=None,
+                            y_max=None) -> None:
+        """An operator's settings from this sample on (None everywhere: none).
+
+        Parameters
+        ----------
+        fixed : array_like of bool, shape (nu,), optional
+            Inputs held where they are (``u(k-1)``, which the caller sets to the held
+            value): all their moves are zero, the others are planned around them.
+        u_min, u_max : array_like, shape (nu,), optional
+            Hard input limits in place of the settings'.
+        y_min, y_max : array_like, shape (ny,), optional
+            Soft output limits in place of the settings', on the rows the settings
+            have (a new finite limit needs :meth:`retune`).
+        """
+        lim = tuple(None if v is None else np.asarray(v, dtype=float).reshape(-1)
+                    for v in (u_min, u_max, y_min, y_max))
+        self.op_limits = None if all(v is None for v in lim) else lim
+        mask = None if fixed is None else np.asarray(fixed, dtype=bool).reshape(-1)
+        self.op_fixed = mask if mask is not None and mask.any() else None
+
+    def retune(self, settings: MPCSettings) -> None:
+        """New weights or limits (same nu, ny, P, M) from the next solve on: every
+        model's formulation is rebuilt when next used (or by ``prepare``)."""
+        s = self.settings
+        if (settings.nu, settings.ny, settings.P, settings.M) != (s.nu, s.ny, s.P, s.M):
+            raise ValueError("settings: retune keeps nu, ny, P and M")
+        self.settings = settings
+        self.cache = FormulationCache(settings, self.cache.terminal_weight)
+        self._solvers = {}
+
+    def _u_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        s, lim = self.settings, self.op_limits
+        if lim is None:
+            return s.u_min, s.u_max
+        return (s.u_min if lim[0] is None else lim[0], s.u_max if lim[1] is None else lim[1])
 
     def set_measured_disturbance(self, d) -> None:
         """Measured disturbance at this sample, before :meth:`step` (feedforward).
@@ -289,7 +328,10 @@ class MPCController:
         elif self.plan is not None:
             self.plan_index = s.M  # plan used up: hold from now on
         du = np.minimum(np.maximum(du, -s.du_max), s.du_max)  # np.clip, without its overhead
-        u = np.minimum(np.maximum(self.u + du, s.u_min), s.u_max)
+        if self.op_fixed is not None:
+            du[self.op_fixed] = 0.0
+        u_min, u_max = self._u_limits()
+        u = np.minimum(np.maximum(self.u + du, u_min), u_max)
         return u, how
 
     def _decision(self, u, view, *, fallback, status, solve_ms, alarms=(), extra=None):
@@ -344,7 +386,12 @@ class MPCController:
             if view.Gamma_d is not None and self.d is not None:
                 dd = self.d - self.d_prev
             self.d_prev = self.d
-            vec = form.qp_vectors(x_a, self.u, R, dd, self.u_target)
+            vec = form.qp_vectors(x_a, self.u, R, dd, self.u_target, self.op_limits)
+            if self.op_fixed is not None:  # held inputs: no move over the horizon
+                held = np.concatenate([np.tile(self.op_fixed, s.M),
+                                       np.zeros(form.nz - form.n_moves, dtype=bool)])
+                vec = replace(vec, lb=np.where(held, 0.0, vec.lb),
+                              ub=np.where(held, 0.0, vec.ub))
             res = solver.solve(vec)
             self.last_result = res
             # The budget covers the sample's work except a one-off (re)build of a
@@ -357,7 +404,13 @@ class MPCController:
                 plan = z[:form.n_moves].reshape(s.M, s.nu)
                 self.plan, self.plan_index = plan.copy(), 0
                 du = np.minimum(np.maximum(plan[0], -s.du_max), s.du_max)  # as np.clip
-                u = np.minimum(np.maximum(self.u + du, s.u_min), s.u_max)
+                if self.op_fixed is None and self.op_limits is None:
+                    u = np.minimum(np.maximum(self.u + du, s.u_min), s.u_max)
+                else:  # an operator's held inputs and limits
+                    if self.op_fixed is not None:
+                        du[self.op_fixed] = 0.0
+                    u_min, u_max = self._u_limits()
+                    u = np.minimum(np.maximum(self.u + du, u_min), u_max)
                 if form.has_slack:
                     extra["slack"] = float(z[-1])
                 extra["predicted"] = form.predict(x_a, z[:form.n_moves], dd)

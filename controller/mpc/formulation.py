@@ -30,6 +30,9 @@ import numpy as np
 
 from controller.mpc.settings import MPCSettings
 
+#: What the QP solvers read as no bound (DAQP's DAQP_INF).
+_OPEN = 1e30
+
 __all__ = [
     "augment",
     "prediction_matrices",
@@ -206,7 +209,32 @@ class DeltaUFormulation:
         return np.concatenate([np.asarray(dx, dtype=float).ravel(),
                                np.asarray(y, dtype=float).ravel()])
 
-    def qp_vectors(self, x_a, u_prev, reference, dd=None, u_target=None) -> QPVectors:
+    def bounds(self, u_min=None, u_max=None, y_min=None, y_max=None):
+        """``(bl, bu)`` of the general rows for input and soft output limits other than
+        the settings' (None: the settings'), e.g. an operator's limits of this sample.
+
+        Only the rows the settings made are there (a limit finite where the settings'
+        is infinite needs a formulation built with a finite one); a non-finite value
+        in such a row leaves it open (±1e30, the solvers' infinity).
+        """
+        s = self.settings
+        pick = lambda v, d: d if v is None else np.asarray(v, dtype=float)  # noqa: E731
+        umin, umax = pick(u_min, s.u_min), pick(u_max, s.u_max)
+        ymin, ymax = pick(y_min, s.y_min), pick(y_max, s.y_max)
+        n_max = self.ymax_rows.size
+        rows = self.input_rows
+        bl = np.concatenate([np.tile(umin, s.M)[rows], np.full(n_max, -np.inf),
+                             np.tile(ymin, s.P)[self.ymin_rows]])
+        bu = np.concatenate([np.tile(umax, s.M)[rows], np.tile(ymax, s.P)[self.ymax_rows],
+                             np.full(self.ymin_rows.size, np.inf)])
+        n_fixed = rows.size + n_max  # open rows that the settings have open stay inf
+        bl[:rows.size] = np.maximum(bl[:rows.size], -_OPEN)
+        bu[:n_fixed] = np.minimum(bu[:n_fixed], _OPEN)
+        bl[n_fixed:] = np.maximum(bl[n_fixed:], -_OPEN)
+        return bl, bu
+
+    def qp_vectors(self, x_a, u_prev, reference, dd=None, u_target=None,
+                   limits=None) -> QPVectors:
         """QP vectors at one sample.
 
         Parameters
@@ -223,6 +251,8 @@ class DeltaUFormulation:
         u_target : ndarray, shape (nu,), optional
             Input targets at this sample (default ``settings.u_target``); only used
             when ``settings.u_target_weight`` has a positive entry.
+        limits : tuple (u_min, u_max, y_min, y_max), optional
+            This sample's limits in place of the settings' (see :meth:`bounds`).
         """
         s = self.settings
         R = np.asarray(reference, dtype=float)
@@ -240,8 +270,11 @@ class DeltaUFormulation:
             f[:self.n_moves] += self.F_ut @ np.tile(np.asarray(u_prev, dtype=float) - ut, s.M)
         if self.has_slack:
             f[-1] = s.slack_linear
-        bl = self._bl0.copy()
-        bu = self._bu0.copy()
+        if limits is None:
+            bl = self._bl0.copy()
+            bu = self._bu0.copy()
+        else:
+            bl, bu = self.bounds(*limits)
         n_in, n_max = self._n_in, self._n_max
         if n_in:
             up = np.asarray(u_prev, dtype=float)[self._in_idx]

@@ -178,6 +178,18 @@ class MPCLaw:
         """
         self.mpc.set_input_target(u_target)
 
+    def set_operator_limits(self, **limits) -> None:
+        """An operator's held inputs and limits from this sample on
+        (:meth:`controller.mpc.controller.MPCController.set_operator_limits`)."""
+        self.mpc.set_operator_limits(**limits)
+
+    def retune(self, settings: MPCSettings, ssm) -> None:
+        """New weights or limits (same sizes and horizons): every model's QP rebuilt now
+        (TE: ~3 ms for four models), the law's dynamic state kept."""
+        self.mpc.retune(settings)
+        self.settings = settings
+        self.prepare(ssm)
+
     @property
     def input_target(self) -> np.ndarray:
         """The input targets in force, shape (nu,) (a copy)."""

@@ -75,8 +75,12 @@ class PIBaseline:
         self.e_prev = None
 
     def applied(self, u) -> None:
-        """The plant got ``u`` instead of the last move: the velocity form goes on from it."""
-        self.u = np.clip(np.asarray(u, dtype=float), self.u_min, self.u_max)
+        """The plant got ``u`` instead of the last move (a missed deadline, warm mode, an
+        MV held by the operator): the velocity form goes on from it, so a release is
+        bumpless."""
+        u = np.asarray(u, dtype=float).reshape(-1)
+        if u.shape == self.u.shape and np.all(np.isfinite(u)):
+            self.u = np.minimum(np.maximum(u, self.u_min), self.u_max)
 
     def checkpoint(self) -> dict[str, Any]:
         return {"u": self.u.tolist(),
@@ -127,6 +131,8 @@ class HoldController:
         self.u = np.asarray(u, dtype=float).copy()
 
     def applied(self, u) -> None:
+        """The move in force is ``u`` (a missed deadline, an MV held by the operator):
+        hold that one."""
         self.u = np.asarray(u, dtype=float).copy()
 
     def checkpoint(self) -> dict[str, Any]:

@@ -1,5 +1,7 @@
 """``ssmpc transition UNIT GRADE``, ``ssmpc abort UNIT [ID]``, ``ssmpc status UNIT``,
-``ssmpc disturbance UNIT NAME VALUE``: a thin REST client for operators.
+``ssmpc disturbance UNIT NAME VALUE``, ``ssmpc mode UNIT off|warm|on``,
+``ssmpc variable UNIT NAME [--mode M] [--value X] [--lo X] [--hi X] [--ramp-per-h X]``:
+a thin REST client for operators.
 
 Talks to an api node (``--api``, default http://127.0.0.1:8000; the token from
 ``--token`` or ``SSMPC_API_TOKEN``). Readable text by default, ``--json`` for
@@ -8,6 +10,7 @@ scripts (one object on the last stdout line).
 
 from __future__ import annotations
 
+import math
 import os
 import time
 
@@ -49,6 +52,27 @@ def register(sub) -> None:
     p.add_argument("value", type=float, help="new value (TE IDVs: 1 on, 0 off)")
     _common(p)
     p.set_defaults(func=run_disturbance)
+
+    p = sub.add_parser("mode", help="set the controller mode: off (nothing computed or "
+                                    "written), warm (computed, not written), on")
+    p.add_argument("unit")
+    p.add_argument("mode", choices=("off", "warm", "on"))
+    _common(p)
+    p.set_defaults(func=run_mode)
+
+    p = sub.add_parser("variable", help="operator action on one CV or MV: its mode, held "
+                                        "value, limits and their ramp")
+    p.add_argument("unit")
+    p.add_argument("name", help="CV or MV name (e.g. XMEAS7, XMV3, reactor_pressure_sp)")
+    p.add_argument("--mode", choices=("auto", "manual", "off"), default=None,
+                   help="CV: auto|off; MV: auto|manual|off")
+    p.add_argument("--value", type=float, default=None, help="manual MV: value to hold")
+    p.add_argument("--lo", type=float, default=None, help="operator low limit")
+    p.add_argument("--hi", type=float, default=None, help="operator high limit")
+    p.add_argument("--ramp-per-h", type=float, default=None,
+                   help="rate a changed limit moves at, engineering units per hour")
+    _common(p)
+    p.set_defaults(func=run_variable)
 
     p = sub.add_parser("status", help="show a unit's status through the REST API")
     p.add_argument("unit")
@@ -153,6 +177,45 @@ def run_disturbance(args) -> int:
     return 0
 
 
+def _send(args, method: str, path: str, body: dict) -> dict:
+    import httpx
+
+    with _client(args) as c:
+        try:
+            return _check(c.request(method, path, json=body))
+        except httpx.HTTPError as exc:
+            raise CLIError(f"api: cannot reach {args.api}: {exc}") from exc
+
+
+def run_mode(args) -> int:
+    out = _send(args, "PUT", f"/api/v1/units/{args.unit}/mode", {"mode": args.mode})
+    if args.json:
+        emit_json(out)
+    else:
+        print(f"{args.unit}: controller {out['previous']} -> {out['mode']}")
+    return 0
+
+
+def run_variable(args) -> int:
+    body = {k: getattr(args, k) for k in ("mode", "value", "lo", "hi", "ramp_per_h")
+            if getattr(args, k) is not None}
+    if not body:
+        raise CLIError("variable: nothing to change; give --mode, --value, --lo, --hi or "
+                       "--ramp-per-h")
+    for k, v in body.items():
+        if k != "mode" and not math.isfinite(v):
+            raise CLIError(f"--{k.replace('_', '-')}: must be a finite number")
+    v = _send(args, "PATCH", f"/api/v1/units/{args.unit}/variables/{args.name}", body)
+    if args.json:
+        emit_json(v)
+    else:
+        print(f"{args.unit}: {v['name']} mode {v.get('mode') or '-'}  value "
+              f"{_fmt(v.get('value'), 0).strip()}  target {_fmt(v.get('target'), 0).strip()}  "
+              f"limits [{_fmt(v.get('lo'), 0).strip()}, {_fmt(v.get('hi'), 0).strip()}] "
+              f"{v.get('unit', '')}")
+    return 0
+
+
 #: The text view fits this many columns.
 STATUS_WIDTH = 100
 
@@ -164,6 +227,8 @@ def _fmt(v, width: int) -> str:
 
 
 def _flag(v: dict, alarmed: set[str]) -> str:
+    if v.get("mode") in ("manual", "off"):
+        return "MAN" if v["mode"] == "manual" else "OFF"
     if v.get("at_limit") == "hi":
         return "HI"
     if v.get("at_limit") == "lo":
@@ -175,8 +240,9 @@ def status_lines(st: dict, show_all: bool = False) -> list[str]:
     """The text view of a status document (each line at most :data:`STATUS_WIDTH`).
 
     CVs shown: the tracked ones, those at a limit or in alarm (``--all``: every CV);
-    every MV. The last column marks a variable at its high or low limit (``HI``,
-    ``LO``) or named by an alarm (``!``).
+    every MV. The last column marks a variable the operator holds (``MAN``) or
+    switched off (``OFF``), one at its high or low limit (``HI``, ``LO``) or named by an
+    alarm (``!``).
     """
     out = []
     tr = st.get("transition")
@@ -189,7 +255,8 @@ def status_lines(st: dict, show_all: bool = False) -> list[str]:
     out.append(f"{st['unit']} ({st['plant']})  sample {st['sample']}  "
                f"t {st['process_time_s'] / 3600:.3f} h  grade {grade}")
     solve = st.get("solve_ms")
-    out.append(f"controller {st.get('controller_status') or '-'}  solve "
+    out.append(f"controller {(st.get('controller_mode') or 'on').upper()} "
+               f"{st.get('controller_status') or '-'}  solve "
                f"{'-' if solve is None else f'{solve:.3f} ms'} of {st['budget_ms']:.3g} ms  "
                f"deadline misses {st['deadline_misses']}  fallback {st['fallback_moves']}  "
                f"failed {st.get('failed_samples', 0)}")

@@ -43,7 +43,13 @@ is told (``applied``) and goes on from what the plant got.
 
 Queries on ``ssmpc/<unit>/cmd/<action>`` with a :class:`~services.io.messages.Request`:
 ``status``, ``grades``, ``transition`` (``args.op``: ``create`` with ``grade``
-and optional ``duration_s``; ``get`` / ``abort`` with ``id``; ``list``).
+and optional ``duration_s``; ``get`` / ``abort`` with ``id``; ``list``), and the
+operator's ``mode`` and ``variable`` (:mod:`services.nodes.operator_commands`).
+
+Operator control (:class:`controller.units.operator.OperatedController`): in mode
+``off`` nothing is computed and in ``warm`` the move is computed and reported
+(``computed_mv``) but neither writes a move (no watchdog either: the plant holds its
+move and regulatory layer); per-variable modes and limits apply from the next sample.
 """
 
 from __future__ import annotations
@@ -63,11 +69,13 @@ import numpy as np
 from controller.blas import single_threaded_blas
 from controller.interfaces import ControlDecision
 from controller.units.config import UnitConfig, build_plant, cv_scales, plausible_ranges, unit_info
+from controller.units.operator import operate
 from controller.units.takeover import align_multimodel, continue_from_applied
 from controller.units.variables import at_limit, unit_variables
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.io.zenoh_session import declare_loop_publisher, declare_loop_subscriber
+from services.nodes import operator_commands
 from services.nodes.ramp_in import STEP_WINDOW, MoveHistory, RampIn
 from services.registry import build_controller
 from services.store import StoreError, UnitStore
@@ -240,6 +248,8 @@ class ControllerNode:
         self.controller = controller if controller is not None else build_controller(
             cfg, plant, self.u_last, grades)
         self.horizon = int(getattr(self.controller, "horizon", self.horizon))
+        #: the controller under the operator's mode and per-variable settings
+        self.operated = operate(cfg, plant, self.controller, grades)
         # Transitions follow the tracked CVs (cfg.track; all CVs when empty).
         self.track_names = cfg.track or self.info.cv_names
         self.track_idx = [self.info.cv_names.index(n) for n in self.track_names]
@@ -312,6 +322,8 @@ class ControllerNode:
         self._watchdog = Watchdog(period_hint_s=self.budget.wall_period_s)
         self._mv_pub = plant_link if plant_link is not None else declare_loop_publisher(
             session, keys.mv(cfg.unit))
+        self.plant_link = plant_link
+        operator_commands.publish_mode(self)  # a restored mode to the DCS too
         self._status_pub = session.declare_publisher(keys.status(cfg.unit))
         self.busy_poll = bool(busy_poll)
         self._sub = plant_link.subscribe(self._on_meas) if plant_link is not None \
@@ -357,6 +369,8 @@ class ControllerNode:
                     self._restored_steps = steps
                 self.k = int(cp["sample"])
                 self.t = float(cp["process_time"])
+                if st.get("operator") is not None:
+                    self.operated.operator_restore(st["operator"])
             except (KeyError, TypeError, ValueError, IndexError) as exc:
                 raise StoreError(f"store: {self.store.path}: the checkpoint does not fit "
                                  f"this controller ({type(exc).__name__}: {exc}); move the "
@@ -432,6 +446,7 @@ class ControllerNode:
                      "transitions": self.tm.checkpoint(), "u_last": self.u_last.tolist(),
                      "mv_seq": self.mv_seq, "deadline_misses": self.stats.misses,
                      "fallback_moves": self.stats.fallbacks,
+                     "operator": self.operated.operator_checkpoint(),
                      "recording_id": getattr(self.telemetry, "recording_id", None)}
             steps = self._moves.steps()
             if steps is None:
@@ -602,6 +617,14 @@ class ControllerNode:
             with self._lock:
                 self.alarms.append(f"sample {item[1].seq} failed: {exc}")
 
+    def _off_decision(self, u_plant) -> ControlDecision:
+        """The decision of a sample in mode ``off``: the plant's move, nothing computed."""
+        d = self.last_decision
+        names = () if d is None else d.model_names
+        return ControlDecision(u=np.asarray(u_plant, float), active_model=-1,
+                               model_names=names, J=np.full(len(names), np.nan),
+                               status="off")
+
     def _failed_decision(self, seq: int, hold: np.ndarray, exc: Exception) -> ControlDecision:
         """The decision of a sample whose controller step raised: the last move held,
         counted as failed (``failed_samples``), status ``failed`` and an alarm; the
@@ -645,6 +668,8 @@ class ControllerNode:
             return Reply(200, self.grades())
         if req.action == "transition":
             return self._transition(req.args)
+        if req.action in ("mode", "variable"):  # operator actions
+            return operator_commands.handle(self, req.action, req.args)
         if req.action == "sample_times":  # diagnostics: where a late move's time went
             try:
                 found = self.sample_times.lookup(req.args.get("seqs"))
@@ -757,6 +782,9 @@ class ControllerNode:
                     return Reply(422, error="Idempotency-Key: already used by another request "
                                             f"(transition {record['id']})")
                 return Reply(202, Transition.from_dict(record).view(self.t, self.budget.speed))
+        if self.operated.mode != "on":  # nobody would move the plant along it
+            return Reply(409, error=f"controller: {self.operated.mode}, it writes no moves; "
+                                    "put it on (mode on) before a transition")
         # A controller that knows grades it cannot hold refuses them now, not
         # inside a later sample (the transition would run toward nothing).
         check = getattr(self.controller, "check_grade", None)
@@ -817,8 +845,13 @@ class ControllerNode:
                 "process_time_s": self.t, "speed": self.budget.speed,
                 "cv": named(self.info.cv_names, self.y),
                 "ref": named(self.track_names, self.r),
+                "controller_mode": self.operated.mode,
                 "variables": self._variables_view(),
                 "mv": named(self.info.mv_names, self.u_last),
+                # warm: the move the controller would write (None otherwise)
+                "computed_mv": (named(self.info.mv_names, d.extra["computed_u"])
+                                if d is not None and self.operated.mode == "warm"
+                                and "computed_u" in d.extra else None),
                 "active_model": None if d is None else int(d.active_model),
                 "active_model_name": (None if d is None or not d.model_names
                                       or d.active_model < 0
@@ -868,15 +901,21 @@ class ControllerNode:
         values = {"cv": dict(zip(self.info.cv_names, self.y)),
                   "mv": dict(zip(self.info.mv_names, self.u_last))}
         targets = dict(zip(self.track_names, self.r))
+        op, t_h = self.operated.state, self.t / 3600.0
         out = []
         for v in self.variables:
             x = values.get(v.kind, {}).get(v.name)
             x = float(x) if x is not None and math.isfinite(x) else None
             tgt = targets.get(v.name) if v.kind == "cv" else None
+            mode = op.variable_mode(v.name)
+            if v.kind == "mv" and mode in ("manual", "off"):
+                tgt = op.control(v.name).value  # the held value
+            lo, hi = op.effective_limits(v.name, t_h)  # the operator's, ramped
             out.append({**v.as_dict(), "value": x,
                         "target": float(tgt) if tgt is not None and math.isfinite(tgt) else None,
-                        "at_limit": at_limit(x, v.lo, v.hi),
-                        "mode": "auto" if v.kind != "dv" else None})
+                        "lo": float(lo) if math.isfinite(lo) else None,
+                        "hi": float(hi) if math.isfinite(hi) else None,
+                        "at_limit": at_limit(x, lo, hi), "mode": mode})
         return out
 
     # -- the sample ----------------------------------------------------------------------
@@ -928,6 +967,7 @@ class ControllerNode:
                                        f"controller did not send ({self._foreign_moves} "
                                        "samples so far)")
         hold = self.u_last.copy()
+        writes = self.operated.writes  # off/warm: nothing is written this sample
         y = np.asarray(msg.y, float)
         outside = (y < self.y_lower) | (y > self.y_upper)
         if np.any(outside):
@@ -939,10 +979,12 @@ class ControllerNode:
                 self.alarms.append(f"implausible measurement at sample {msg.seq} "
                                    f"({', '.join(names)} out of range): move held")
                 self.stats.record(time.perf_counter() - arrived, fallback=True)
-            self._publish_mv(msg.seq, hold, True)
+            if writes:
+                self._publish_mv(msg.seq, hold, True)
             return
         deadline = arrived + self.budget.budget_s
-        self._watchdog.arm(deadline, lambda: self._publish_mv(msg.seq, hold, True))
+        if writes:
+            self._watchdog.arm(deadline, lambda: self._publish_mv(msg.seq, hold, True))
         with self._lock:
             self.k, self.t = msg.seq, msg.t
             self.y = np.asarray(msg.y, float)
@@ -965,14 +1007,18 @@ class ControllerNode:
             self.r = ref[0]
         t_step = time.perf_counter()
         try:
-            decision = self.controller.step(msg.seq, msg.t, self.y, ref)
+            decision = self.operated.step(msg.seq, msg.t, self.y, ref, msg.u)
+            if decision is None:  # off: nothing computed, the plant holds its move
+                decision = self._off_decision(msg.u)
         except Exception as exc:  # documented safe action: the move is held, loop goes on
             decision = self._failed_decision(msg.seq, hold, exc)
         t_stepped = time.perf_counter()
-        fired = self._watchdog.disarm()
+        fired = self._watchdog.disarm() if writes else False
         t_disarmed = time.perf_counter()
         u = np.asarray(decision.u, float)
-        if not fired:
+        if not writes:
+            u = np.asarray(msg.u, float)  # what the plant holds
+        elif not fired:
             if u.shape != (self.nu,) or not np.all(np.isfinite(u)):
                 self.alarms.append(f"controller returned an invalid move at sample {msg.seq}; "
                                    "held")
@@ -992,7 +1038,7 @@ class ControllerNode:
         cpu_ms = (time.thread_time() - cpu_begin) * 1e3
         sw_end = thread_switches()
         with self._lock:
-            self.stats.record(elapsed, fallback=fired or decision.fallback)
+            self.stats.record(elapsed, fallback=fired or (writes and decision.fallback))
             self.stats.note_phases(elapsed, {
                 "sample": msg.seq, "at_unix_s": time.time() - elapsed,
                 "queue_ms": (t_begin - arrived) * 1e3,

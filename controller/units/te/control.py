@@ -240,10 +240,33 @@ class TEController:
         # the plan's references of the next sample, evaluated after the move
         # (finish_sample): (t, plan, refs) or None
         self._refs_ahead: tuple | None = None
+        #: XMEAS numbers of outer loops held by the operator (hold_outer_loops)
+        self.outer_held: frozenset[int] = frozenset()
 
     def retarget(self, plan: TransitionPlan) -> None:
         """Follow a new plan from now on (times are absolute, h)."""
         self.plan = plan
+
+    # -- operator hooks (controller.units.te.operator) ------------------------------------
+    #: The outer loops by their CV (XMEAS number): production (17), A in feed (23),
+    #: G in product on the D share (40).
+    OUTER_LOOP_CVS = (17, 23, 40)
+
+    def hold_outer_loops(self, cvs) -> None:
+        """Hold the outer loops of these CVs (XMEAS numbers of :data:`OUTER_LOOP_CVS`):
+        their integral (trim, D share) keeps its value while the error is still
+        followed, so a loop released again starts without a proportional kick."""
+        self.outer_held = frozenset(int(c) for c in cvs)
+
+    def track_ratio(self, xmv2: float, d_meas: float) -> None:
+        """Output tracking of the E/D ratio (§7.7): the D share that gives the applied
+        E feed valve ``xmv2`` (%) at the measured D feed ``d_meas`` (XMEAS 2, kg/h), so
+        the next move of XMV(2) starts from the valve's value. Ignored when either is
+        not finite or the valve is shut."""
+        if not (math.isfinite(xmv2) and math.isfinite(d_meas) and xmv2 > 0 and d_meas > 0):
+            return
+        s = d_meas / (d_meas + xmv2 * _E_FULL_KG_H / 100.0)
+        self.s = min(max(s, self.ratio.s_min), self.ratio.s_max)
 
     #: A sample within this of the previous one + ``sample_h`` is on the grid (h; 3.6 us)
     GRID_TOL_H = 1e-9
@@ -280,8 +303,9 @@ class TEController:
             e = float(ym[lp.cv - 1]) - y
             if self.e_p_prev is None:
                 self.e_p_prev = e
-            self.p_trim += lp.gain * ((e - self.e_p_prev) + self.sample_h / lp.ti_h * e)
-            self.p_trim = min(max(self.p_trim, -P_TRIM_MAX), P_TRIM_MAX)
+            if lp.cv not in self.outer_held:
+                self.p_trim += lp.gain * ((e - self.e_p_prev) + self.sample_h / lp.ti_h * e)
+                self.p_trim = min(max(self.p_trim, -P_TRIM_MAX), P_TRIM_MAX)
             self.e_p_prev = e
         return self.p_trim
 
@@ -294,8 +318,9 @@ class TEController:
             e = float(ym[A_FEED_LOOP.cv - 1]) - y
             if self.e_a_prev is None:
                 self.e_a_prev = e
-            self.a_trim += A_FEED_LOOP.gain * ((e - self.e_a_prev)
-                                               + self.sample_h / A_FEED_LOOP.ti_h * e)
+            if A_FEED_LOOP.cv not in self.outer_held:
+                self.a_trim += A_FEED_LOOP.gain * ((e - self.e_a_prev)
+                                                   + self.sample_h / A_FEED_LOOP.ti_h * e)
             self.a_trim = min(max(self.a_trim, -A_TRIM_MAX), A_TRIM_MAX)
             self.e_a_prev = e
         return self.a_trim
@@ -319,7 +344,9 @@ class TEController:
             e = float(ym[39] - g)
             if self.e_g_prev is None:
                 self.e_g_prev = e
-            s += self.ratio.gain * ((e - self.e_g_prev) + self.sample_h / self.ratio.ti_h * e)
+            if 40 not in self.outer_held:
+                s += self.ratio.gain * ((e - self.e_g_prev)
+                                        + self.sample_h / self.ratio.ti_h * e)
             self.e_g_prev = e
         self.s = min(max(s, self.ratio.s_min), self.ratio.s_max)
         return self.s

@@ -12,6 +12,7 @@ grades). An abort (or a failed transition) holds the references where they are
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -20,9 +21,13 @@ from controller.interfaces import ControlDecision
 from controller.units.takeover import align_multimodel
 from controller.units.te.control import CORE_NAMES, make_te_controller
 from controller.units.te.grades import Leg, TransitionPlan, check_reachable
+from controller.units.te.operator import TEOperatorLayer
 from controller.units.te.structure import te_mv_names, te_setpoint_name
 
 __all__ = ["HeldPlan", "TEServiceController", "build"]
+
+#: The TE unit's CVs (:data:`controller.units.te.structure.TE_XMEAS`).
+_TE_XMEAS = tuple(f"XMEAS{i}" for i in range(1, 42))
 
 
 class HeldPlan:
@@ -92,6 +97,13 @@ class TEServiceController:
             else:
                 raise ValueError(f"mvs: {name!r} is neither an XMV nor a set point of the "
                                  f"TE controller's loops ({', '.join(sp_names)})")
+        alias = {"Tr_sp": "reactor_temperature_sp", "Pr_sp": "reactor_pressure_sp"}
+        self._core_idx = [self.mvs.index(alias.get(n, n)) if alias.get(n, n) in self.mvs
+                          else None for n in CORE_NAMES]
+        self.operator = TEOperatorLayer(self.ctl, self.mvs, self._core_idx)
+        self._xmv2 = self.mvs.index("XMV2") if "XMV2" in self.mvs else None
+        self._d_meas = math.nan  # the latest XMEAS 2 (D feed), kg/h
+        self._track_ratio_u: float | None = None  # XMV 2 to track at the next step
 
     def _apply_plan(self) -> None:
         d = self.plan_def
@@ -129,8 +141,25 @@ class TEServiceController:
             d["freeze_h"] = t_s / 3600.0
         self._apply_plan()
 
+    # -- operator control (controller.units.operator) -----------------------------------
+    def operator_capabilities(self, cv_names, mv_names) -> dict[str, dict]:
+        """What an operator may set per variable (:class:`TEOperatorLayer`)."""
+        return self.operator.capabilities(cv_names, mv_names)
+
+    def set_operator(self, view) -> None:
+        """The operator's settings for the coming step (held handles, limits, CVs off)."""
+        self.operator.apply(view, _TE_XMEAS)
+
     def step(self, k: int, t: float, y, reference) -> ControlDecision:
-        dec = self.ctl.step(k, t / 3600.0, np.asarray(y, dtype=float), None)
+        y = np.asarray(y, dtype=float)
+        if y.shape == (41,):
+            self._d_meas = float(y[1])
+            if self._track_ratio_u is not None:  # a take-over: start from the valve
+                track = getattr(self.ctl, "track_ratio", None)
+                if callable(track):
+                    track(self._track_ratio_u, self._d_meas)
+                self._track_ratio_u = None
+        dec = self.ctl.step(k, t / 3600.0, y, None)
         u_full = np.asarray(dec.u, dtype=float)
         sp = np.asarray(dec.extra.get("setpoints", np.full(len(self.spec.loops), np.nan)),
                         dtype=float)
@@ -150,34 +179,35 @@ class TEServiceController:
         :meth:`controller.units.te.control.TEController.finish_sample`)."""
         self.ctl.finish_sample()
 
-    def _core_index(self) -> list[int] | None:
-        """Positions of the core's five handles (:data:`CORE_NAMES`) in the move, or None
-        when the unit's MVs do not carry them all."""
-        alias = {"Tr_sp": "reactor_temperature_sp", "Pr_sp": "reactor_pressure_sp"}
-        idx = [self.mvs.index(alias.get(n, n)) if alias.get(n, n) in self.mvs else None
-               for n in CORE_NAMES]
-        return None if None in idx else idx
-
     def applied(self, u) -> None:
-        """The plant got ``u`` instead of the last move (a missed deadline): the
-        controller goes on from it (:meth:`TEController.applied` for the core)."""
+        """The move in force over the coming sample is ``u``, not the last decision (a
+        missed deadline, warm mode, an MV the operator holds): the core goes on from its
+        handles (:meth:`TEController.applied`) and the E/D ratio from the applied XMV 2."""
         self.u = np.asarray(u, dtype=float).copy()
-        idx = self._core_index()
+        idx = self._core_idx
         applied = getattr(self.ctl, "applied", None)
-        if idx is not None and callable(applied):
+        if None not in idx and callable(applied):
             applied(self.u[idx])
+        track = getattr(self.ctl, "track_ratio", None)
+        if self._xmv2 is not None and callable(track):
+            track(float(self.u[self._xmv2]), self._d_meas)
 
     def align(self, u) -> None:
         """Take over the plant's move: the core (five handles,
         :data:`~controller.units.te.control.CORE_NAMES`) restarts from the matching
-        valves and set points (re-initialized dynamics)."""
+        valves and set points (re-initialized dynamics), the outer loops without their
+        previous errors and the E/D ratio from the applied XMV 2 at the next sample."""
         self.u = np.asarray(u, dtype=float).copy()
         take_over = getattr(self.ctl, "take_over", None)
         if callable(take_over):
             take_over()
-        idx = self._core_index()
-        if idx is not None:
+        idx = self._core_idx
+        if None not in idx:
             align_multimodel(getattr(self.ctl, "core", None), self.u[idx])
+        # the E/D ratio takes over from the plant too (a stale D share would kick the
+        # first moves of XMV 2)
+        if self._xmv2 is not None:
+            self._track_ratio_u = float(self.u[self._xmv2])
 
     def checkpoint(self) -> dict[str, Any]:
         return {"ctl": self.ctl.checkpoint(), "plan": self.plan_def, "u": self.u.tolist()}

@@ -108,6 +108,9 @@ class ControllerOPCUALink:
         self._stop: asyncio.Event | None = None
         self._client = None
         self._beat = 0
+        #: the controller mode written to ``Status/ControllerMode`` with every heartbeat
+        #: and move (``on``, ``warm`` or ``off``; the node sets it)
+        self.controller_mode = "on"
         self._last_write = 0.0
         self._last_seq = -1
         self._arrived = 0.0
@@ -321,7 +324,7 @@ class ControllerOPCUALink:
 
     def _beat_values(self):
         self._beat = (self._beat + 1) % 2**32
-        return [ua.DataValue(ua.Variant("on", ua.VariantType.String)),
+        return [ua.DataValue(ua.Variant(self.controller_mode, ua.VariantType.String)),
                 ua.DataValue(ua.Variant(self._beat, ua.VariantType.UInt32))]
 
     async def _write_beat(self) -> None:
