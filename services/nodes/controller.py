@@ -40,7 +40,14 @@ restart (bumpless).
 
 Queries on ``ssmpc/<unit>/cmd/<action>`` with a :class:`~services.io.messages.Request`:
 ``status``, ``grades``, ``transition`` (``args.op``: ``create`` with ``grade``
-and optional ``duration_s``; ``get`` / ``abort`` with ``id``; ``list``).
+and optional ``duration_s``; ``get`` / ``abort`` with ``id``; ``list``), ``events``
+(:mod:`services.events_query`).
+
+Events (:mod:`services.events`): every transition state change, every operator
+action (with the ``identity`` the api node puts in the request's args) and every
+alarm of the controller raised or cleared go to the store's event log; an operator
+action is committed with the change it makes, before the reply
+(:meth:`ControllerNode.record_action` for actions that change no transition).
 """
 
 from __future__ import annotations
@@ -61,6 +68,8 @@ from controller.interfaces import ControlDecision
 from controller.units.config import UnitConfig, build_plant, cv_scales, plausible_ranges, unit_info
 from controller.units.takeover import align_multimodel
 from controller.units.variables import at_limit, unit_variables
+from services.events import AlarmTracker, action_event, identity_of, transition_event
+from services.events_query import events_reply
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.io.zenoh_session import declare_loop_publisher, declare_loop_subscriber
@@ -296,6 +305,8 @@ class ControllerNode:
         # running plant a measurement can be processed before __init__ returns.
         self._align_pending = True
         self._restore()
+        #: alarms raised and not cleared, as the event log has them (no second raise)
+        self.alarm_events = AlarmTracker(self.store.active_alarms())
         self._watchdog = Watchdog(period_hint_s=self.budget.wall_period_s)
         self._mv_pub = plant_link if plant_link is not None else declare_loop_publisher(
             session, keys.mv(cfg.unit))
@@ -377,7 +388,8 @@ class ControllerNode:
                 tr.state, tr.ended_t = "failed", self.t
                 tr.detail = "interrupted by a restart before its start was checkpointed"
                 self.store.save_transition(tr.as_dict(), event="failed", process_time=self.t,
-                                           detail=tr.detail)
+                                           detail=tr.detail, events=(transition_event(
+                                               tr.as_dict(), "failed", self.t),))
                 self.alarms.append(f"transition {tr.id}: {tr.detail}")
 
     # -- the store's health --------------------------------------------------------------
@@ -476,8 +488,26 @@ class ControllerNode:
         self._worker.submit(self._save_transition, tr.as_dict(), event, self.t,
                             detail or tr.detail)
 
-    def _save_transition(self, record, event, t, detail) -> None:
-        self.store.save_transition(record, event=event, process_time=t, detail=detail)
+    def _save_transition(self, record, event, t, detail, actions=()) -> None:
+        """The record, its state change and the event log's entries (``actions``: the
+        operator's, then the state change's) in one transaction."""
+        self.store.save_transition(record, event=event, process_time=t, detail=detail,
+                                   events=(*actions, transition_event(record, event, t)))
+
+    def record_action(self, what: str, detail: dict, identity: str, *,
+                      event_id: str | None = None) -> Reply | None:
+        """Commit an operator action (``action.<what>``, e.g. ``"mode"`` with
+        ``{"mode": "on"}``, by ``identity``) to the event log; call it after the request
+        is checked and before the action is acknowledged. None once committed; else the
+        503 reply to send (the store degraded, with an alarm)."""
+        event = action_event(what, detail, identity, self.t, event_id=event_id)
+        try:
+            self._worker.call(self.store.add_events, [event])
+        except (sqlite3.Error, TimeoutError) as exc:
+            self._store_failed(f"operator action {event.kind}", exc)
+            return Reply(503, error=f"store: cannot commit the action ({exc}); retry later")
+        self._store_ok()
+        return None
 
     # -- Zenoh callbacks -----------------------------------------------------------------
     def _on_plant_liveliness(self, sample) -> None:
@@ -614,6 +644,9 @@ class ControllerNode:
             return Reply(200, self.grades())
         if req.action == "transition":
             return self._transition(req.args)
+        if req.action == "events":
+            self._worker.wait()  # what was submitted before this query is in the store
+            return events_reply(self.store, req.args)
         if req.action == "sample_times":  # diagnostics: where a late move's time went
             try:
                 found = self.sample_times.lookup(req.args.get("seqs"))
@@ -652,10 +685,11 @@ class ControllerNode:
             key = args.get("idempotency_key")
             if key is not None and not (isinstance(key, str) and 0 < len(key) <= 255):
                 return Reply(422, error="idempotency_key: expected a string of 1..255")
+            who = identity_of(args)
             if key is None:
-                return self._create(grade, duration, queue, None)
+                return self._create(grade, duration, queue, None, who)
             with self._create_lock:  # two requests with one key make one transition
-                return self._create(grade, duration, queue, key)
+                return self._create(grade, duration, queue, key, who)
         tid = args.get("id")
         if not isinstance(tid, str):
             return Reply(422, error="id: expected a transition id")
@@ -674,9 +708,12 @@ class ControllerNode:
                     view = tr.view(self.t, self.budget.speed)
             if active:
                 if changed:
+                    action = action_event("transition.abort", {
+                        "transition": tid, "grade": record["grade"]}, identity_of(args), t,
+                        event_id=f"action-{tid}-abort")
                     try:  # committed before it is acknowledged
                         self._worker.call(self._save_transition, record, "aborted", t,
-                                          tr.detail)
+                                          tr.detail, (action,))
                     except (sqlite3.Error, TimeoutError) as exc:
                         # the abort holds the set points (the safe side) but is not durable
                         self._store_failed(f"abort of {tid}", exc)
@@ -687,9 +724,10 @@ class ControllerNode:
                 return Reply(200, view)
         return Reply(200, self._view(tid))
 
-    def _create(self, grade: str, duration, queue: bool, key: str | None) -> Reply:
+    def _create(self, grade: str, duration, queue: bool, key: str | None,
+                identity: str) -> Reply:
         """A new transition (202), or, for a known idempotency ``key``, the one that key
-        made (202 again; 422 when the request differs)."""
+        made (202 again; 422 when the request differs); ``identity`` made the request."""
         request = {"key": key, "grade": grade,
                    "duration_s": None if duration is None else float(duration), "queue": queue}
         if key is not None:
@@ -719,8 +757,13 @@ class ControllerNode:
                                      idempotency=None if key is None else request)
                 record, t = tr.as_dict(), self.t
             detail = "queued" if tr.detail == "queued" else f"requested from {tr.from_grade}"
+            action = action_event(
+                "transition.queue" if tr.detail == "queued" else "transition.create",
+                {"transition": tr.id, "grade": grade, "duration_h": tr.duration_s / 3600.0,
+                 "queue": queue}, identity, t, event_id=f"action-{tr.id}-create")
             try:  # committed before it is admitted and acknowledged
-                self._worker.call(self._save_transition, record, "pending", t, detail)
+                self._worker.call(self._save_transition, record, "pending", t, detail,
+                                  (action,))
             except (sqlite3.Error, TimeoutError) as exc:
                 self._store_failed(f"transition {tr.id}", exc)  # never admitted: not run
                 return Reply(503, error=f"store: cannot commit, transition not accepted "
@@ -962,6 +1005,10 @@ class ControllerNode:
                 for alarm in new:
                     self.telemetry.event(msg.seq, msg.t, alarm, "WARN")
             self._alarms_logged = set(decision.alarms)
+            alarm_events = self.alarm_events.update(decision.alarms, msg.seq, msg.t,
+                                                    (self._plant_incarnation or "")[:8])
+            if alarm_events:
+                self._worker.submit(self.store.add_events, alarm_events)
             finish = getattr(self.controller, "finish_sample", None)
             if callable(finish):  # the sample's bookkeeping, now that the move is out
                 try:
