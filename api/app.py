@@ -76,13 +76,24 @@ from services.io.messages import Reply
 
 __all__ = ["create_app", "SafeJSONResponse", "IDEMPOTENCY_KEY_MAX"]
 
-UNIT = Path(..., min_length=1, max_length=64, description="unit name, e.g. te or cstr")
+def _unit_path():
+    """The ``{unit}`` path parameter (a new one per route: FastAPI writes the parameter's
+    alias into the object it is given)."""
+    return Path(..., min_length=1, max_length=64, description="unit name, e.g. te or cstr")
+
+
+def _tid_path():
+    """The ``{tid}`` path parameter (a new one per route)."""
+    return Path(..., min_length=1, max_length=64, description="transition id")
+
+
 #: Longest ``Idempotency-Key`` accepted, characters.
 IDEMPOTENCY_KEY_MAX = 255
 
 _ERR = {"model": ErrorBody}
 #: Error answers of the routes that reach a node (documented in /openapi.json).
 READ_ERRORS = {404: {**_ERR, "description": "unknown unit (or transition)"},
+               422: {**_ERR, "description": "malformed path or query parameter"},
                502: {**_ERR, "description": "the node answered something unreadable"},
                503: {**_ERR, "description": "no live node for the unit (liveliness lost), "
                                             "the store cannot commit, or the api is busy"},
@@ -92,7 +103,6 @@ WRITE_ERRORS = {**READ_ERRORS,
                 409: {**_ERR, "description": "a transition is under way (use queue)"},
                 422: {**_ERR, "description": "malformed body"},
                 429: {**_ERR, "description": "the transition queue is full"}}
-TID = Path(..., min_length=1, max_length=64, description="transition id")
 #: Codes of a node's error reply passed on as they are (anything else is a 502).
 PASSED_ON = (400, 404, 409, 422, 429, 503)
 
@@ -237,14 +247,14 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
              description="Process time, sample, grade and transition, every CV/MV/DV with "
                          "its limits (`variables`), active model and J values, last solve "
                          "time, deadline misses, store health and the latest alarms.")
-    async def status(unit: str = UNIT) -> dict:
+    async def status(unit: str = _unit_path()) -> dict:
         return await call(unit, "status", None, _STATUS)
 
     @app.get("/api/v1/units/{unit}/grades", response_model=GradesView, responses=READ_ERRORS,
              summary="Grades a unit can go to",
              description="The operating points (TE mode0..mode6, unit plants OPI..OPIII) "
                          "with their CV set points, description and stability type.")
-    async def grades(unit: str = UNIT) -> dict:
+    async def grades(unit: str = _unit_path()) -> dict:
         return await call(unit, "grades", None, _GRADES)
 
     @app.post("/api/v1/units/{unit}/transitions", status_code=202, response_model=TransitionView,
@@ -256,7 +266,7 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
                           "202; the store unable to commit is a 503. `Idempotency-Key`: "
                           "the same key gives back the same transition.")
     async def create_transition(
-            body: TransitionRequest, response: Response, unit: str = UNIT,
+            body: TransitionRequest, response: Response, unit: str = _unit_path(),
             identity: str = Depends(write_guard),
             idempotency_key: Annotated[str | None, Header(
                 alias="Idempotency-Key",
@@ -276,14 +286,14 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
              responses=READ_ERRORS, summary="A unit's transitions",
              description="Every transition of the unit, oldest first, as the store has "
                          "them (also those before a controller restart).")
-    async def list_transitions(unit: str = UNIT) -> list[dict]:
+    async def list_transitions(unit: str = _unit_path()) -> list[dict]:
         return await call(unit, "transition", {"op": "list"}, _VIEWS)
 
     @app.get("/api/v1/units/{unit}/transitions/{tid}", response_model=TransitionView,
              responses=READ_ERRORS, summary="One transition",
              description="State (pending, running, settled, aborted, failed), progress, "
                          "ISE so far and ETA of one transition.")
-    async def get_transition(unit: str = UNIT, tid: str = TID) -> dict:
+    async def get_transition(unit: str = _unit_path(), tid: str = _tid_path()) -> dict:
         return await call(unit, "transition", {"op": "get", "id": tid}, _VIEW)
 
     @app.delete("/api/v1/units/{unit}/transitions/{tid}", response_model=TransitionView,
@@ -292,7 +302,7 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
                             "queued one leaves the queue. Committed with the operator "
                             "action before the answer (503 if the store cannot: the set "
                             "points are held all the same).")
-    async def abort_transition(unit: str = UNIT, tid: str = TID,
+    async def abort_transition(unit: str = _unit_path(), tid: str = _tid_path(),
                                identity: str = Depends(write_guard)) -> dict:
         return await call(unit, "transition", {"op": "abort", "id": tid,
                                                "identity": identity}, _VIEW)
@@ -301,7 +311,7 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
              responses=READ_ERRORS, summary="A plant's disturbances",
              description="The plant node's disturbance values (TE: IDV1..IDV20, 1 = on) "
                          "and whether its interlocks shut it down.")
-    async def disturbances(unit: str = UNIT) -> dict:
+    async def disturbances(unit: str = _unit_path()) -> dict:
         status = await call_plant(unit, "status", None, _OBJECT)
         return {"unit": unit, "shutdown": status.get("shutdown"),
                 "disturbances": await call_plant(unit, "disturbance_list", None, _NUMBERS)}
@@ -311,7 +321,7 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
               summary="Switch a plant disturbance",
               description="Sets one disturbance of the simulated plant (TE: IDVk 1 on, "
                           "0 off) by command to its plant node.")
-    async def set_disturbance(body: DisturbanceRequest, unit: str = UNIT) -> dict:
+    async def set_disturbance(body: DisturbanceRequest, unit: str = _unit_path()) -> dict:
         return await call_plant(unit, "disturbance", {"name": body.name, "value": body.value},
                                 _DISTURBANCE_SET)
 
@@ -328,7 +338,7 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
                          "most that many, the oldest (ask again from the last one's "
                          "`time` for more).")
     async def events(
-            unit: str = UNIT,
+            unit: str = _unit_path(),
             since: Annotated[str | None, Query(
                 max_length=64, description="ISO 8601 time, e.g. 2026-12-01T22:30:00Z "
                                            "(no zone: UTC)")] = None,
