@@ -54,6 +54,7 @@ from pydantic import TypeAdapter, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from api.auth import make_write_guard, token_from_env
+from api.docs_policy import DocsPolicy
 from api.mesh import Mesh, MeshError
 from api.mesh_pool import MeshLimits, MeshPool
 from api.schemas import (
@@ -198,6 +199,8 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
         # Swagger UI's online validator badge would call a server on the internet
         swagger_ui_parameters={"validatorUrl": None})
     app.state.mesh_pool = pool
+    # the OpenAPI pages may load nothing from off this server (api.docs_policy)
+    app.add_middleware(DocsPolicy, paths=("/docs", "/redoc", "/docs/oauth2-redirect"))
 
     @app.exception_handler(RequestValidationError)
     async def malformed(request: Request, exc: RequestValidationError):

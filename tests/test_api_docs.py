@@ -85,6 +85,24 @@ def test_docs_and_redoc_load_only_local_assets(stack):
         assert "@import" not in css
 
 
+def test_the_pages_may_load_nothing_from_another_host(stack):
+    """ReDoc's bundle shows the Redocly logo from its CDN whatever the page says: the
+    pages' Content-Security-Policy keeps the browser on this server."""
+    h, api = stack
+    c = api.client
+    for page in ("/docs", "/redoc"):
+        policy = c.get(page).headers.get("content-security-policy", "")
+        directives = {d.split()[0]: d.split()[1:] for d in policy.split(";") if d.strip()}
+        assert directives.get("default-src") == ["'none'"], policy
+        for name, sources in directives.items():
+            if name.endswith("-src"):
+                assert set(sources) <= {"'self'", "'none'", "'unsafe-inline'", "data:",
+                                        "blob:"}, (page, name, sources)
+        assert directives.get("connect-src") == ["'self'"]
+        assert directives.get("img-src") and "https:" not in policy and "*" not in policy
+    assert "content-security-policy" not in c.get("/health").headers
+
+
 def _resolve(doc, schema):
     while "$ref" in schema:
         name = schema["$ref"].rsplit("/", 1)[1]
