@@ -28,6 +28,19 @@ its text with the standalone numbers masked (``XMEAS7 = 2861.3 above ...`` and
 alarms raised and not cleared are read back from the store at start
 (:meth:`services.store.UnitStore.active_alarms`), so an alarm that holds across a
 restart is not raised twice.
+
+Costs, measured on the 2-core machine under other work (one process, SQLite in WAL):
+
+==============================================  ===========
+:meth:`AlarmTracker.update`, nothing in alarm    0.16 µs
+... three TE alarm texts holding (keys masked)   14 µs
+one commit of an event (``add_events``)          0.11 ms
+read and view 100 / 1000 / 10000 of 100k events  2.5 / 28 / 540 ms
+reopen a store of 100k events (integrity check)  0.9 s
+==============================================  ===========
+
+The tracker runs in the controller's sample after the move is published (outside
+the deadline); a read answers an ``events`` query on a Zenoh thread.
 """
 
 from __future__ import annotations
