@@ -263,3 +263,29 @@ def test_ssmpc_events_errors_are_exit_2(stack):
                              timeout=60)
     assert unknown.returncode == 2 and "404" in unknown.stderr
     assert "Traceback" not in bad.stderr + unknown.stderr
+
+
+def test_operator_actions_go_to_the_recordings_event_log_too(stack):
+    from test_telemetry import _read
+
+    h, api = stack
+    c = api.client
+    h.wait_samples(3)
+    tid = c.post("/api/v1/units/cstr/transitions", json={"grade": "OPII"},
+                 headers=AUTH).json()["id"]
+    _wait_state(c, tid, ("running", "settled"))
+    c.delete(f"/api/v1/units/cstr/transitions/{tid}", headers=AUTH)
+    h.stop_controller()  # closes the recording
+    _, _, text, _ = _read(h.tmp / "cstr.rrd")
+    lines = [t for _, t in text.get("/cstr/events", [])]
+    assert f"requested transition {tid} to OPII [operator]" in lines
+    aborted = [e for e in _events_from_store(h) if e.kind == "action.transition.abort"]
+    if aborted:  # it was still running when the DELETE came
+        assert f"aborted transition {tid} to OPII [operator]" in lines
+
+
+def _events_from_store(h):
+    from services.store import UnitStore
+
+    with UnitStore(h.store_path, "cstr") as s:
+        return s.unit_events()

@@ -68,7 +68,13 @@ from controller.interfaces import ControlDecision
 from controller.units.config import UnitConfig, build_plant, cv_scales, plausible_ranges, unit_info
 from controller.units.takeover import align_multimodel
 from controller.units.variables import at_limit, unit_variables
-from services.events import AlarmTracker, action_event, identity_of, transition_event
+from services.events import (
+    AlarmTracker,
+    action_event,
+    describe,
+    identity_of,
+    transition_event,
+)
 from services.events_query import events_reply
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
@@ -507,7 +513,14 @@ class ControllerNode:
             self._store_failed(f"operator action {event.kind}", exc)
             return Reply(503, error=f"store: cannot commit the action ({exc}); retry later")
         self._store_ok()
+        self._log_action(event)
         return None
+
+    def _log_action(self, event) -> None:
+        """A committed operator action into the recording's event log (``<unit>/events``)."""
+        if self.telemetry is not None:
+            self.telemetry.event(max(self.k, 0), self.t,
+                                 f"{describe(event.view())} [{event.identity}]")
 
     # -- Zenoh callbacks -----------------------------------------------------------------
     def _on_plant_liveliness(self, sample) -> None:
@@ -720,6 +733,7 @@ class ControllerNode:
                         return Reply(503, error="store: cannot commit; the abort holds the "
                                                 f"set points but is not stored ({exc})")
                     self._store_ok()
+                    self._log_action(action)
                     self.checkpoint(wait=True)
                 return Reply(200, view)
         return Reply(200, self._view(tid))
@@ -772,6 +786,7 @@ class ControllerNode:
                 self.tm.admit(tr)
                 view = tr.view(self.t, self.budget.speed)
         self._store_ok()
+        self._log_action(action)
         self.checkpoint(wait=True)
         return Reply(202, view)
 
