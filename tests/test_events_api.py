@@ -289,3 +289,40 @@ def _events_from_store(h):
 
     with UnitStore(h.store_path, "cstr") as s:
         return s.unit_events()
+
+
+def test_a_state_change_replayed_from_an_older_checkpoint_is_stored_once(harness):
+    """A controller that restarts from a checkpoint older than its last state change
+    (a crash between the two writes) goes through that change again: the event log
+    keeps the first one."""
+    h = harness(start_plant=False)
+    rep = h.query("transition", {"op": "create", "grade": "OPII", "identity": "alice"})
+    assert rep.code == 202 and rep.data["state"] == "pending"
+    tid = rep.data["id"]
+    h.ctrl.flush()
+    db = sqlite3.connect(h.store_path)
+    older = db.execute("SELECT sample, process_time, wall, state FROM checkpoint").fetchone()
+    db.close()
+    assert json.loads(older[3])["transitions"]["active"]["state"] == "pending"
+    h.start_plant()
+    t_end = time.monotonic() + 30
+    while h.query("transition", {"op": "get", "id": tid}).data["state"] == "pending":
+        assert time.monotonic() < t_end
+        time.sleep(0.05)
+    h.stop_controller()
+    db = sqlite3.connect(h.store_path)  # the crash: the newer checkpoint never made it
+    db.execute("UPDATE checkpoint SET sample=?, process_time=?, wall=?, state=?", older)
+    db.commit()
+    db.close()
+    h.start_controller()
+    t_end = time.monotonic() + 30
+    while h.query("transition", {"op": "get", "id": tid}).data["state"] == "pending":
+        assert time.monotonic() < t_end, "the restored transition did not run again"
+        time.sleep(0.05)
+    events = h.query("events").data
+    mine = Counter((e["kind"], e["identity"]) for e in events
+                   if e["detail"].get("transition") == tid)
+    assert mine[("transition.running", "controller")] == 1
+    assert mine[("transition.pending", "controller")] == 1
+    assert mine[("action.transition.create", "alice")] == 1
+    assert len({e["id"] for e in events}) == len(events)
