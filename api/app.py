@@ -161,13 +161,17 @@ def _unwrap(reply: Reply, who: str):
 
 
 def _checked(data, adapter: TypeAdapter, who: str):
-    """``data`` validated by ``adapter`` (plain Python again), or a 502 that says why."""
+    """``data`` validated by ``adapter`` (models where it has them), or a 502 that
+    says why."""
     try:
         value = adapter.validate_python(data)
     except ValidationError as exc:
         raise HTTPException(status_code=502, detail=f"{who} sent a malformed reply: "
                             f"{_validation_message(exc.errors())}") from exc
-    return adapter.dump_python(value)
+    # the validated value itself: a route returns it to FastAPI, which then passes the
+    # model through instead of validating the whole reply a second time (a TE status:
+    # ~0.26 against ~0.6 ms of the api's time per GET, measured in-process)
+    return value
 
 
 def _idempotency_key(raw: str | None) -> str | None:
@@ -250,14 +254,14 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
              description="Process time, sample, grade and transition, every CV/MV/DV with "
                          "its limits (`variables`), active model and J values, last solve "
                          "time, deadline misses, store health and the latest alarms.")
-    async def status(unit: str = _unit_path()) -> dict:
+    async def status(unit: str = _unit_path()) -> StatusView:
         return await call(unit, "status", None, _STATUS)
 
     @app.get("/api/v1/units/{unit}/grades", response_model=GradesView, responses=READ_ERRORS,
              summary="Grades a unit can go to",
              description="The operating points (TE mode0..mode6, unit plants OPI..OPIII) "
                          "with their CV set points, description and stability type.")
-    async def grades(unit: str = _unit_path()) -> dict:
+    async def grades(unit: str = _unit_path()) -> GradesView:
         return await call(unit, "grades", None, _GRADES)
 
     @app.post("/api/v1/units/{unit}/transitions", status_code=202, response_model=TransitionView,
@@ -273,7 +277,8 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
             identity: str = Depends(write_guard),
             idempotency_key: Annotated[str | None, Header(
                 alias="Idempotency-Key",
-                description="the same key gives back the same transition")] = None) -> dict:
+                description="the same key gives back the same transition")] = None,
+    ) -> TransitionView:
         key = _idempotency_key(idempotency_key)
         args = {"op": "create", "grade": body.grade, "queue": body.queue,
                 "identity": identity}
@@ -282,21 +287,22 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
         if key is not None:
             args["idempotency_key"] = key
         view = await call(unit, "transition", args, _VIEW)
-        response.headers["Location"] = f"/api/v1/units/{unit}/transitions/{view['id']}"
+        response.headers["Location"] = f"/api/v1/units/{unit}/transitions/{view.id}"
         return view
 
     @app.get("/api/v1/units/{unit}/transitions", response_model=list[TransitionView],
              responses=READ_ERRORS, summary="A unit's transitions",
              description="Every transition of the unit, oldest first, as the store has "
                          "them (also those before a controller restart).")
-    async def list_transitions(unit: str = _unit_path()) -> list[dict]:
+    async def list_transitions(unit: str = _unit_path()) -> list[TransitionView]:
         return await call(unit, "transition", {"op": "list"}, _VIEWS)
 
     @app.get("/api/v1/units/{unit}/transitions/{tid}", response_model=TransitionView,
              responses=READ_ERRORS, summary="One transition",
              description="State (pending, running, settled, aborted, failed), progress, "
                          "ISE so far and ETA of one transition.")
-    async def get_transition(unit: str = _unit_path(), tid: str = _tid_path()) -> dict:
+    async def get_transition(unit: str = _unit_path(), tid: str = _tid_path()
+                             ) -> TransitionView:
         return await call(unit, "transition", {"op": "get", "id": tid}, _VIEW)
 
     @app.delete("/api/v1/units/{unit}/transitions/{tid}", response_model=TransitionView,
@@ -306,7 +312,7 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
                             "action before the answer (503 if the store cannot: the set "
                             "points are held all the same).")
     async def abort_transition(unit: str = _unit_path(), tid: str = _tid_path(),
-                               identity: str = Depends(write_guard)) -> dict:
+                               identity: str = Depends(write_guard)) -> TransitionView:
         return await call(unit, "transition", {"op": "abort", "id": tid,
                                                "identity": identity}, _VIEW)
 
@@ -324,7 +330,8 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
               summary="Switch a plant disturbance",
               description="Sets one disturbance of the simulated plant (TE: IDVk 1 on, "
                           "0 off) by command to its plant node.")
-    async def set_disturbance(body: DisturbanceRequest, unit: str = _unit_path()) -> dict:
+    async def set_disturbance(body: DisturbanceRequest, unit: str = _unit_path()
+                              ) -> DisturbanceSet:
         return await call_plant(unit, "disturbance", {"name": body.name, "value": body.value},
                                 _DISTURBANCE_SET)
 
@@ -347,7 +354,7 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
                                            "(no zone: UTC)")] = None,
             limit: Annotated[int, Query(ge=1, le=MAX_LIMIT,
                                         description="most events returned")] = DEFAULT_LIMIT,
-    ) -> list[dict]:
+    ) -> list[EventView]:
         args: dict[str, Any] = {"limit": limit}
         if since is not None:
             try:

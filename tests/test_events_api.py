@@ -316,13 +316,26 @@ def test_a_state_change_replayed_from_an_older_checkpoint_is_stored_once(harness
     db.close()
     h.start_controller()
     t_end = time.monotonic() + 30
-    while h.query("transition", {"op": "get", "id": tid}).data["state"] == "pending":
+    while _answer(h, "transition", {"op": "get", "id": tid})["state"] == "pending":
         assert time.monotonic() < t_end, "the restored transition did not run again"
         time.sleep(0.05)
-    events = h.query("events").data
+    events = _answer(h, "events")
     mine = Counter((e["kind"], e["identity"]) for e in events
                    if e["detail"].get("transition") == tid)
     assert mine[("transition.running", "controller")] == 1
     assert mine[("transition.pending", "controller")] == 1
     assert mine[("action.transition.create", "alice")] == 1
     assert len({e["id"] for e in events}) == len(events)
+
+
+def _answer(h, action, args=None, timeout=20.0):
+    """The data of the node's reply, asking again while a restarted node's queryable is
+    not yet known on the mesh."""
+    t_end = time.monotonic() + timeout
+    while True:
+        try:
+            return h.query(action, args).data
+        except AssertionError:
+            if time.monotonic() > t_end:
+                raise
+            time.sleep(0.1)
