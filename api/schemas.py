@@ -17,8 +17,9 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 __all__ = ["DisturbanceRequest", "ModeRequest", "ModeView", "VariableRequest",
-           "VariableView", "TransitionRequest", "TransitionView", "Health",
-           "UnitLiveliness", "UnitsResponse", "ErrorBody", "GradesView", "StatusView",
+           "VariableSettingView", "TransitionRequest", "TransitionView", "Health",
+           "UnitLiveliness", "UnitsResponse", "ErrorBody", "GradesView", "GradeView",
+           "StatusView", "VariableView", "DisturbancesView", "DisturbanceSet", "EventView",
            "valid_unicode"]
 
 
@@ -108,75 +109,198 @@ class ModeRequest(BaseModel):
 
 
 class ModeView(BaseModel):
+    """The controller mode after ``PUT .../mode`` and the one before it."""
+
     unit: str
     mode: Literal["off", "warm", "on"]
     previous: Literal["off", "warm", "on"]
 
 
-class VariableView(BaseModel):
-    """One entry of the status's ``variables``."""
+class VariableSettingView(BaseModel):
+    """One CV's or MV's operator settings after ``PATCH .../variables/{name}``."""
 
     model_config = ConfigDict(extra="allow")
 
     name: str
     kind: Literal["cv", "mv", "dv"]
-    mode: Literal["auto", "manual", "off"] | None
-    value: float | None
-    target: float | None
-    lo: float | None
-    hi: float | None
+    mode: Literal["auto", "manual", "off"] | None = Field(description="auto, manual "
+                                                          "(MVs) or off")
+    value: float | None = Field(description="the value now")
+    target: float | None = Field(description="an MV held in manual: its value; a CV: "
+                                 "its reference")
+    lo: float | None = Field(description="operator low limit in force (ramping)")
+    hi: float | None = Field(description="operator high limit in force (ramping)")
 
 
 class TransitionView(BaseModel):
-    id: str = Field(min_length=1)
+    """One transition: its state, progress, ISE so far and ETA (process seconds)."""
+
+    id: str = Field(min_length=1, description="transition id")
     unit: str
-    grade: str
-    from_grade: str | None = None
+    grade: str = Field(description="target grade")
+    from_grade: str | None = Field(default=None, description="grade it started from "
+                                   "(None: the set points held were no grade's)")
     state: Literal["pending", "running", "settled", "aborted", "failed"]
-    progress: float
-    ise: float
-    eta_s: float | None = None
-    eta_wall_s: float | None = None
-    duration_s: float
-    requested_t: float
-    started_t: float | None = None
-    ended_t: float | None = None
-    target: list[float]
-    detail: str = ""
+    progress: float = Field(description="share of the set-point distance covered, 0..1")
+    ise: float = Field(description="integral of the squared scaled tracking error so far, s")
+    eta_s: float | None = Field(default=None, description="process seconds to the planned "
+                                "end (None: ended)")
+    eta_wall_s: float | None = Field(default=None, description="the same in wall seconds")
+    duration_s: float = Field(description="planned duration, process s")
+    requested_t: float = Field(description="process time of the request, s")
+    started_t: float | None = Field(default=None, description="process time it ran from, s")
+    ended_t: float | None = Field(default=None, description="process time it ended, s")
+    target: list[float] = Field(description="set points of the target grade (tracked CVs)")
+    detail: str = Field(default="", description="why it ended, or 'queued'")
+
+
+class VariableView(BaseModel):
+    """One CV, MV or measured disturbance of the status (engineering units)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    name: str = Field(description="name on the wire, e.g. XMEAS7")
+    tag: str = Field(description="plant tag, e.g. 'XMEAS 7'")
+    description: str
+    unit: str = Field(description="engineering unit, e.g. 'kPa gauge'")
+    kind: Literal["cv", "mv", "dv"]
+    value: float | None = None
+    target: float | None = Field(default=None, description="a tracked CV's reference")
+    lo: float | None = Field(default=None, description="low limit (None: none)")
+    hi: float | None = Field(default=None, description="high limit (None: none)")
+    at_limit: Literal["lo", "hi"] | None = None
+    mode: str | None = Field(default=None, description="auto, manual or off (None: a DV)")
+
+
+Numbers = dict[str, float | None]
 
 
 class StatusView(BaseModel):
-    """A controller's status: the fields the api relies on; the rest passes through."""
+    """A controller's status. ``unit``, ``sample`` and ``alarms`` are always there; the
+    rest as the controller reports it, and fields this version does not know pass
+    through."""
 
     model_config = ConfigDict(extra="allow")
 
     unit: str
-    sample: int
-    alarms: list[str]
+    sample: int = Field(description="latest sample processed (-1: none yet)")
+    alarms: list[str] = Field(description="the latest alarms and notices, oldest first")
+    plant: str | None = Field(default=None, description="plant model of the unit")
+    process_time_s: float | None = Field(default=None, description="process time, s")
+    speed: float | None = Field(default=None, description="process s per wall s")
+    cv: Numbers | None = Field(default=None, description="measured CVs by name")
+    ref: Numbers | None = Field(default=None, description="references of the tracked CVs")
+    mv: Numbers | None = Field(default=None, description="last moves by name")
+    variables: list[VariableView] | None = None
+    active_model: int | None = Field(default=None, description="index of the active model")
+    active_model_name: str | None = None
+    J: Numbers | None = Field(default=None, description="performance index per model")
+    solve_ms: float | None = Field(default=None, description="last controller step, ms")
+    controller_status: str | None = None
+    deadline_misses: int | None = None
+    fallback_moves: int | None = None
+    budget_ms: float | None = Field(default=None, description="timing budget per sample, ms")
+    sample_ms: dict[str, float | int | None] | None = Field(
+        default=None, description="p50, p99, max (ms) and n of the recent samples")
+    slowest_sample: dict[str, float] | None = Field(
+        default=None, description="phase breakdown of the slowest sample, ms")
+    missed_samples: list[dict[str, float]] | None = Field(
+        default=None, description="phase breakdowns of the latest samples over budget, ms")
+    gc_pauses: dict[str, dict[str, float | int]] | None = None
+    samples: int | None = None
+    bad_measurements: int | None = None
+    stale_measurements: int | None = None
+    implausible_measurements: int | None = None
+    foreign_measurements: int | None = None
+    foreign_moves: int | None = None
+    store: Literal["ok", "degraded"] | None = None
+    store_error: str | None = None
+    plant_incarnation: str | None = None
+    failed_samples: int | None = None
+    dropped_measurements: int | None = None
+    plant_shutdown: bool | None = None
+    plant_alive: bool | None = None
+    grade: str | None = Field(default=None, description="grade held (None: in transition "
+                              "or set points held after an abort)")
+    transition: TransitionView | None = None
+    restored_from_sample: int | None = None
+    telemetry_samples: int | None = None
+
+
+class GradeView(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    setpoints: dict[str, float] = Field(description="CV set points of the grade by name")
+    description: str = ""
+    stability: str | None = Field(default=None, description="stability type of the "
+                                  "operating point")
 
 
 class GradesView(BaseModel):
+    """The grades (operating points) a unit can go to."""
+
     model_config = ConfigDict(extra="allow")
 
     unit: str
-    grades: dict[str, Any]
+    grades: dict[str, GradeView]
+    cvs: list[str] | None = Field(default=None, description="CV names, in set-point order")
+    cv_units: list[str] | None = None
+    current: str | None = Field(default=None, description="grade held now")
+
+
+class DisturbancesView(BaseModel):
+    """A plant's disturbances (TE: IDV1..IDV20, 1 = on) and whether it has shut down."""
+
+    unit: str
+    shutdown: bool | None = Field(default=None, description="the plant's interlocks "
+                                  "shut it down")
+    disturbances: dict[str, float]
+
+
+class DisturbanceSet(BaseModel):
+    """The plant's disturbances after a switch."""
+
+    model_config = ConfigDict(extra="allow")
+
+    disturbances: dict[str, float]
+
+
+class EventView(BaseModel):
+    """One event of the unit's log (transition state change, operator action, alarm)."""
+
+    id: str = Field(min_length=1, description="stable id (unique per unit)")
+    time: str = Field(description="wall time, ISO 8601 UTC with microseconds")
+    process_time_h: float | None = Field(description="the unit's process time, h")
+    kind: str = Field(description="transition.<state>, action.<what> (operator), "
+                                  "alarm.raised or alarm.cleared")
+    detail: dict[str, Any] = Field(description="what happened (depends on kind)")
+    identity: str = Field(description="who: the identity of the REST caller for an "
+                                      "operator action, 'controller' otherwise")
 
 
 class Health(BaseModel):
+    """The api node answers."""
+
     status: Literal["ok"]
     version: str
     zenoh_id: str
 
 
 class UnitLiveliness(BaseModel):
+    """Which nodes of a unit hold a liveliness token on the mesh."""
+
     unit: str
     plant: bool
     controller: bool
 
 
 class UnitsResponse(BaseModel):
+    """Units seen on the mesh."""
+
     units: list[UnitLiveliness]
 
 
 class ErrorBody(BaseModel):
-    detail: Any
+    """An error: what was wrong, in one line."""
+
+    detail: str

@@ -7,6 +7,9 @@ old or the new row, never half of one. Tables:
 - ``transitions``: one row per transition, the latest state and its record (JSON),
   and the idempotency key of the request that made it (unique per unit, or NULL).
 - ``transition_events``: every state change, appended (the complete history).
+- ``events``: the unit's event log (:mod:`services.events`): transition state changes,
+  operator actions with their identity, alarms raised and cleared; one row per stable
+  event id (a replayed event is ignored), time in whole µs of the wall clock (UTC).
 - ``checkpoint``: one row per unit: sample, process time and the node's state
   (controller checkpoint, last move, reference, active transition) as JSON.
 - ``recent_steps``: one row per unit: the largest single-sample step of each MV over
@@ -15,14 +18,15 @@ old or the new row, never half of one. Tables:
 
 Integrity. Opening a store runs ``PRAGMA quick_check`` and checks what this
 module wrote (every record decodes, names its id and a known state; every event
-belongs to a transition); a file that is not an SQLite database, a corrupt page
-or an inconsistent row is a :class:`StoreError` (the CLI says ``error: ...`` and
-exits 2; nothing is changed), and so is a store that can be read but not written
-(the WAL's shared-memory index ``-shm`` or the file read-only, a full disk): the write
-lock is taken once at open. A write either commits or raises (a busy lock is
-waited for at most ``busy_timeout_s``): the caller acknowledges only what
-committed. A checkpoint is checked at both ends: NaN, infinities (``1e999``) or a
-non-object are refused when encoded (ValueError) and when loaded (StoreError).
+belongs to a transition; every logged event's detail decodes into an object); a file
+that is not an SQLite database, a corrupt page or an inconsistent row is a
+:class:`StoreError` (the CLI says ``error: ...`` and exits 2; nothing is changed),
+and so is a store that can be read but not written (the WAL's shared-memory index
+``-shm`` or the file read-only, a full disk): the write lock is taken once at open.
+A write either commits or raises (a busy lock is waited for at most
+``busy_timeout_s``): the caller acknowledges only what committed. A checkpoint is
+checked at both ends: NaN, infinities (``1e999``) or a non-object are refused
+when encoded (ValueError) and when loaded (StoreError).
 """
 
 from __future__ import annotations
@@ -34,6 +38,8 @@ import threading
 import time
 from pathlib import Path
 from typing import Any
+
+from services.events import ALARM_CLEARED, ALARM_RAISED, Event, fold_alarms
 
 __all__ = ["StoreError", "UnitStore", "default_store_path"]
 
@@ -84,6 +90,16 @@ CREATE TABLE IF NOT EXISTS recent_steps (
     wall REAL NOT NULL,
     steps TEXT NOT NULL
 );
+CREATE TABLE IF NOT EXISTS events (
+    id TEXT PRIMARY KEY,
+    unit TEXT NOT NULL,
+    time_us INTEGER NOT NULL,
+    process_time REAL,
+    kind TEXT NOT NULL,
+    detail TEXT NOT NULL,
+    identity TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS events_time ON events (unit, time_us);
 CREATE TABLE IF NOT EXISTS checkpoint (
     unit TEXT PRIMARY KEY,
     sample INTEGER NOT NULL,
@@ -177,6 +193,15 @@ class UnitStore:
             " ON t.id = e.transition_id WHERE t.id IS NULL").fetchone()[0]
         if orphan:
             raise StoreError(f"store: {self.path}: {orphan} events of unknown transitions")
+        for eid, text in self._db.execute("SELECT id, detail FROM events WHERE unit=?",
+                                          (self.unit,)):
+            try:
+                ok = isinstance(_decode(text), dict)
+            except ValueError:
+                ok = False
+            if not ok:
+                raise StoreError(f"store: {self.path}: event {eid!r} does not decode into "
+                                 "an object")
 
     def _check_writable(self) -> None:
         """Take the write lock once and let it go: a store that could be read but not
@@ -207,10 +232,12 @@ class UnitStore:
 
     # -- transitions -------------------------------------------------------------
     def save_transition(self, record: dict[str, Any], *, event: str | None = None,
-                        process_time: float | None = None, detail: str = "") -> None:
-        """Insert or update a transition record; with ``event``, append a state change.
+                        process_time: float | None = None, detail: str = "",
+                        events: tuple[Event, ...] | list[Event] = ()) -> None:
+        """Insert or update a transition record; with ``event``, append a state change;
+        ``events`` go to the event log (an id already there is left as it is).
 
-        Both happen in one transaction.
+        All happen in one transaction.
         """
         now = time.time()
         key = (record.get("idempotency") or {}).get("key")
@@ -232,6 +259,7 @@ class UnitStore:
                         " detail) VALUES (?, ?, ?, ?, ?)",
                         (record["id"], event, process_time, now, detail),
                     )
+                self._insert_events(events)
                 self._db.execute("COMMIT")
             except BaseException:
                 if self._db.in_transaction:  # SQLite may have rolled back already
@@ -271,6 +299,57 @@ class UnitStore:
             rows = self._db.execute(q + " ORDER BY seq", args).fetchall()
         return [dict(zip(("transition_id", "state", "process_time", "wall", "detail"), r))
                 for r in rows]
+
+    # -- the event log ---------------------------------------------------------------
+    def _insert_events(self, events) -> None:
+        """Insert ``events`` (inside the caller's transaction); known ids are ignored."""
+        if events:
+            self._db.executemany(
+                "INSERT OR IGNORE INTO events (id, unit, time_us, process_time, kind, detail,"
+                " identity) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                [(e.id, self.unit, e.time_us, e.process_time_s, e.kind,
+                  json.dumps(e.detail, allow_nan=False), e.identity) for e in events])
+
+    def add_events(self, events: tuple[Event, ...] | list[Event]) -> None:
+        """Commit ``events`` to the event log in one transaction (known ids ignored)."""
+        if not events:
+            return
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                self._insert_events(events)
+                self._db.execute("COMMIT")
+            except BaseException:
+                if self._db.in_transaction:
+                    self._db.execute("ROLLBACK")
+                raise
+
+    def unit_events(self, since_us: int | None = None, limit: int | None = None
+                    ) -> list[Event]:
+        """Events at or after ``since_us`` (µs since the epoch; None: all), oldest first
+        (ties in the order they were written), at most ``limit``."""
+        q = ("SELECT id, time_us, process_time, kind, detail, identity FROM events"
+             " WHERE unit=?")
+        args: list = [self.unit]
+        if since_us is not None:
+            q += " AND time_us >= ?"
+            args.append(int(since_us))
+        q += " ORDER BY time_us, rowid"
+        if limit is not None:
+            q += " LIMIT ?"
+            args.append(int(limit))
+        with self._lock:
+            rows = self._db.execute(q, args).fetchall()
+        return [Event(id=r[0], time_us=r[1], process_time_s=r[2], kind=r[3],
+                      detail=_decode(r[4]), identity=r[5]) for r in rows]
+
+    def active_alarms(self) -> dict[str, str]:
+        """Alarms raised and not cleared in the event log (key to text)."""
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT kind, detail FROM events WHERE unit=? AND kind IN (?, ?)"
+                " ORDER BY time_us, rowid", (self.unit, ALARM_RAISED, ALARM_CLEARED)).fetchall()
+        return fold_alarms((k, _decode(d)) for k, d in rows)
 
     # -- checkpoint ----------------------------------------------------------------
     @staticmethod

@@ -1,6 +1,7 @@
 """``ssmpc transition UNIT GRADE``, ``ssmpc abort UNIT [ID]``, ``ssmpc status UNIT``,
 ``ssmpc disturbance UNIT NAME VALUE``, ``ssmpc mode UNIT off|warm|on``,
-``ssmpc variable UNIT NAME [--mode M] [--value X] [--lo X] [--hi X] [--ramp-per-h X]``:
+``ssmpc variable UNIT NAME [--mode M] [--value X] [--lo X] [--hi X] [--ramp-per-h X]``,
+``ssmpc events UNIT [--since ISO] [--follow]``:
 a thin REST client for operators.
 
 Talks to an api node (``--api``, default http://127.0.0.1:8000; the token from
@@ -10,6 +11,7 @@ scripts (one object on the last stdout line).
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import time
@@ -73,6 +75,16 @@ def register(sub) -> None:
                    help="rate a changed limit moves at, engineering units per hour")
     _common(p)
     p.set_defaults(func=run_variable)
+    p = sub.add_parser("events", help="a unit's event log through the REST API: transitions, "
+                                      "operator actions (who), alarms")
+    p.add_argument("unit")
+    p.add_argument("--since", default=None,
+                   help="ISO 8601 time, e.g. 2026-12-01T22:30:00Z (no zone: UTC)")
+    p.add_argument("--follow", action="store_true",
+                   help="keep polling and print new events until Ctrl-C")
+    p.add_argument("--poll-s", type=float, default=1.0, help="--follow: poll period, wall s")
+    _common(p)
+    p.set_defaults(func=run_events)
 
     p = sub.add_parser("status", help="show a unit's status through the REST API")
     p.add_argument("unit")
@@ -306,3 +318,60 @@ def run_status(args) -> int:
     for line in status_lines(st, args.all):
         print(line)
     return 0
+
+
+def event_line(view: dict) -> str:
+    """One event as a line: time (UTC, to the second), kind, what happened, who."""
+    from services.events import describe
+
+    when = str(view.get("time", "")).replace("T", " ")[:19]
+    return f"{when}  {view.get('kind', ''):<26} {describe(view)}  [{view.get('identity')}]"
+
+
+def run_events(args) -> int:
+    """Print the unit's events; with ``--follow`` poll for new ones until Ctrl-C (exit
+    0). ``--json``: ``{"unit", "events": [...]}`` on the last line (with ``--follow``:
+    one event object per line as they come)."""
+    from urllib.parse import quote
+
+    from services.events import MAX_LIMIT, parse_since_us
+
+    if args.since is not None:
+        try:
+            parse_since_us(args.since)
+        except ValueError as exc:
+            raise CLIError(str(exc)) from None
+    if not 0 < args.poll_s < 3600:
+        raise CLIError("poll-s: expected a period in (0, 3600) s")
+    path = f"/api/v1/units/{quote(args.unit, safe='')}/events"
+    state = {"since": args.since, "seen": set()}
+
+    def fetch(c) -> list[dict]:
+        since = state["since"]
+        query = f"?limit={MAX_LIMIT}" + ("" if since is None else f"&since={quote(since)}")
+        return [e for e in _get(c, path + query) if e.get("id") not in state["seen"]]
+
+    def show(events: list[dict]) -> None:
+        for e in events:
+            print(json.dumps(e, separators=(",", ":")) if args.json else event_line(e),
+                  flush=True)
+        if events:  # ask again from the newest (inclusive, so skip the ones seen there)
+            newest = events[-1]["time"]
+            edge = {e["id"] for e in events if e["time"] == newest}
+            state["seen"] = state["seen"] | edge if newest == state["since"] else edge
+            state["since"] = newest
+
+    with _client(args) as c:
+        if not args.follow:
+            events = fetch(c)
+            if args.json:
+                emit_json({"unit": args.unit, "events": events})
+            else:
+                show(events)
+            return 0
+        try:
+            while True:
+                show(fetch(c))
+                time.sleep(args.poll_s)
+        except KeyboardInterrupt:
+            return 0

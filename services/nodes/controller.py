@@ -43,13 +43,20 @@ is told (``applied``) and goes on from what the plant got.
 
 Queries on ``ssmpc/<unit>/cmd/<action>`` with a :class:`~services.io.messages.Request`:
 ``status``, ``grades``, ``transition`` (``args.op``: ``create`` with ``grade``
-and optional ``duration_s``; ``get`` / ``abort`` with ``id``; ``list``), and the
-operator's ``mode`` and ``variable`` (:mod:`services.nodes.operator_commands`).
+and optional ``duration_s``; ``get`` / ``abort`` with ``id``; ``list``), ``events``
+(:mod:`services.events_query`), and the operator's ``mode`` and ``variable``
+(:mod:`services.nodes.operator_commands`).
 
 Operator control (:class:`controller.units.operator.OperatedController`): in mode
 ``off`` nothing is computed and in ``warm`` the move is computed and reported
 (``computed_mv``) but neither writes a move (no watchdog either: the plant holds its
 move and regulatory layer); per-variable modes and limits apply from the next sample.
+
+Events (:mod:`services.events`): every transition state change, every operator
+action (with the ``identity`` the api node puts in the request's args) and every
+alarm of the controller raised or cleared go to the store's event log; an operator
+action is committed with the change it makes, before the reply
+(:meth:`ControllerNode.record_action` for actions that change no transition).
 """
 
 from __future__ import annotations
@@ -72,6 +79,14 @@ from controller.units.config import UnitConfig, build_plant, cv_scales, plausibl
 from controller.units.operator import operate
 from controller.units.takeover import align_multimodel, continue_from_applied
 from controller.units.variables import at_limit, unit_variables
+from services.events import (
+    AlarmTracker,
+    action_event,
+    describe,
+    identity_of,
+    transition_event,
+)
+from services.events_query import events_reply
 from services.io import keys
 from services.io.messages import Measurement, MessageError, MVMessage, Reply, Request
 from services.io.zenoh_session import declare_loop_publisher, declare_loop_subscriber
@@ -319,6 +334,8 @@ class ControllerNode:
         self._mv_span = np.array([v.hi - v.lo for v in self.variables if v.kind == "mv"],
                                  float)
         self._restore()
+        #: alarms raised and not cleared, as the event log has them (no second raise)
+        self.alarm_events = AlarmTracker(self.store.active_alarms())
         self._watchdog = Watchdog(period_hint_s=self.budget.wall_period_s)
         self._mv_pub = plant_link if plant_link is not None else declare_loop_publisher(
             session, keys.mv(cfg.unit))
@@ -415,7 +432,8 @@ class ControllerNode:
                 tr.state, tr.ended_t = "failed", self.t
                 tr.detail = "interrupted by a restart before its start was checkpointed"
                 self.store.save_transition(tr.as_dict(), event="failed", process_time=self.t,
-                                           detail=tr.detail)
+                                           detail=tr.detail, events=(transition_event(
+                                               tr.as_dict(), "failed", self.t),))
                 self.alarms.append(f"transition {tr.id}: {tr.detail}")
 
     # -- the store's health --------------------------------------------------------------
@@ -522,8 +540,33 @@ class ControllerNode:
         self._worker.submit(self._save_transition, tr.as_dict(), event, self.t,
                             detail or tr.detail)
 
-    def _save_transition(self, record, event, t, detail) -> None:
-        self.store.save_transition(record, event=event, process_time=t, detail=detail)
+    def _save_transition(self, record, event, t, detail, actions=()) -> None:
+        """The record, its state change and the event log's entries (``actions``: the
+        operator's, then the state change's) in one transaction."""
+        self.store.save_transition(record, event=event, process_time=t, detail=detail,
+                                   events=(*actions, transition_event(record, event, t)))
+
+    def record_action(self, what: str, detail: dict, identity: str, *,
+                      event_id: str | None = None) -> Reply | None:
+        """Commit an operator action (``action.<what>``, e.g. ``"mode"`` with
+        ``{"mode": "on"}``, by ``identity``) to the event log; call it after the request
+        is checked and before the action is acknowledged. None once committed; else the
+        503 reply to send (the store degraded, with an alarm)."""
+        event = action_event(what, detail, identity, self.t, event_id=event_id)
+        try:
+            self._worker.call(self.store.add_events, [event])
+        except (sqlite3.Error, TimeoutError) as exc:
+            self._store_failed(f"operator action {event.kind}", exc)
+            return Reply(503, error=f"store: cannot commit the action ({exc}); retry later")
+        self._store_ok()
+        self._log_action(event)
+        return None
+
+    def _log_action(self, event) -> None:
+        """A committed operator action into the recording's event log (``<unit>/events``)."""
+        if self.telemetry is not None:
+            self.telemetry.event(max(self.k, 0), self.t,
+                                 f"{describe(event.view())} [{event.identity}]")
 
     # -- Zenoh callbacks -----------------------------------------------------------------
     def _on_plant_liveliness(self, sample) -> None:
@@ -670,6 +713,9 @@ class ControllerNode:
             return self._transition(req.args)
         if req.action in ("mode", "variable"):  # operator actions
             return operator_commands.handle(self, req.action, req.args)
+        if req.action == "events":
+            self._worker.wait()  # what was submitted before this query is in the store
+            return events_reply(self.store, req.args)
         if req.action == "sample_times":  # diagnostics: where a late move's time went
             try:
                 found = self.sample_times.lookup(req.args.get("seqs"))
@@ -708,15 +754,16 @@ class ControllerNode:
             key = args.get("idempotency_key")
             if key is not None and not (isinstance(key, str) and 0 < len(key) <= 255):
                 return Reply(422, error="idempotency_key: expected a string of 1..255")
+            who = identity_of(args)
             if key is None:
-                return self._create(grade, duration, queue, None)
+                return self._create(grade, duration, queue, None, who)
             with self._create_lock:  # two requests with one key make one transition
-                return self._create(grade, duration, queue, key)
+                return self._create(grade, duration, queue, key, who)
         tid = args.get("id")
         if not isinstance(tid, str):
             return Reply(422, error="id: expected a transition id")
         if op == "abort":
-            reply = self._abort(tid)
+            reply = self._abort(tid, args)
             if reply is not None:
                 return reply
         return Reply(200, self._view(tid))
@@ -724,14 +771,15 @@ class ControllerNode:
     #: Longest wait for the store to commit an abort, s (no sample runs meanwhile).
     ABORT_COMMIT_TIMEOUT_S = 5.0
 
-    def _abort(self, tid: str) -> Reply | None:
+    def _abort(self, tid: str, args: dict) -> Reply | None:
         """Abort transition ``tid``: committed to the store before anything changes.
 
         The abort is worked out on a copy of the transitions first and its record
         committed; only then does the node hold the set points (and tell the
         controller). A store that cannot commit leaves everything as it was: 503, the
         transition keeps running, and no checkpoint can later carry an abort the
-        store never recorded. No sample runs during the commit (the sample lock is
+        store never recorded. The operator's action (``args``' identity) is committed
+        with it. No sample runs during the commit (the sample lock is
         held), so the transition cannot end otherwise meanwhile. None when ``tid`` is
         not in memory (the caller answers from the store).
         """
@@ -747,9 +795,12 @@ class ControllerNode:
                 if trial.state != "aborted":
                     return Reply(200, found.view(self.t, self.budget.speed))
                 record = trial.as_dict()
-            try:  # committed before it is applied and acknowledged
+            action = action_event("transition.abort", {
+                "transition": tid, "grade": record["grade"]}, identity_of(args), t,
+                event_id=f"action-{tid}-abort")
+            try:  # committed, with the operator action, before it is applied and acknowledged
                 self._worker.call(self._save_transition, record, "aborted", t, trial.detail,
-                                  timeout=self.ABORT_COMMIT_TIMEOUT_S)
+                                  (action,), timeout=self.ABORT_COMMIT_TIMEOUT_S)
             except (sqlite3.Error, TimeoutError) as exc:
                 self._store_failed(f"abort of {tid}", exc)
                 return Reply(503, error="store: cannot commit; the abort is not applied and "
@@ -761,13 +812,15 @@ class ControllerNode:
                     self._notify(tr, "aborted")
                 view = tr.view(self.t, self.budget.speed)
         self._store_ok()
+        self._log_action(action)
         self.checkpoint(wait=True)
         self._drain()  # a measurement that came during the commit
         return Reply(200, view)
 
-    def _create(self, grade: str, duration, queue: bool, key: str | None) -> Reply:
+    def _create(self, grade: str, duration, queue: bool, key: str | None,
+                identity: str) -> Reply:
         """A new transition (202), or, for a known idempotency ``key``, the one that key
-        made (202 again; 422 when the request differs)."""
+        made (202 again; 422 when the request differs); ``identity`` made the request."""
         request = {"key": key, "grade": grade,
                    "duration_s": None if duration is None else float(duration), "queue": queue}
         if key is not None:
@@ -800,8 +853,13 @@ class ControllerNode:
                                      idempotency=None if key is None else request)
                 record, t = tr.as_dict(), self.t
             detail = "queued" if tr.detail == "queued" else f"requested from {tr.from_grade}"
+            action = action_event(
+                "transition.queue" if tr.detail == "queued" else "transition.create",
+                {"transition": tr.id, "grade": grade, "duration_h": tr.duration_s / 3600.0,
+                 "queue": queue}, identity, t, event_id=f"action-{tr.id}-create")
             try:  # committed before it is admitted and acknowledged
-                self._worker.call(self._save_transition, record, "pending", t, detail)
+                self._worker.call(self._save_transition, record, "pending", t, detail,
+                                  (action,))
             except (sqlite3.Error, TimeoutError) as exc:
                 self._store_failed(f"transition {tr.id}", exc)  # never admitted: not run
                 return Reply(503, error=f"store: cannot commit, transition not accepted "
@@ -810,6 +868,7 @@ class ControllerNode:
                 self.tm.admit(tr)
                 view = tr.view(self.t, self.budget.speed)
         self._store_ok()
+        self._log_action(action)
         self.checkpoint(wait=True)
         return Reply(202, view)
 
@@ -1073,6 +1132,10 @@ class ControllerNode:
                 for alarm in new:
                     self.telemetry.event(msg.seq, msg.t, alarm, "WARN")
             self._alarms_logged = set(decision.alarms)
+            alarm_events = self.alarm_events.update(decision.alarms, msg.seq, msg.t,
+                                                    (self._plant_incarnation or "")[:8])
+            if alarm_events:
+                self._worker.submit(self.store.add_events, alarm_events)
             finish = getattr(self.controller, "finish_sample", None)
             if callable(finish):  # the sample's bookkeeping, now that the move is out
                 try:

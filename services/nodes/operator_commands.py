@@ -152,10 +152,8 @@ def handle(node, action: str, args: dict) -> Reply:
                                     if k != "action"))
     if by:
         text += f" (by {by})"
-    log.info("%s", text)
+    log.info("%s", text)  # the recording's event log has it from record_action
     with node._lock:
-        if node.telemetry is not None:
-            node.telemetry.event(node.k, node.t, text)
         if action == "mode":
             return Reply(200, {"unit": node.cfg.unit, "mode": new.mode,
                                "previous": old.mode})
