@@ -28,6 +28,7 @@ viewer page to its canvas (wasm start)   15-50 s
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import os
 import shutil
@@ -157,14 +158,21 @@ class HeadlessChromium:
             self._cleanup()
             raise BrowserUnavailable(f"{exe}: {exc}") from exc
         self._next_id = 0
+        self._stack = contextlib.ExitStack()
         try:
             port = self._devtools_port()
             ws_url = self._page_websocket(port)
-            self.ws = connect(ws_url, max_size=None, open_timeout=s.start_timeout_s)
+            self.ws = self._stack.enter_context(
+                connect(ws_url, max_size=None, open_timeout=s.start_timeout_s))
         except BaseException:
             self.close()
             raise
-        self.call("Emulation.setDeviceMetricsOverride", width=s.width, height=s.height,
+        self.set_viewport(s.width, s.height)
+
+    def set_viewport(self, width: int, height: int) -> None:
+        """Size the page's viewport (and so its screenshots), CSS px at device scale 1."""
+        BrowserSettings(width, height)  # validates
+        self.call("Emulation.setDeviceMetricsOverride", width=width, height=height,
                   deviceScaleFactor=1, mobile=False)
 
     def _devtools_port(self) -> int:
@@ -251,10 +259,10 @@ class HeadlessChromium:
 
     def close(self) -> None:
         """Stop Chromium and remove its temporary profile."""
-        ws = getattr(self, "ws", None)
-        if ws is not None:
+        stack = getattr(self, "_stack", None)
+        if stack is not None:
             try:
-                ws.close()
+                stack.close()  # the websocket
             except Exception:
                 pass
         proc = getattr(self, "proc", None)

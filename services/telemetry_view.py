@@ -39,8 +39,17 @@ import numpy as np
 
 from services.browser import BrowserSettings, HeadlessChromium, stop_group
 
-__all__ = ["ViewSettings", "ServedRecording", "viewer_url", "coloured_fraction",
+__all__ = ["NotDrawn", "ViewSettings", "ServedRecording", "viewer_url", "coloured_fraction",
            "screenshot_recording", "decode_png"]
+
+class NotDrawn(TimeoutError):
+    """The viewer did not draw the recording in time; ``png`` is the last screenshot
+    (None if none was taken)."""
+
+    def __init__(self, message: str, png: bytes | None) -> None:
+        super().__init__(message)
+        self.png = png
+
 
 #: Saturation (max - min of R, G, B over 255) above which a pixel counts as coloured.
 COLOUR_SATURATION = 0.25
@@ -230,7 +239,8 @@ def screenshot_recording(rrd, settings: ViewSettings | None = None,
         A Rerun recording (with its blueprint).
     settings : ViewSettings, optional
     browser : HeadlessChromium, optional
-        A running browser to use (default: one started and stopped here).
+        A running browser to use, its viewport set to the settings' size (default: one
+        started and stopped here).
 
     Returns
     -------
@@ -243,19 +253,21 @@ def screenshot_recording(rrd, settings: ViewSettings | None = None,
     ------
     services.browser.BrowserUnavailable
         No Chromium.
-    TimeoutError
-        The recording was not drawn within ``timeout_s`` (the message says what the page
-        showed).
+    NotDrawn
+        (a TimeoutError) The recording was not drawn within ``timeout_s``: the message
+        says what the page showed, ``png`` is the last screenshot.
     """
     s = settings or ViewSettings()
     own = browser is None
     if own:
         browser = HeadlessChromium(BrowserSettings(s.width, s.height))
+    else:
+        browser.set_viewport(s.width, s.height)
     try:
         with ServedRecording(rrd, theme=s.theme) as served:
             t0 = time.monotonic()
             browser.navigate(served.url)
-            prev, state, frac = None, {}, 0.0
+            prev, state, frac, png = None, {}, 0.0, None
             while True:
                 time.sleep(s.settle_s)
                 state = browser.evaluate(_PAGE_STATE) or {}
@@ -268,10 +280,10 @@ def screenshot_recording(rrd, settings: ViewSettings | None = None,
                                  "canvas": True, "url": served.url}
                 prev = rgb if drawn else None
                 if time.monotonic() - t0 > s.timeout_s:
-                    raise TimeoutError(
+                    raise NotDrawn(
                         f"viewer did not draw {rrd} in {s.timeout_s:g} s (canvas shown: "
                         f"{bool(state.get('canvas'))}, message: {state.get('message')!r}, "
-                        f"coloured pixels {100 * frac:.2f} %)")
+                        f"coloured pixels {100 * frac:.2f} %)", png)
     finally:
         if own:
             browser.close()
