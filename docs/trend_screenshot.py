@@ -34,7 +34,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from services.telemetry_view import ViewSettings, screenshot_recording  # noqa: E402
+from services.browser import BrowserUnavailable, find_chromium  # noqa: E402
+from services.telemetry_view import NotDrawn, ViewSettings, screenshot_recording  # noqa: E402
 
 TE_SAMPLE_S = 36.0  # the TE unit's controller sample period (facts te.md)
 
@@ -119,6 +120,15 @@ def main(argv=None) -> int:
     ap.add_argument("--theme", choices=("dark", "light"), default="dark")
     ap.add_argument("--timeout", type=float, default=900.0, help="wall seconds for the run")
     args = ap.parse_args(argv)
+    try:
+        settings = ViewSettings(args.width, args.height, args.theme, timeout_s=600.0)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if find_chromium() is None:
+        print("error: no chromium on PATH (apt-get install chromium, or set SSMPC_CHROMIUM)",
+              file=sys.stderr)
+        return 2
     from PIL import Image
 
     with tempfile.TemporaryDirectory(prefix="ssmpc-trend-") as tmp:
@@ -131,8 +141,11 @@ def main(argv=None) -> int:
             state = args.keep or Path(tmp)
             state.mkdir(parents=True, exist_ok=True)
             rrd = record(state.resolve(), args.after_h, args.speed, args.timeout)
-        png, info = screenshot_recording(rrd, ViewSettings(args.width, args.height, args.theme,
-                                                           timeout_s=600.0))
+        try:
+            png, info = screenshot_recording(rrd, settings)
+        except (BrowserUnavailable, NotDrawn) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
         import io
 
         im = Image.open(io.BytesIO(png)).convert("RGB")

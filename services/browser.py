@@ -13,13 +13,15 @@ GPU, Chromium renders it with SwiftShader (ANGLE on SwiftShader's Vulkan, WebGL 
 which needs ``--use-angle=swiftshader --enable-unsafe-swiftshader``
 (:data:`SOFTWARE_GL_FLAGS`); the viewer then reports "Software rasterizer" and runs
 WebGL 2 through wgpu's GL backend. Measured on a 2-core x86-64 machine (Debian 12,
-Chromium 150, rerun-sdk 0.41 web viewer) while other test runs kept its load at 9-13:
+Chromium 150, rerun-sdk 0.41 web viewer) while other test runs kept its load at 4-13:
 
 =======================================  ==========================================
 step                                     wall time
 =======================================  ==========================================
 chromium start to its CDP websocket      1-2 s
 viewer page to its canvas (wasm start)   15-50 s
+viewer page to a TE recording drawn      32 s at load 4-7, 52-58 s at load 12-13
+(2 MB, 1280 x 800)                       (``--js-flags=--no-wasm-tier-up``: same)
 ``Page.captureScreenshot``               0.5-1.5 s idle viewer, 7-40 s while the
                                          viewer takes in a recording
 =======================================  ==========================================
