@@ -100,35 +100,46 @@ def blueprint(unit: str, cv_names: Sequence[str], ref_names: Sequence[str] | Non
               variables: Sequence | None = None):
     """The trend display: one panel per key CV (:func:`key_cvs`) with its reference and
     limits; the MVs in % of range; the models as named states; log10 J; events; timing.
-    The default timeline is ``process_time``."""
+    The default timeline is ``process_time``; every plot spans the whole timeline; the
+    time panel is collapsed (play controls and time bar)."""
     import rerun.blueprint as rrb
 
     info = {v.name: v for v in variables or ()}
+    # The whole timeline on every plot's x axis: without it the web viewer, following a
+    # recording as it streams in, shows about one minute around the time cursor (two TE
+    # samples), seen in headless screenshots of rerun 0.41's web viewer.
+    whole = (rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
+                                                   end=rrb.TimeRangeBoundary.infinite()))
+             if hasattr(rrb, "TimeAxis") else None)  # older SDKs: their default
     cv_views = []
     for n in key_cvs(cv_names, ref_names, variables):
         title = _label(info[n]) if n in info else n
         cv_views.append(rrb.TimeSeriesView(
             name=title, origin=f"/{unit}",
             contents=[f"/{unit}/cv/{_safe(n)}", f"/{unit}/ref/{_safe(n)}",
-                      f"/{unit}/limit/{_safe(n)}/**"]))
+                      f"/{unit}/limit/{_safe(n)}/**"], axis_x=whole))
     mv_view = (rrb.TimeSeriesView(name="MVs, % of range", origin=f"/{unit}/mv_pct",
-                                  axis_y=rrb.ScalarAxis(range=(-5.0, 105.0)))
+                                  axis_y=rrb.ScalarAxis(range=(-5.0, 105.0)), axis_x=whole)
                if any(v.kind == "mv" for v in info.values())
-               else rrb.TimeSeriesView(name="MVs", origin=f"/{unit}/mv"))
+               else rrb.TimeSeriesView(name="MVs", origin=f"/{unit}/mv", axis_x=whole))
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(*cv_views, name="key CVs"),
             rrb.Vertical(
                 mv_view,
-                rrb.TimeSeriesView(name="active model", origin=f"/{unit}/model/state"),
-                rrb.TimeSeriesView(name="log10 J (eq. 4.6)", origin=f"/{unit}/model/log10J"),
+                rrb.TimeSeriesView(name="active model", origin=f"/{unit}/model/state",
+                                   axis_x=whole),
+                rrb.TimeSeriesView(name="log10 J (eq. 4.6)", origin=f"/{unit}/model/log10J",
+                                   axis_x=whole),
                 rrb.TextLogView(name="events", origin=f"/{unit}/events"),
-                rrb.TimeSeriesView(name="timing (ms)", origin=f"/{unit}/timing"),
+                rrb.TimeSeriesView(name="timing (ms)", origin=f"/{unit}/timing",
+                                   axis_x=whole),
                 row_shares=[3, 2, 2, 2, 1],
             ),
             column_shares=[3, 2],
         ),
-        rrb.TimePanel(timeline="process_time"),
+        # collapsed: the play controls and the time bar, without the streams tree
+        rrb.TimePanel(timeline="process_time", state="collapsed"),
         collapse_panels=True,
     )
 

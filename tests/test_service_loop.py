@@ -35,7 +35,7 @@ class Harness:
 
     def __init__(self, tmp_path, unit="cstr", speed=LOCKSTEP_SPEED, lockstep=True, telemetry=True,
                  start_plant=True, controller_factory=None, busy_poll=False,
-                 plant_busy_poll=False, **cfg_over):
+                 plant_busy_poll=False, telemetry_variables=False, **cfg_over):
         from dataclasses import replace
 
         self.cfg = replace(get_unit(unit), **cfg_over)
@@ -44,6 +44,8 @@ class Harness:
         self.speed = speed
         self.lockstep = lockstep
         self.telemetry = telemetry
+        # the unit's tags, units and limits in the recording, as `ssmpc controller` writes it
+        self.telemetry_variables = telemetry_variables
         self.controller_factory = controller_factory
         self.busy_poll = busy_poll
         self.plant_busy_poll = plant_busy_poll
@@ -69,10 +71,16 @@ class Harness:
         if self.telemetry:
             from controller.units.config import build_plant, unit_info
 
-            info = unit_info(self.cfg, build_plant(self.cfg))
+            plant = build_plant(self.cfg)
+            info = unit_info(self.cfg, plant)
+            variables = None
+            if self.telemetry_variables:
+                from controller.units.variables import unit_variables
+
+                variables = unit_variables(self.cfg, plant)
             tel = TelemetryLogger(self.cfg.unit, info.cv_names, info.mv_names,
                                   self.tmp / f"{self.cfg.unit}.rrd", batch=20,
-                                  ref_names=self.cfg.track or None)
+                                  ref_names=self.cfg.track or None, variables=variables)
         self.stop_ctrl = threading.Event()
         ctl = None if self.controller_factory is None else self.controller_factory(self.cfg)
         self.ctrl = ControllerNode(self.cfg, self.s_ctrl, self.store, tel, speed=self.speed,
