@@ -231,7 +231,13 @@ class GradeView(BaseModel):
     model_config = ConfigDict(extra="allow")
 
     setpoints: dict[str, float] = Field(description="CV set points of the grade by name")
-    description: str = ""
+    description: str = Field(default="", description="the grade as an engineer knows it "
+                             "(TE: G/H mass ratio and production rate)")
+    g_h_mass_ratio: str | None = Field(default=None, description="TE: G/H product mass "
+                                       "ratio, e.g. '50/50'")
+    product_kg_h: dict[str, float] | None = Field(default=None, description="TE: product "
+                                                  "rates of G and H, kg/h (None: the "
+                                                  "maximum-production modes)")
     stability: str | None = Field(default=None, description="stability type of the "
                                   "operating point")
 

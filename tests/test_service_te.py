@@ -44,6 +44,16 @@ def test_te_grades_are_the_mode_start_measurements():
     mvs = te_mv_names(cfg)
     assert g["mode0"]["mv"][mvs.index("reactor_temperature_sp")] == pytest.approx(120.40,
                                                                                    abs=1e-3)
+    # described as an engineer knows them (seed Table 7.1): G/H mass ratio, product rates
+    assert g["mode2"]["g_h_mass_ratio"] == "10/90" and "10/90" in g["mode2"]["description"]
+    assert g["mode3"]["product_kg_h"] == {"G": 10000.0, "H": 1111.0}
+    assert "maximum production" in g["mode5"]["description"]
+    assert "base case" in g["mode0"]["description"]
+    for name, v in g.items():  # each grade's rates have its own ratio (within 1 %)
+        if v["product_kg_h"] is not None:
+            share = v["product_kg_h"]["G"] / sum(v["product_kg_h"].values())
+            assert share == pytest.approx(int(v["g_h_mass_ratio"].split("/")[0]) / 100,
+                                          abs=0.01), name
 
 
 class HotReactor(HoldController):
@@ -126,6 +136,9 @@ def test_rest_request_moves_te_from_mode0_to_mode2_over_zenoh(tmp_path):
     api = ApiServer(h)
     try:
         h.wait_samples(5, timeout=60)
+        grades = api.client.get("/api/v1/units/te/grades").json()["grades"]
+        assert grades["mode2"]["g_h_mass_ratio"] == "10/90"
+        assert grades["mode2"]["product_kg_h"] == {"G": 1408.0, "H": 12669.0}
         r = api.client.post("/api/v1/units/te/transitions", json={"grade": "mode2"},
                             headers=AUTH)
         assert r.status_code == 202

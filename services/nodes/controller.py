@@ -883,11 +883,14 @@ class ControllerNode:
             raise UnknownTransition(f"id: no transition {tid!r}")
         return Transition.from_dict(rec).view(self.t, self.budget.speed)
 
+    #: What a grade carries to the api besides its set points (TE: G/H ratio, rates).
+    GRADE_FIELDS = ("description", "stability", "g_h_mass_ratio", "product_kg_h")
+
     def grades(self) -> dict:
         return {"unit": self.cfg.unit, "cvs": list(self.info.cv_names),
                 "cv_units": list(self.info.cv_units), "current": self.tm.grade,
                 "grades": {k: {"setpoints": dict(zip(self.info.cv_names, g["setpoints"])),
-                               "description": g["description"], "stability": g["stability"]}
+                               **{f: g[f] for f in self.GRADE_FIELDS if f in g}}
                            for k, g in self.info.grades.items()}}
 
     def status(self) -> dict:

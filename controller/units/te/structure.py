@@ -27,6 +27,21 @@ TE_STRATEGIES = ("ssmpc", "fixed", "pi", "decentralized", "plan")
 TE_XMEAS = tuple(f"XMEAS{i}" for i in range(1, 42))
 
 
+
+#: The TE modes as an engineer knows them (seed Table 7.1, after Downs & Vogel 1993 and
+#: Ricker 1995): G/H mass ratio and product rates (stream 11) in kg/h, None for the
+#: maximum-production modes. Mode 2: Table 7.1 prints 1048 kg/h G, transposed digits
+#: (1408 / (1408 + 12669) = 10.0 %, the ratio the table gives).
+TE_MODE_PRODUCTS = {
+    "mode0": ("50/50", (7038.0, 7038.0)),
+    "mode1": ("50/50", (7038.0, 7038.0)),
+    "mode2": ("10/90", (1408.0, 12669.0)),
+    "mode3": ("90/10", (10000.0, 1111.0)),
+    "mode4": ("50/50", None),
+    "mode5": ("10/90", None),
+    "mode6": ("90/10", None),
+}
+
 def te_setpoint_name(loop) -> str:
     """MV name of a TE inner loop's set point: ``"reactor level"`` → ``reactor_level_sp``."""
     return loop.name.replace(" ", "_") + "_sp"
@@ -109,6 +124,15 @@ def grade_values(cfg) -> dict[str, dict[str, Any]]:
                 mv.append(float(y0[sp_cv[name] - 1]))
             else:
                 mv.append(float(sim.xmv[int(name[3:]) - 1]))
-        out[grade_name(mode)] = {"setpoints": y0[cvi].tolist(), "mv": mv,
-                                 "description": f"TE mode {mode}", "stability": "unstable"}
+        ratio, rates = TE_MODE_PRODUCTS[grade_name(mode)]
+        rate_text = ("maximum production rate" if rates is None else
+                     f"{rates[0]:.0f} kg/h G + {rates[1]:.0f} kg/h H")
+        base = " (Downs & Vogel base case)" if mode in ("base", "0") else ""
+        out[grade_name(mode)] = {
+            "setpoints": y0[cvi].tolist(), "mv": mv,
+            "description": f"TE mode {grade_name(mode)[4:]}{base}: G/H {ratio} by mass, "
+                           f"{rate_text}",
+            "g_h_mass_ratio": ratio,
+            "product_kg_h": None if rates is None else {"G": rates[0], "H": rates[1]},
+            "stability": "unstable"}
     return out
