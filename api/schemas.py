@@ -194,6 +194,12 @@ class StatusView(BaseModel):
     variables: list[VariableView] | None = None
     active_model: int | None = Field(default=None, description="index of the active model")
     active_model_name: str | None = None
+    active_model_detail: str | None = Field(default=None, description="what the active "
+                                            "model is: fixed (of which grade) or adaptive, "
+                                            "and where it was last re-initialized from")
+    prediction_rms: Numbers | None = Field(default=None, description="each model's J as "
+                                           "the RMS prediction error it stands for, in "
+                                           "units of the CVs' scales")
     J: Numbers | None = Field(default=None, description="performance index per model")
     solve_ms: float | None = Field(default=None, description="last controller step, ms")
     controller_status: str | None = None

@@ -363,6 +363,8 @@ class MultiModelController:
         self.n_reinit = 0
         self.n_restarts = 0
         self.n_samples = 0
+        # per re-initialized model: (the fixed model it took its parameters from, sample)
+        self.reinit_from: dict[int, tuple[int, int]] = {}
         self._deferred: tuple[np.ndarray, np.ndarray, int] | None = None
         self._prepared = False  # the estimators hold products for the current shared state
 
@@ -515,7 +517,8 @@ class MultiModelController:
         self.u_last = u
         extra: dict[str, Any] = {"switched": dec.switched, "best": dec.best,
                                  "law_status": status,
-                                 "prediction_rms": self.index.rms_error()}
+                                 "prediction_rms": self.index.rms_error(),
+                                 "active_model_detail": self.describe(self.switcher.active)}
         # the soft output constraint's exact-penalty slack (not the timing slack);
         # None when the law has no soft constraint or did not solve this sample
         reported = info if isinstance(info, dict) and status != "law_failed" else {}
@@ -580,11 +583,24 @@ class MultiModelController:
         margin = (1.0 - self.switcher.hysteresis) * Jj - self.switcher.J_TOL
         return float(J[b]) < margin
 
+    def describe(self, j: int) -> str:
+        """What model ``j`` is, in words: ``"fixed model mode2"``, ``"adaptive
+        (re-initialized), from mode0 at sample 812"``."""
+        kind, name = self.kinds[j], self.names[j]
+        if kind is AdaptiveKind.FIXED:
+            return f"fixed model {name}"
+        text = f"adaptive ({kind.value}) model {name}"
+        if j in self.reinit_from:
+            source, k = self.reinit_from[j]
+            text += f", re-initialized from {self.names[source]} at sample {k}"
+        return text
+
     def _reinitialize(self, j: int, source: int) -> None:
         p = self.params(source)
         est = self.estimators[j]
         if np.array_equal(est.p, p):
             return
+        self.reinit_from[j] = (source, self.n_samples)
         est.set_params(p)
         self.ssm.set_params(j, p)
         self.index.copy_model(source, j)
@@ -676,6 +692,7 @@ class MultiModelController:
             "initialized": self.initialized,
             "aligned": self._aligned,
             **({"hold": self.hold.checkpoint()} if self.hold is not None else {}),
+            "reinit_from": {str(j): list(v) for j, v in self.reinit_from.items()},
             "counters": {"n_invalid": self.n_invalid, "n_law_failures": self.n_law_failures,
                          "n_reinit": self.n_reinit, "n_restarts": self.n_restarts,
                          "n_samples": self.n_samples},
@@ -703,3 +720,6 @@ class MultiModelController:
                 self.hold.reset(self.ssm.estimates()[self.switcher.active])
         for key, value in state.get("counters", {}).items():
             setattr(self, key, int(value))
+        self.reinit_from = {int(j): (int(v[0]), int(v[1]))
+                            for j, v in state.get("reinit_from", {}).items()
+                            if 0 <= int(v[0]) < self.ssm.k}

@@ -160,6 +160,8 @@ def test_rest_request_moves_te_from_mode0_to_mode2_over_zenoh(tmp_path):
         rms = st["prediction_rms"]
         assert set(rms) == set(st["J"]) and all(v is not None and v >= 0 for v in rms.values())
         assert rms[st["active_model_name"]] <= min(rms.values()) / 0.8 ** 0.5 + 1e-9
+        # ... and says what the model in use is (fixed of a grade, or adaptive)
+        assert st["active_model_detail"].startswith(("fixed model mode", "adaptive"))
         assert st["solve_ms"] > 0
         assert st["fallback_moves"] >= 0  # timing-dependent; measured by `ssmpc bench loop`
     finally:

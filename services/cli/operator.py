@@ -281,6 +281,8 @@ def status_lines(st: dict, show_all: bool = False) -> list[str]:
         else:
             js = "J: " + "  ".join(f"{k} {v:.2e}" for k, v in J.items())
         out.append(f"active model {st.get('active_model_name') or '-'}  {js}"[:STATUS_WIDTH])
+        if st.get("active_model_detail"):
+            out.append(f"  ({st['active_model_detail']})"[:STATUS_WIDTH])
     alarms = st.get("alarms", [])[-5:]
     text = " ".join(alarms)
     variables = st.get("variables") or []

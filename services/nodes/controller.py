@@ -918,6 +918,8 @@ class ControllerNode:
                 "active_model_name": (None if d is None or not d.model_names
                                       or d.active_model < 0
                                       else d.model_names[d.active_model]),
+                "active_model_detail": None if d is None else d.extra.get(
+                    "active_model_detail"),
                 "J": {} if d is None else named(d.model_names, np.asarray(d.J)),
                 # J as the weighted RMS prediction error it stands for (units of the
                 # CVs' scales; PerformanceIndex.rms_error)

@@ -412,8 +412,9 @@ class TEController:
             # the MPC's soft reactor-pressure constraint: its slack (None = no solve)
             info["constraint_slack"] = dec.extra.get("constraint_slack")
             info["law_status"] = dec.extra.get("law_status", status)
-            if "prediction_rms" in dec.extra:
-                info["prediction_rms"] = dec.extra["prediction_rms"]
+            for key in ("prediction_rms", "active_model_detail"):
+                if key in dec.extra:
+                    info[key] = dec.extra[key]
             info.update((key, dec.extra[key]) for key in QP_WORK_KEYS if key in dec.extra)
         for j, xmv in enumerate(CORE_XMVS):
             if xmv is not None:
