@@ -255,7 +255,13 @@ def _logging() -> None:
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     # a fatal signal (SIGSEGV, SIGBUS from a mapped file that cannot be backed) leaves
     # the Python stacks of every thread in the log instead of an empty one
-    faulthandler.enable(file=sys.stderr, all_threads=True)
+    # (a stderr without a file descriptor, e.g. captured in a test, has nowhere to
+    # write them from a signal handler: the process's own stderr then)
+    try:
+        faulthandler.enable(file=sys.stderr, all_threads=True)
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation: fileno
+        if sys.__stderr__ is not None:
+            faulthandler.enable(file=sys.__stderr__, all_threads=True)
 
 
 def _stop_event(duration: float | None) -> threading.Event:
