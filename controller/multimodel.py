@@ -627,13 +627,18 @@ class MultiModelController:
         ValueError
             When ``u`` has the wrong length or is not finite.
         """
+        u = self._move_in_force(u)
+        self.finish_sample()
+        self.u_last = u
+        self.initialized = False
+        self._aligned = True
+
+    def _move_in_force(self, u) -> np.ndarray:
+        """``u`` checked (length, finite: else ValueError) and clipped to the input limits."""
         u = np.asarray(u, dtype=float).reshape(-1)
         if u.shape != self.u_last.shape or not np.isfinite(u).all():
             raise ValueError(f"u: expected {self.u_last.size} finite values, got {u!r}")
-        self.finish_sample()
-        self.u_last = np.clip(u, self.u_min, self.u_max)
-        self.initialized = False
-        self._aligned = True
+        return np.clip(u, self.u_min, self.u_max)
 
     def applied(self, u) -> None:
         """The plant got ``u`` instead of the last step's move (a missed deadline: the
@@ -655,10 +660,7 @@ class MultiModelController:
         ValueError
             When ``u`` has the wrong length or is not finite.
         """
-        u = np.asarray(u, dtype=float).reshape(-1)
-        if u.shape != self.u_last.shape or not np.isfinite(u).all():
-            raise ValueError(f"u: expected {self.u_last.size} finite values, got {u!r}")
-        u = np.clip(u, self.u_min, self.u_max)
+        u = self._move_in_force(u)
         computed = self.u_last.copy()
         if self._deferred is not None:
             _, y, active = self._deferred
