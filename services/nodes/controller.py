@@ -138,11 +138,30 @@ class _Worker:
     def __init__(self, on_error=None) -> None:
         self._on_error = on_error
         self._q: queue.SimpleQueue = queue.SimpleQueue()
+        self._latest: dict[str, tuple] = {}
+        self._latest_lock = threading.Lock()
         self._thread = threading.Thread(target=self._run, name="ssmpc-worker", daemon=True)
         self._thread.start()
 
     def submit(self, fn, *args) -> None:
         self._q.put((fn, args, None))
+
+    def submit_latest(self, key: str, fn, *args) -> None:
+        """Like :meth:`submit` for a write only whose newest value matters and whose
+        order no other record depends on (the recent steps): while one of ``key`` waits
+        in the queue, a new one replaces its arguments instead of queueing again. A store
+        that cannot commit (each try waits out the busy timeout) then holds one such write,
+        not one per sample, and a write someone waits for is not stuck behind them."""
+        with self._latest_lock:
+            queued = key in self._latest
+            self._latest[key] = (fn, args)
+        if not queued:
+            self._q.put((self._run_latest, (key,), None))
+
+    def _run_latest(self, key: str) -> None:
+        with self._latest_lock:
+            fn, args = self._latest.pop(key)
+        fn(*args)
 
     def call(self, fn, *args, timeout: float = 30.0):
         """Run ``fn(*args)`` in order after everything submitted so far; its result, or
@@ -1162,7 +1181,8 @@ class ControllerNode:
             steps = self._moves.steps()
             if steps is not None:
                 self._last_steps_wall = t_disarmed
-                self._worker.submit(self.store.save_recent_steps, msg.seq, steps.tolist())
+                self._worker.submit_latest("recent_steps", self.store.save_recent_steps,
+                                           msg.seq, steps.tolist())
         if (changes or ended or msg.seq % self.cfg.checkpoint_every == 0
                 or time.perf_counter() - self._last_checkpoint_wall > self.CHECKPOINT_WALL_S):
             self._checkpoint_due = True
