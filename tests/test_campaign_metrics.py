@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from controller.units.te.grades import trailing_mean
 from services.campaign import metrics
 
 # seed Table 7.3 (R7.3), mode 2: G in product (row 40) 11.66 mol %, product flow
@@ -60,9 +61,8 @@ def test_final_mean_is_the_mean_of_the_last_hour():
 
 def test_trailing_mean_by_hand():
     v = np.array([[1.0, 10.0], [3.0, 10.0], [5.0, 40.0], [7.0, 10.0]])
-    np.testing.assert_allclose(metrics.trailing_mean(v, 2),
-                               [[1, 10], [2, 10], [4, 25], [6, 25]])
-    np.testing.assert_allclose(metrics.trailing_mean(v[:, 0], 3), [1, 2, 3, 5])
+    np.testing.assert_allclose(trailing_mean(v, 2), [[1, 10], [2, 10], [4, 25], [6, 25]])
+    np.testing.assert_allclose(trailing_mean(v[:, 0], 3), [1, 2, 3, 5])
 
 
 def test_active_model_share_by_name():

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["trip_record", "time_to_grade_h", "integrate_rate", "active_model_share",
-           "final_mean", "trailing_mean", "te_grade_targets", "te_metrics", "unit_metrics",
+           "final_mean", "te_grade_targets", "te_metrics", "unit_metrics",
            "TE_G_BAND_MOL", "TE_FLOW_BAND_REL", "FINAL_WINDOW_H", "TE_GRADE_WINDOW_H"]
 
 #: Band on G in product, mol % (XMEAS 40).
@@ -86,22 +86,6 @@ def time_to_grade_h(t, signals, targets, bands, t_leg: float) -> float | None:
     idx = np.flatnonzero(outside)
     first = 0 if idx.size == 0 else int(idx[-1]) + 1
     return float(t[first] - t_leg)
-
-
-def trailing_mean(values, n: int) -> np.ndarray:
-    """Mean of each sample with the ``n - 1`` before it (fewer at the start), per column.
-
-    ``values`` (K,) or (K, m); returns the same shape.
-    """
-    v = np.asarray(values, dtype=float)
-    flat = v.ndim == 1
-    v = v.reshape(v.shape[0], -1)
-    n = max(int(n), 1)
-    c = np.vstack([np.zeros((1, v.shape[1])), np.cumsum(v, axis=0)])
-    idx = np.arange(v.shape[0])
-    lo = np.maximum(idx + 1 - n, 0)
-    out = (c[idx + 1] - c[lo]) / (idx + 1 - lo)[:, None]
-    return out[:, 0] if flat else out
 
 
 def integrate_rate(t, rate, dt: float, t_from: float, t_to: float) -> float:
@@ -189,6 +173,8 @@ def te_metrics(t, xmeas, cost, active, model_names, dt: float,
     else:
         t_leg = float(last_leg[0])
         targets, bands = te_grade_targets(last_leg[1])
+        from controller.units.te.grades import trailing_mean
+
         sig = trailing_mean(x[:, [39, 16]], round(TE_GRADE_WINDOW_H / dt))
     out = {"tripped": tripped, "trip": trip,
            "peak_pressure_kpa": float(np.max(x[:, 6])) if x.shape[0] else None}

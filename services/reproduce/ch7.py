@@ -43,6 +43,7 @@ from controller.units.te.grades import (
     production_change,
     saturation_time,
     time_to_band,
+    trailing_mean,
 )
 from services.reproduce import ReproduceResult, Row, StudyContext
 
@@ -114,11 +115,7 @@ def case_metrics(run: TERun, case: Case) -> dict:
     legs = list(case.legs)
     g = x[:, 39]
     if case.noise:  # analyzer noise (0.5 mol% s.d.): judge the trailing 1 h mean
-        n = max(int(round(G_WINDOW_H / run.meta["sample_h"])), 1)
-        c = np.cumsum(np.r_[0.0, g])
-        idx = np.arange(g.size)
-        lo = np.maximum(idx + 1 - n, 0)
-        g = (c[idx + 1] - c[lo]) / (idx + 1 - lo)
+        g = trailing_mean(g, round(G_WINDOW_H / run.meta["sample_h"]))
     g_times = []
     for i, (t0, gr) in enumerate(legs):
         t1 = legs[i + 1][0] if i + 1 < len(legs) else math.inf

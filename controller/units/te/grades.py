@@ -44,7 +44,7 @@ from plant_sim.tennessee_eastman.modes import start_state
 __all__ = ["GradeError", "Grade", "GRADES", "CONTROL_MARGIN", "CONTROLLED_VALVES", "grade",
            "parse_grade", "check_reachable", "Leg", "TransitionPlan", "TAU_DEFAULT_H",
            "first_order_path", "time_to_band", "ise", "saturation_time", "SHUTDOWN_LIMITS",
-           "limit_margins", "production_change"]
+           "limit_margins", "production_change", "trailing_mean"]
 
 
 class GradeError(ValueError):
@@ -461,6 +461,23 @@ def time_to_band(t, y, target: float, band: float, t_request: float) -> float:
     if out[-1] == y.size - 1:
         return math.inf
     return float(t[out[-1] + 1]) - t_request
+
+
+def trailing_mean(values, n: int) -> np.ndarray:
+    """Mean of each sample with the ``n - 1`` before it (fewer at the start), per column:
+    a noisy analyzer or flow read as an operator reads its trend.
+
+    ``values`` (K,) or (K, m); returns the same shape.
+    """
+    v = np.asarray(values, dtype=float)
+    flat = v.ndim == 1
+    v = v.reshape(v.shape[0], -1)
+    n = max(int(n), 1)
+    c = np.vstack([np.zeros((1, v.shape[1])), np.cumsum(v, axis=0)])
+    idx = np.arange(v.shape[0])
+    lo = np.maximum(idx + 1 - n, 0)
+    out = (c[idx + 1] - c[lo]) / (idx + 1 - lo)[:, None]
+    return out[:, 0] if flat else out
 
 
 def ise(t, y, r) -> float:
