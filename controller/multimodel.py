@@ -365,6 +365,7 @@ class MultiModelController:
         self.n_samples = 0
         # per re-initialized model: (the fixed model it took its parameters from, sample)
         self.reinit_from: dict[int, tuple[int, int]] = {}
+        self._detail: tuple | None = None  # (key, text) of _active_detail
         self._deferred: tuple[np.ndarray, np.ndarray, int] | None = None
         self._prepared = False  # the estimators hold products for the current shared state
 
@@ -518,7 +519,7 @@ class MultiModelController:
         extra: dict[str, Any] = {"switched": dec.switched, "best": dec.best,
                                  "law_status": status,
                                  "prediction_rms": self.index.rms_error(),
-                                 "active_model_detail": self.describe(self.switcher.active)}
+                                 "active_model_detail": self._active_detail()}
         # the soft output constraint's exact-penalty slack (not the timing slack);
         # None when the law has no soft constraint or did not solve this sample
         reported = info if isinstance(info, dict) and status != "law_failed" else {}
@@ -594,6 +595,15 @@ class MultiModelController:
             source, k = self.reinit_from[j]
             text += f", re-initialized from {self.names[source]} at sample {k}"
         return text
+
+    def _active_detail(self) -> str:
+        """:meth:`describe` of the active model, formatted again only when the active
+        model or its re-initialization changed (the text goes out with every sample)."""
+        j = self.switcher.active
+        key = (j, self.reinit_from.get(j))
+        if self._detail is None or self._detail[0] != key:
+            self._detail = (key, self.describe(j))
+        return self._detail[1]
 
     def _reinitialize(self, j: int, source: int) -> None:
         p = self.params(source)

@@ -167,21 +167,16 @@ class _TEGrades:
     """Grade checks of TE (names, reachability with the control structure)."""
 
     def start(self, value, path: str) -> str:
+        return self.leg(None, value, path)
+
+    def leg(self, prev: str | None, value, path: str) -> str:
+        """The grade ``value`` reachable from ``prev`` (None: a start grade, reachable
+        from itself)."""
         from controller.units.te.grades import GradeError, check_reachable, parse_grade
 
         try:
             name = parse_grade(value)
-            check_reachable(name, name)
-        except GradeError as exc:
-            raise SpecError(f"{path}: {_strip_field(exc)}") from None
-        return name
-
-    def leg(self, prev: str, value, path: str) -> str:
-        from controller.units.te.grades import GradeError, check_reachable, parse_grade
-
-        try:
-            name = parse_grade(value)
-            check_reachable(prev, name)
+            check_reachable(name if prev is None else prev, name)
         except GradeError as exc:
             raise SpecError(f"{path}: {_strip_field(exc)}") from None
         return name
