@@ -459,13 +459,9 @@ class TEController:
         missed deadline): the core goes on from them (the MPC's shared state and last
         move, the PI baseline's velocity form). The other XMVs are positional (the
         plan's values and the ratio's D share), nothing to correct."""
-        u = np.asarray(core_u, dtype=float)
-        if self.core is None:
-            return
-        if callable(getattr(self.core, "applied", None)):
-            self.core.applied(u)
-        elif isinstance(getattr(self.core, "u", None), np.ndarray):  # VelocityPI
-            self.core.u = np.clip(u, self.core.u_min, self.core.u_max)
+        applied = getattr(self.core, "applied", None)  # MultiModelController, VelocityPI
+        if callable(applied):
+            applied(np.asarray(core_u, dtype=float))
 
     def checkpoint(self) -> dict[str, Any]:
         return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,

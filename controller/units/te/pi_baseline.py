@@ -135,6 +135,13 @@ class VelocityPI:
         """Bumpless start from the outputs in force."""
         self.u = np.asarray(u0, dtype=float).copy()
 
+    def applied(self, u) -> None:
+        """The plant got ``u`` instead of the last outputs (a missed deadline): the
+        velocity form goes on from it (clipped to the limits); before the first sample
+        there is nothing to go on from."""
+        if self.u is not None:
+            self.u = np.clip(np.asarray(u, dtype=float), self.u_min, self.u_max)
+
     def checkpoint(self) -> dict[str, Any]:
         return {"u": None if self.u is None else self.u.tolist(),
                 "ff_prev": None if self.ff_prev is None else self.ff_prev.tolist(),
