@@ -56,7 +56,7 @@ import numpy as np
 
 from controller.operator_modes import CV_MODES, MV_MODES, OperatorState, VariableSpec
 from controller.units.mpc_operator import MPCOperatorLayer
-from controller.units.takeover import align_multimodel
+from controller.units.takeover import align_multimodel, continue_from_applied
 
 __all__ = ["OperatorView", "OperatedController", "operate", "operator_specs"]
 
@@ -281,11 +281,11 @@ class OperatedController:
         u = self.enforce(np.asarray(dec.u, dtype=float), view)
         extra = dict(dec.extra)
         if state.mode == "warm":
-            self._track(u_applied)
+            continue_from_applied(self.inner, u_applied)
             extra["computed_u"] = u
             return replace(dec, u=u_applied.copy(), extra=extra)
         if not np.array_equal(u, np.asarray(dec.u, dtype=float), equal_nan=True):
-            self._track(u)
+            continue_from_applied(self.inner, u)
         return replace(dec, u=u, extra=extra)
 
     @staticmethod
@@ -298,11 +298,6 @@ class OperatedController:
         free = ~held & np.isfinite(u)
         u[free] = np.minimum(np.maximum(u[free], view.mv_lo[free]), view.mv_hi[free])
         return u
-
-    def _track(self, u: np.ndarray) -> None:
-        track = getattr(self.inner, "applied", None)
-        if callable(track):
-            track(u)
 
     def align(self, u) -> None:
         """Take over the plant's move (a restart, or leaving ``off``)."""
