@@ -1,0 +1,444 @@
+"""Steady-state targets above a state-shared Δu MPC law, recomputed every sample.
+
+The layer commercial APC runs between the set points and the dynamic controller
+(:mod:`controller.targets`: ranked, relaxable CV limits and specifications, DAQP),
+fed here from the **active** model of the state-shared model (seed eq. 3.10–3.16) and
+handing its results to the MPC of seed eq. 6.3–6.10 (:class:`~controller.mpc.law.MPCLaw`).
+
+Steady state of the active model, as the MPC predicts it. With the Δu prediction
+``Δx(k+1) = Φ Δx(k) + Γ Δu(k)``, ``y(k+1) = y(k) + C Δx(k+1)`` on the active model's
+discrete form (Φ, Γ, C) and inputs that settle at u, the predicted outputs settle at::
+
+    y_ss(u) = y_f(k) + K Φ Δx(k) + G (u − u(k−1)),   K = C (I − Φ)⁻¹,   G = K Γ
+
+with ``y_f`` the measurement after the MPC's own filter and ``Δx = n(k) − n(k−1)`` the
+shared state's last step. ``G`` is the model's DC gain (exactly that of its continuous
+model: the ZOH form keeps it). The target problem takes it at the current input
+``u0 = u(k−1)``, with ``y0 = G u0 + K f + b`` the model's own steady output there and
+the bias ``d = y_f + K Φ Δx − y0``: measured minus the model's prediction, corrected
+for the motion still under way, exactly as the Δu MPC corrects its prediction (the
+targets and the MPC agree on where the plant settles).
+
+The problem (:class:`controller.targets.TargetProblem`):
+
+- specifications ``y = r(k+P)`` (rank ``TargetSettings.spec_rank``): the reference at
+  the end of the prediction horizon, the grade's set point as the MPC sees it; a CV
+  with no output weight (Ξ = 0, an operator's CV ``off``) has none;
+- CV limits: the MPC's soft output limits in force (tuned or the operator's), rank
+  ``TargetSettings.limit_rank``;
+- MV limits: the MPC's hard input limits in force (an MV the operator holds: its held
+  value);
+- violations compared on the scale ``1/sqrt(Ξ_i)``: a compromise among specifications
+  of one rank weighs them as the MPC's own output weights do;
+- a small quadratic term ``½ q_u ‖u − u_target(k−1)‖²`` (``TargetSettings.mv_weight``)
+  toward the input targets in force, which makes the targets unique and keeps them
+  still where the specifications leave freedom; no linear economic term (see
+  :mod:`controller.units.two_phase_reactor` for why none).
+
+What the MPC gets: the MV targets as its input targets
+(:meth:`~controller.mpc.law.MPCLaw.set_input_target`, weight
+``MPCSettings.u_target_weight``), and, for a relaxed specification, its CV target as the
+reference: the reference rows of that CV are cut at the target (never beyond it in the
+direction of the set point). Where every specification holds the reference is the set
+point's and the targets only add the input-target term.
+
+A solve that fails, an active model without a steady state (a pole at or beyond 1) or a
+non-finite measurement: the documented safe action is the MPC on its own set points
+with the last good input targets (the current input if there were none), and an alarm.
+
+Measured limits (tests/test_two_phase_targets.py, two-phase reactor, P = 40, 3 MVs):
+the steady state predicted this way agrees with an independent SciPy solve of the same
+problem to 1e-6 (relative); the closed loop on the nonlinear plant settles at the
+relaxed targets within the tolerances stated there. Cost per sample on this 2-core
+machine: ``ssmpc bench mpc-step`` cases ``two-phase`` and ``two-phase targets``
+(docs/targets.md).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from controller.targets import TargetProblem, TargetResult, solve_targets
+
+__all__ = ["TargetSettings", "TargetingLaw", "steady_state_map"]
+
+
+@dataclass(frozen=True)
+class TargetSettings:
+    """How the steady-state targets feed the MPC (one unit setting).
+
+    Parameters
+    ----------
+    enabled : bool
+        Compute targets and feed them to the MPC; False: the MPC alone on its set
+        points (the seed's path).
+    spec_rank : tuple of int (ny,)
+        Rank of each CV's set point as a specification (1 = most important).
+    limit_rank : int
+        Rank of the CV limits (the MPC's soft output limits), usually 1.
+    input_weight : float
+        The MPC's input-target weight W (``MPCSettings.u_target_weight``), per MV
+        unit², >= 0.
+    mv_weight : float
+        The target problem's quadratic MV weight q_u toward the input targets in force,
+        per MV unit², > 0.
+    report_fraction : float
+        A relaxation is reported (alarm) when it exceeds this fraction of the CV's
+        scale ``1/sqrt(Ξ)``, > 0.
+    limit_backoff : tuple of float (ny,), optional
+        How far inside each CV limit the targets stay (CV units, >= 0; empty: 0): the
+        steady-state limit is the MPC's soft limit less this, room for the overshoot of
+        the dynamic response on a plant the linear model does not match.
+    """
+
+    enabled: bool = True
+    spec_rank: tuple[int, ...] = (2, 2, 2)
+    limit_rank: int = 1
+    input_weight: float = 1e-4
+    mv_weight: float = 1.0
+    report_fraction: float = 0.01
+    limit_backoff: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        back = tuple(self.limit_backoff)
+        if any(isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v)
+               or v < 0 for v in back):
+            raise ValueError(f"limit_backoff: must be finite numbers >= 0, got "
+                             f"{self.limit_backoff!r}")
+        object.__setattr__(self, "limit_backoff", tuple(float(v) for v in back))
+        if not isinstance(self.enabled, bool):
+            raise ValueError(f"enabled: must be true or false, got {self.enabled!r}")
+        ranks = tuple(self.spec_rank)
+        if not ranks or any(isinstance(r, bool) or not isinstance(r, int | np.integer)
+                            or r < 1 for r in (*ranks, self.limit_rank)):
+            raise ValueError(f"spec_rank/limit_rank: ranks are whole numbers >= 1, got "
+                             f"{self.spec_rank!r}, {self.limit_rank!r}")
+        object.__setattr__(self, "spec_rank", tuple(int(r) for r in ranks))
+        for name, lo_ok in (("input_weight", 0.0), ("mv_weight", None),
+                            ("report_fraction", None)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise ValueError(f"{name}: must be a finite number, got {v!r}")
+            if (v < 0) if lo_ok is not None else (v <= 0):
+                raise ValueError(f"{name}: must be {'>= 0' if lo_ok is not None else '> 0'}, "
+                                 f"got {v!r}")
+
+
+def steady_state_map(Phi, Gamma, C) -> tuple[np.ndarray, np.ndarray] | None:
+    """``K = C (I − Φ)⁻¹`` (ny, n) and the DC gain ``G = K Γ`` (ny, nu) of a discrete
+    model; None when it has no steady state (an eigenvalue of Φ at or outside the unit
+    circle, or a singular ``I − Φ``)."""
+    Phi = np.asarray(Phi, dtype=float)
+    n = Phi.shape[0]
+    if not np.all(np.isfinite(Phi)) or np.max(np.abs(np.linalg.eigvals(Phi))) >= 1.0 - 1e-9:
+        return None
+    try:
+        K = np.linalg.solve((np.eye(n) - Phi).T, np.asarray(C, dtype=float).T).T
+    except np.linalg.LinAlgError:
+        return None
+    G = K @ np.asarray(Gamma, dtype=float)
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(G))):
+        return None
+    return K, G
+
+
+class TargetingLaw:
+    """An :class:`~controller.mpc.law.MPCLaw` with steady-state targets (module notes).
+
+    A drop-in control law of :class:`controller.multimodel.MultiModelController`:
+    everything but :meth:`compute` goes to the MPC law; the operator's limits
+    (:meth:`set_operator_limits`) and a retune (:meth:`retune`) are also read by the
+    targets.
+
+    Parameters
+    ----------
+    inner : MPCLaw
+        Its settings carry the input-target weight (``u_target_weight``).
+    settings : TargetSettings
+    cv_names, mv_names : tuple of str
+        Names in the report and the alarms.
+    cv_units : tuple of str, optional
+        Engineering units of the CVs (alarm text).
+
+    Attributes
+    ----------
+    report : dict or None
+        The last sample's targets (:meth:`compute` puts it into ``info["targets"]``).
+    """
+
+    def __init__(self, inner, settings: TargetSettings, cv_names, mv_names,
+                 cv_units=()) -> None:
+        self.inner = inner
+        self.targets = settings
+        self.cv_names, self.mv_names = tuple(cv_names), tuple(mv_names)
+        self.cv_units = tuple(cv_units) or ("",) * len(self.cv_names)
+        s = inner.settings
+        if (len(self.cv_names), len(self.mv_names)) != (s.ny, s.nu):
+            raise ValueError("cv_names/mv_names: one name per MPC output and input")
+        if len(settings.spec_rank) != s.ny:
+            raise ValueError(f"spec_rank: expected {s.ny} ranks, got {len(settings.spec_rank)}")
+        if len(settings.limit_backoff) not in (0, s.ny):
+            raise ValueError(f"limit_backoff: expected {s.ny} values, got "
+                             f"{len(settings.limit_backoff)}")
+        self._backoff = (np.asarray(settings.limit_backoff) if settings.limit_backoff
+                         else np.zeros(s.ny))
+        self._maps: dict[int, tuple[Any, tuple]] = {}  # fixed model j -> (form, (K, G))
+        self._x: dict[int, np.ndarray] = {}  # each model's own state (independent model)
+        self._k: int | None = None  # the sample those states are at
+        self._u_ref: np.ndarray | None = None  # input targets in force (last good)
+        self._op: dict[str, Any] = {}
+        self.report: dict | None = None
+        self.last: TargetResult | None = None
+        self.last_problem: TargetProblem | None = None
+        self.solves = 0
+        self.failures = 0
+
+    # -- the MPC law's protocol (delegated) --------------------------------------------
+    @property
+    def settings(self):
+        return self.inner.settings
+
+    @property
+    def mpc(self):
+        return self.inner.mpc
+
+    @property
+    def source(self):
+        return self.inner.source
+
+    @property
+    def input_target(self) -> np.ndarray:
+        return self.inner.input_target
+
+    def prepare(self, ssm) -> None:
+        self.inner.prepare(ssm)
+
+    def set_input_target(self, u_target) -> None:
+        self.inner.set_input_target(u_target)
+
+    def set_operator_limits(self, **limits) -> None:
+        self._op = dict(limits)
+        self.inner.set_operator_limits(**limits)
+
+    def retune(self, settings, ssm) -> None:
+        self.inner.retune(settings, ssm)
+
+    def reset(self, u, y) -> None:
+        self._x.clear()
+        self._k = None
+        self.inner.reset(u, y)
+
+    def finish_sample(self, ssm, model: int) -> None:
+        self.inner.finish_sample(ssm, model)
+
+    def counters(self) -> dict[str, int]:
+        out = self.inner.counters()
+        out.update(targets_solved=self.solves, targets_failed=self.failures)
+        return out
+
+    def checkpoint(self) -> dict[str, Any]:
+        """The MPC law's checkpoint with the targets' own state under ``"targets"``:
+        each model's independent state, their sample and the input targets in force."""
+        out = dict(self.inner.checkpoint())
+        out["targets"] = {"x": {str(j): x.tolist() for j, x in self._x.items()},
+                          "k": self._k,
+                          "u_ref": None if self._u_ref is None else self._u_ref.tolist()}
+        return out
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """Resume from :meth:`checkpoint` (one without ``"targets"``: the models' states
+        start again at the steady state of the input in force)."""
+        state = dict(state)
+        own = state.pop("targets", None) or {}
+        self.inner.restore(state)
+        xs = {}
+        for key, x in (own.get("x") or {}).items():
+            arr = np.asarray(x, dtype=float).reshape(-1)
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"state.targets.x.{key}: expected finite numbers")
+            xs[int(key)] = arr
+        u_ref = own.get("u_ref")
+        u_ref = None if u_ref is None else np.asarray(u_ref, dtype=float).reshape(-1)
+        if u_ref is not None and (u_ref.shape != (self.inner.settings.nu,)
+                                  or not np.all(np.isfinite(u_ref))):
+            raise ValueError("state.targets.u_ref: expected one finite value per MV")
+        self._x = xs
+        self._k = None if own.get("k") is None else int(own["k"])
+        self._u_ref = u_ref
+
+    # -- targets ----------------------------------------------------------------------
+    def _form(self, ssm, j: int):
+        """Model j's discrete form as the MPC predicts with it and its steady-state map:
+        ``(form, (K, G) or None)``; the exact ZOH form of a fixed model (cached while its
+        Θ is the same), the sampled recursion of an adaptive one
+        (:class:`~controller.mpc.law.SharedStateSource`)."""
+        if ssm.kinds[j] == "adaptive":
+            pf = ssm.sampled_form(j)
+            return pf, steady_state_map(pf.Phi, pf.Gamma, pf.C)
+        hit = self._maps.get(j)
+        pf = ssm.prediction_form(j)
+        if hit is None or hit[0] is not pf:
+            hit = (pf, steady_state_map(pf.Phi, pf.Gamma, pf.C))
+            self._maps[j] = hit
+        return hit
+
+    def _advance_models(self, ssm, k: int, u_last: np.ndarray) -> None:
+        """Every model's own (independent) state to sample ``k``: ``x_j <- Φ_j x_j + Γ_j
+        u(k−1) + f_j`` once per sample since the last (a model met for the first time,
+        or after a reset: its steady state at ``u(k−1)``)."""
+        steps = 1 if self._k is None else min(max(int(k) - self._k, 0), self.MAX_CATCH_UP)
+        self._k = int(k)
+        for j in range(ssm.k):
+            pf, kg = self._form(ssm, j)
+            x = self._x.get(j)
+            if x is None or x.shape != (pf.Phi.shape[0],) or not np.all(np.isfinite(x)):
+                if kg is None:
+                    self._x.pop(j, None)
+                    continue
+                n = pf.Phi.shape[0]
+                x = np.linalg.solve(np.eye(n) - pf.Phi, pf.Gamma @ u_last + pf.f)
+            else:
+                for _ in range(steps):
+                    x = pf.Phi @ x + pf.Gamma @ u_last + pf.f
+            self._x[j] = x
+
+    #: Samples an independent model state is advanced at most to catch up (missed ones).
+    MAX_CATCH_UP = 100
+
+    def problem(self, model: int, ssm, y, reference, u_last, k: int | None = None
+                ) -> TargetProblem | None:
+        """The target problem of this sample (module notes); None without a steady
+        state of the active model or with a non-finite input. Advances the models' own
+        states to sample ``k`` (default: the next sample)."""
+        s = self.inner.settings
+        y = np.asarray(y, dtype=float).reshape(-1)
+        u_last = np.asarray(u_last, dtype=float).reshape(-1)
+        R = np.atleast_2d(np.asarray(reference, dtype=float))
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(u_last))
+                and np.all(np.isfinite(R))):
+            return None
+        self._advance_models(ssm, (self._k or 0) + 1 if k is None else k, u_last)
+        pf, kg = self._form(ssm, model)
+        x = self._x.get(model)
+        if kg is None or x is None:
+            return None
+        K, G = kg
+        state = self.inner.mpc.filter.state
+        a = s.filter_alpha
+        y_f = y if state is None or a == 1.0 else a * y + (1.0 - a) * state
+        y_hat = pf.C @ x + pf.b                 # the model's own output now
+        y0 = G @ u_last + K @ pf.f + pf.b       # its steady output at u(k-1)
+        op = self._op
+        u_min = s.u_min if op.get("u_min") is None else np.asarray(op["u_min"], float)
+        u_max = s.u_max if op.get("u_max") is None else np.asarray(op["u_max"], float)
+        fixed = op.get("fixed")
+        if fixed is not None:
+            fixed = np.asarray(fixed, dtype=bool)
+            u_min = np.where(fixed, u_last, u_min)
+            u_max = np.where(fixed, u_last, u_max)
+        u_min = np.minimum(u_min, u_max)
+        y_min = s.y_min if op.get("y_min") is None else np.asarray(op["y_min"], float)
+        y_max = s.y_max if op.get("y_max") is None else np.asarray(op["y_max"], float)
+        if self._backoff.any():
+            lo, hi = y_min + self._backoff, y_max - self._backoff
+            tight = lo > hi  # a band narrower than twice its back-off: its middle
+            with np.errstate(invalid="ignore"):  # -inf + inf where there is no band
+                y_min = np.where(tight, 0.5 * (y_min + y_max), lo)
+            y_max = np.where(tight, y_min, hi)
+        on = s.Xi > 0
+        spec = np.where(on, R[-1], np.nan)
+        scale = np.where(on, 1.0 / np.sqrt(np.where(on, s.Xi, 1.0)), 1.0)
+        u_ref = u_last if self._u_ref is None else self._u_ref
+        return TargetProblem(
+            gain=G, u0=u_last, y0=y0, bias=y_f - y_hat, u_min=u_min, u_max=u_max,
+            q_u=np.full(s.nu, self.targets.mv_weight), u_ref=np.clip(u_ref, u_min, u_max),
+            y_min=y_min, y_max=y_max, y_rank=np.full(s.ny, self.targets.limit_rank),
+            y_spec=spec, spec_rank=np.asarray(self.targets.spec_rank), y_scale=scale,
+            cv_names=self.cv_names, mv_names=self.mv_names)
+
+    def _shaped(self, R: np.ndarray, p: TargetProblem, res: TargetResult) -> np.ndarray:
+        """The reference with each relaxed specification's rows cut at its CV target."""
+        relaxed = {r.cv for r in res.relaxed if r.kind == "spec"}
+        if not relaxed:
+            return R
+        R = np.array(R, dtype=float, copy=True)
+        for i, name in enumerate(self.cv_names):
+            if name in relaxed:
+                if p.y_spec[i] > res.y[i]:
+                    R[:, i] = np.minimum(R[:, i], res.y[i])
+                else:
+                    R[:, i] = np.maximum(R[:, i], res.y[i])
+        return R
+
+    def _alarms(self, p: TargetProblem, res: TargetResult) -> list[str]:
+        out = []
+        frac = self.targets.report_fraction
+        for r in res.relaxed:
+            i = self.cv_names.index(r.cv)
+            if r.amount <= frac * p.y_scale[i]:
+                continue
+            unit = self.cv_units[i]
+            what = {"spec": "set point", "max": "high limit", "min": "low limit"}[r.kind]
+            out.append(f"targets: {r.cv} {what} {r.limit:.4g} {unit} cannot hold with the "
+                       f"higher-ranked limits; relaxed (rank {r.rank}) to a target of "
+                       f"{res.y[i]:.4g} {unit}")
+        return out
+
+    def _report(self, p, res, ms) -> dict:
+        frac = self.targets.report_fraction
+        return {
+            "status": res.status,
+            "mv": dict(zip(self.mv_names, map(float, res.u))),
+            "cv": dict(zip(self.cv_names, map(float, res.y))),
+            "bias": dict(zip(self.cv_names, map(float, p.bias))),
+            "relaxed": [{"cv": r.cv, "kind": r.kind, "rank": r.rank, "limit": r.limit,
+                         "amount": r.amount} for r in res.relaxed
+                        if r.amount > frac * p.y_scale[self.cv_names.index(r.cv)]],
+            "qps": res.qps, "solve_ms": ms,
+        }
+
+    def compute(self, k: int, model: int, ssm, y, reference, u_last):
+        """The MPC's move with this sample's targets (see the module notes)."""
+        if not self.targets.enabled:
+            return self.inner.compute(k, model, ssm, y, reference, u_last)
+        t0 = time.perf_counter()
+        alarms: list[str] = []
+        R = reference
+        try:
+            p = self.problem(model, ssm, y, reference, u_last, k)
+            res = None if p is None else solve_targets(p)
+        except ValueError as exc:  # a malformed problem: the safe action below
+            p, res = None, None
+            alarms.append(f"targets: not computed ({exc}); the MPC runs on its set points")
+        ms = (time.perf_counter() - t0) * 1e3
+        self.last_problem = p
+        if res is not None and res.status != "failed":
+            self.solves += 1
+            self.last = res
+            self._u_ref = res.u.copy()
+            self.inner.set_input_target(res.u)
+            R = self._shaped(np.atleast_2d(np.asarray(reference, dtype=float)), p, res)
+            alarms += self._alarms(p, res)
+            self.report = self._report(p, res, ms)
+        else:
+            self.failures += 1
+            held = np.asarray(u_last, dtype=float) if self._u_ref is None else self._u_ref
+            if np.all(np.isfinite(held)):
+                self.inner.set_input_target(held)
+            if not alarms:
+                why = ("the target solve failed" if res is not None else
+                       "the active model has no steady state or the measurement is invalid")
+                alarms.append(f"targets: not computed ({why}); the MPC runs on its set "
+                              f"points with the last input targets")
+            self.report = {"status": "failed" if res is not None else "unavailable",
+                           "solve_ms": ms}
+        u, info = self.inner.compute(k, model, ssm, y, R, u_last)
+        if alarms:
+            info["alarms"] = list(info.get("alarms", ())) + alarms
+        info["targets"] = self.report
+        return u, info
