@@ -5,35 +5,49 @@ The layer commercial APC runs between the set points and the dynamic controller
 fed here from the **active** model of the state-shared model (seed eq. 3.10–3.16) and
 handing its results to the MPC of seed eq. 6.3–6.10 (:class:`~controller.mpc.law.MPCLaw`).
 
-Steady state of the active model, as the MPC predicts it. With the Δu prediction
-``Δx(k+1) = Φ Δx(k) + Γ Δu(k)``, ``y(k+1) = y(k) + C Δx(k+1)`` on the active model's
-discrete form (Φ, Γ, C) and inputs that settle at u, the predicted outputs settle at::
+Steady state of the active model. Its discrete form (Φ, Γ, C, f, b) as the MPC
+predicts with it (:class:`~controller.mpc.law.SharedStateSource`: the exact ZOH form of
+a fixed model, the sampled recursion of an adaptive one) settles, for inputs held at u,
+at ``y_m(u) = G u + K f + b`` with ``K = C (I − Φ)⁻¹`` and the DC gain ``G = K Γ``
+(that of the continuous model: the ZOH form keeps it). The target problem takes it at
+the input in force, ``u0 = u(k−1)``, ``y0 = y_m(u0)``, with the output bias
+``d = y_f(k) − y0``: the measurement (after the MPC's own filter) minus the model's
+steady-state prediction at the current input, the static bias of DMC. So the targets'
+model passes through the measured point, ``y(u) = y_f + G (u − u(k−1))``, as the Δu
+MPC anchors its prediction at the measurement; at any steady state of the plant it is
+exact, and where the plant is still moving the targets move with it.
 
-    y_ss(u) = y_f(k) + K Φ Δx(k) + G (u − u(k−1)),   K = C (I − Φ)⁻¹,   G = K Γ
+Two other biases were measured on the two-phase reactor and left (its slow inert mode,
+Φ's eigenvalue 0.993 at 0.1 h, a 14 h time constant):
 
-with ``y_f`` the measurement after the MPC's own filter and ``Δx = n(k) − n(k−1)`` the
-shared state's last step. ``G`` is the model's DC gain (exactly that of its continuous
-model: the ZOH form keeps it). The target problem takes it at the current input
-``u0 = u(k−1)``, with ``y0 = G u0 + K f + b`` the model's own steady output there and
-the bias ``d = y_f + K Φ Δx − y0``: measured minus the model's prediction, corrected
-for the motion still under way, exactly as the Δu MPC corrects its prediction (the
-targets and the MPC agree on where the plant settles).
+==========================================  =============================================
+the Δu prediction's own steady state        K Φ Δx amplifies the last state step ~140x on
+(``y_f + K Φ Δx + G (u − u(k−1))``)         the slow mode; a 150 kmol/h request went
+                                            unstable (P 3577 kPa, F4 to 0)
+an independent model (``y − C x_ol − b``)   smooth, but its own 14 h mode: 20 h after the
+                                            transition its prediction at the valves in
+                                            force is 6.4 kPa, 1.0 mol % off the plant and
+                                            the MV targets 0.9 % (one case 7.7 %) off the
+                                            valves the plant settles at
+the static bias (used)                      MV targets within 0.2 % of the settled valves,
+                                            the prediction at the valves in force exact
+==========================================  =============================================
 
 The problem (:class:`controller.targets.TargetProblem`):
 
 - specifications ``y = r(k+P)`` (rank ``TargetSettings.spec_rank``): the reference at
   the end of the prediction horizon, the grade's set point as the MPC sees it; a CV
   with no output weight (Ξ = 0, an operator's CV ``off``) has none;
-- CV limits: the MPC's soft output limits in force (tuned or the operator's), rank
-  ``TargetSettings.limit_rank``;
+- CV limits: the MPC's soft output limits in force (tuned or the operator's), less
+  ``TargetSettings.limit_backoff``, rank ``TargetSettings.limit_rank``;
 - MV limits: the MPC's hard input limits in force (an MV the operator holds: its held
   value);
 - violations compared on the scale ``1/sqrt(Ξ_i)``: a compromise among specifications
   of one rank weighs them as the MPC's own output weights do;
-- a small quadratic term ``½ q_u ‖u − u_target(k−1)‖²`` (``TargetSettings.mv_weight``)
+- a quadratic term ``½ q_u ‖u − u_target(k−1)‖²`` (``TargetSettings.mv_weight``)
   toward the input targets in force, which makes the targets unique and keeps them
-  still where the specifications leave freedom; no linear economic term (see
-  :mod:`controller.units.two_phase_reactor` for why none).
+  still where the specifications leave freedom; no linear economic term (the unit says
+  why).
 
 What the MPC gets: the MV targets as its input targets
 (:meth:`~controller.mpc.law.MPCLaw.set_input_target`, weight
@@ -42,16 +56,18 @@ reference: the reference rows of that CV are cut at the target (never beyond it 
 direction of the set point). Where every specification holds the reference is the set
 point's and the targets only add the input-target term.
 
-A solve that fails, an active model without a steady state (a pole at or beyond 1) or a
-non-finite measurement: the documented safe action is the MPC on its own set points
-with the last good input targets (the current input if there were none), and an alarm.
+A solve that fails, an active model without a steady state (an eigenvalue of Φ at or
+outside the unit circle) or a non-finite measurement: the documented safe action is the
+MPC on its own set points with the last good input targets (the current input if there
+were none), and an alarm; nothing raises out of :meth:`TargetingLaw.compute`.
 
-Measured limits (tests/test_two_phase_targets.py, two-phase reactor, P = 40, 3 MVs):
-the steady state predicted this way agrees with an independent SciPy solve of the same
-problem to 1e-6 (relative); the closed loop on the nonlinear plant settles at the
-relaxed targets within the tolerances stated there. Cost per sample on this 2-core
-machine: ``ssmpc bench mpc-step`` cases ``two-phase`` and ``two-phase targets``
-(docs/targets.md).
+Measured limits (tests/test_two_phase_targets.py, the two-phase reactor's service
+controller on its nonlinear plant): the targets agree with an independent SciPy
+(SLSQP) solve of the same problem to 1e-6 in the CVs and 1e-3 % in the valves; the
+gain is the plant's own DC gain at the active model's point to 1e-6; a pressure set
+point 50 kPa above the limit settles at the targets within 0.5 kPa and 0.1 mol %,
+kmol/h, the pressure at most 5 kPa over its (soft) limit. Cost per sample:
+``ssmpc bench mpc-step``, cases ``two-phase`` and ``two-phase targets`` (docs/targets.md).
 """
 
 from __future__ import annotations
@@ -188,8 +204,6 @@ class TargetingLaw:
         self._backoff = (np.asarray(settings.limit_backoff) if settings.limit_backoff
                          else np.zeros(s.ny))
         self._maps: dict[int, tuple[Any, tuple]] = {}  # fixed model j -> (form, (K, G))
-        self._x: dict[int, np.ndarray] = {}  # each model's own state (independent model)
-        self._k: int | None = None  # the sample those states are at
         self._u_ref: np.ndarray | None = None  # input targets in force (last good)
         self._op: dict[str, Any] = {}
         self.report: dict | None = None
@@ -229,8 +243,6 @@ class TargetingLaw:
         self.inner.retune(settings, ssm)
 
     def reset(self, u, y) -> None:
-        self._x.clear()
-        self._k = None
         self.inner.reset(u, y)
 
     def finish_sample(self, ssm, model: int) -> None:
@@ -242,33 +254,23 @@ class TargetingLaw:
         return out
 
     def checkpoint(self) -> dict[str, Any]:
-        """The MPC law's checkpoint with the targets' own state under ``"targets"``:
-        each model's independent state, their sample and the input targets in force."""
+        """The MPC law's checkpoint with the input targets in force under ``"targets"``
+        (the reference of the next target problem's MV term)."""
         out = dict(self.inner.checkpoint())
-        out["targets"] = {"x": {str(j): x.tolist() for j, x in self._x.items()},
-                          "k": self._k,
-                          "u_ref": None if self._u_ref is None else self._u_ref.tolist()}
+        out["targets"] = {"u_ref": None if self._u_ref is None else self._u_ref.tolist()}
         return out
 
     def restore(self, state: dict[str, Any]) -> None:
-        """Resume from :meth:`checkpoint` (one without ``"targets"``: the models' states
-        start again at the steady state of the input in force)."""
+        """Resume from :meth:`checkpoint` (one without ``"targets"`` starts the MV term
+        from the input in force)."""
         state = dict(state)
         own = state.pop("targets", None) or {}
-        self.inner.restore(state)
-        xs = {}
-        for key, x in (own.get("x") or {}).items():
-            arr = np.asarray(x, dtype=float).reshape(-1)
-            if not np.all(np.isfinite(arr)):
-                raise ValueError(f"state.targets.x.{key}: expected finite numbers")
-            xs[int(key)] = arr
         u_ref = own.get("u_ref")
         u_ref = None if u_ref is None else np.asarray(u_ref, dtype=float).reshape(-1)
         if u_ref is not None and (u_ref.shape != (self.inner.settings.nu,)
                                   or not np.all(np.isfinite(u_ref))):
             raise ValueError("state.targets.u_ref: expected one finite value per MV")
-        self._x = xs
-        self._k = None if own.get("k") is None else int(own["k"])
+        self.inner.restore(state)
         self._u_ref = u_ref
 
     # -- targets ----------------------------------------------------------------------
@@ -287,34 +289,9 @@ class TargetingLaw:
             self._maps[j] = hit
         return hit
 
-    def _advance_models(self, ssm, k: int, u_last: np.ndarray) -> None:
-        """Every model's own (independent) state to sample ``k``: ``x_j <- Φ_j x_j + Γ_j
-        u(k−1) + f_j`` once per sample since the last (a model met for the first time,
-        or after a reset: its steady state at ``u(k−1)``)."""
-        steps = 1 if self._k is None else min(max(int(k) - self._k, 0), self.MAX_CATCH_UP)
-        self._k = int(k)
-        for j in range(ssm.k):
-            pf, kg = self._form(ssm, j)
-            x = self._x.get(j)
-            if x is None or x.shape != (pf.Phi.shape[0],) or not np.all(np.isfinite(x)):
-                if kg is None:
-                    self._x.pop(j, None)
-                    continue
-                n = pf.Phi.shape[0]
-                x = np.linalg.solve(np.eye(n) - pf.Phi, pf.Gamma @ u_last + pf.f)
-            else:
-                for _ in range(steps):
-                    x = pf.Phi @ x + pf.Gamma @ u_last + pf.f
-            self._x[j] = x
-
-    #: Samples an independent model state is advanced at most to catch up (missed ones).
-    MAX_CATCH_UP = 100
-
-    def problem(self, model: int, ssm, y, reference, u_last, k: int | None = None
-                ) -> TargetProblem | None:
+    def problem(self, model: int, ssm, y, reference, u_last) -> TargetProblem | None:
         """The target problem of this sample (module notes); None without a steady
-        state of the active model or with a non-finite input. Advances the models' own
-        states to sample ``k`` (default: the next sample)."""
+        state of the active model or with a non-finite input."""
         s = self.inner.settings
         y = np.asarray(y, dtype=float).reshape(-1)
         u_last = np.asarray(u_last, dtype=float).reshape(-1)
@@ -322,17 +299,14 @@ class TargetingLaw:
         if not (np.all(np.isfinite(y)) and np.all(np.isfinite(u_last))
                 and np.all(np.isfinite(R))):
             return None
-        self._advance_models(ssm, (self._k or 0) + 1 if k is None else k, u_last)
         pf, kg = self._form(ssm, model)
-        x = self._x.get(model)
-        if kg is None or x is None:
+        if kg is None:
             return None
         K, G = kg
         state = self.inner.mpc.filter.state
         a = s.filter_alpha
         y_f = y if state is None or a == 1.0 else a * y + (1.0 - a) * state
-        y_hat = pf.C @ x + pf.b                 # the model's own output now
-        y0 = G @ u_last + K @ pf.f + pf.b       # its steady output at u(k-1)
+        y0 = G @ u_last + K @ pf.f + pf.b  # the model's steady output at u(k-1)
         op = self._op
         u_min = s.u_min if op.get("u_min") is None else np.asarray(op["u_min"], float)
         u_max = s.u_max if op.get("u_max") is None else np.asarray(op["u_max"], float)
@@ -355,7 +329,7 @@ class TargetingLaw:
         scale = np.where(on, 1.0 / np.sqrt(np.where(on, s.Xi, 1.0)), 1.0)
         u_ref = u_last if self._u_ref is None else self._u_ref
         return TargetProblem(
-            gain=G, u0=u_last, y0=y0, bias=y_f - y_hat, u_min=u_min, u_max=u_max,
+            gain=G, u0=u_last, y0=y0, bias=y_f - y0, u_min=u_min, u_max=u_max,
             q_u=np.full(s.nu, self.targets.mv_weight), u_ref=np.clip(u_ref, u_min, u_max),
             y_min=y_min, y_max=y_max, y_rank=np.full(s.ny, self.targets.limit_rank),
             y_spec=spec, spec_rank=np.asarray(self.targets.spec_rank), y_scale=scale,
@@ -410,7 +384,7 @@ class TargetingLaw:
         alarms: list[str] = []
         R = reference
         try:
-            p = self.problem(model, ssm, y, reference, u_last, k)
+            p = self.problem(model, ssm, y, reference, u_last)
             res = None if p is None else solve_targets(p)
         except ValueError as exc:  # a malformed problem: the safe action below
             p, res = None, None
