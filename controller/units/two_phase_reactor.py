@@ -89,7 +89,7 @@ P_LIMIT = 2950.0  # kPa, soft limit in the MPC; the check uses the same number
 #: The MPC alone on its set points (the seed's path).
 SEED_TARGETS = TargetSettings(enabled=False)
 #: The product's steady-state targets above the MPC: the pressure limit rank 1, the set
-#: points rank 2, no back-off (docs/targets.md).
+#: points rank 2, no back-off (docs/two_phase_targets.md).
 PRODUCT_TARGETS = TargetSettings(enabled=True)
 
 
