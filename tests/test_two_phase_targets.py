@@ -123,6 +123,23 @@ def test_a_pressure_set_point_above_the_limit_is_relaxed_and_the_loop_settles_th
     assert y_off[-1, 0] == pytest.approx(P_LIMIT, abs=1.0)  # riding the soft limit
 
 
+def test_set_points_that_need_the_purge_valve_beyond_100_percent():
+    """OPII's pressure and F4 with OPI's yA3 of 47 % need x3 past its range: every set
+    point is relaxed, the targets put x3 at 100 % and say where the plant settles; the
+    MPC alone rides x3 on its hard limit."""
+    sp = np.array([2850.0, 47.0, 130.0])
+    ctl, y, decs, _ = closed_loop(PRODUCT_TARGETS, sp, hours=20.0)
+    last = decs[-1].extra["targets"]
+    assert sorted(r["cv"] for r in last["relaxed"]) == ["F4", "P", "yA3"]
+    assert last["mv"]["x3"] == pytest.approx(100.0, abs=1e-6)
+    y_t = np.array([last["cv"][n] for n in CV])
+    np.testing.assert_allclose(y[-10:], np.tile(y_t, (10, 1)), atol=0.15)  # kPa, %, kmol/h
+    at_limit = np.mean([d.u[2] >= 100.0 - 1e-9 for d in decs])
+    _, _, decs_off, _ = closed_loop(SEED_TARGETS, sp, hours=20.0)
+    at_limit_off = np.mean([d.u[2] >= 100.0 - 1e-9 for d in decs_off])
+    assert at_limit < 0.1 < 0.5 < at_limit_off, (at_limit, at_limit_off)
+
+
 def test_the_targets_follow_the_active_model_after_a_switch():
     opii = np.asarray(GRADES["OPII"]["setpoints"])
     ctl, _, decs, problems = closed_loop(PRODUCT_TARGETS, opii, hours=15.0)
