@@ -187,6 +187,15 @@ def test_an_operator_pressure_limit_is_a_rank_1_limit_of_the_targets():
     assert [(r["cv"], r["kind"]) for r in tg["relaxed"]] == [("P", "spec")]
 
 
+def test_a_limit_back_off_keeps_the_targets_inside_the_limit():
+    inner = build(CFG, PLANT, U_OPI, GRADES,
+                  targets=TargetSettings(limit_backoff=(10.0, 0.0, 0.0)))
+    run = make_runner(CFG)
+    dec = inner.step(0, run.t, run.y(), np.tile([3000.0, 47.0, 100.0], (inner.horizon, 1)))
+    assert dec.extra["targets"]["cv"]["P"] == pytest.approx(P_LIMIT - 10.0, abs=1e-3)
+    assert ("P", "spec") in {(r["cv"], r["kind"]) for r in dec.extra["targets"]["relaxed"]}
+
+
 def test_a_restored_controller_makes_the_same_moves():
     a, _, _, _ = closed_loop(PRODUCT_TARGETS, ABOVE_LIMIT, hours=1.0)
     state = a.checkpoint()

@@ -378,16 +378,18 @@ class TargetingLaw:
         return out
 
     def _report(self, p, res, ms) -> dict:
+        """``extra["targets"]``: ``status`` is ``"relaxed"`` when a relaxation beyond the
+        reporting threshold is listed in ``relaxed``, else ``"optimal"``."""
         frac = self.targets.report_fraction
+        relaxed = [{"cv": r.cv, "kind": r.kind, "rank": r.rank, "limit": r.limit,
+                    "amount": r.amount} for r in res.relaxed
+                   if r.amount > frac * p.y_scale[self.cv_names.index(r.cv)]]
         return {
-            "status": res.status,
+            "status": "relaxed" if relaxed else "optimal",
             "mv": dict(zip(self.mv_names, map(float, res.u))),
             "cv": dict(zip(self.cv_names, map(float, res.y))),
             "bias": dict(zip(self.cv_names, map(float, p.bias))),
-            "relaxed": [{"cv": r.cv, "kind": r.kind, "rank": r.rank, "limit": r.limit,
-                         "amount": r.amount} for r in res.relaxed
-                        if r.amount > frac * p.y_scale[self.cv_names.index(r.cv)]],
-            "qps": res.qps, "solve_ms": ms,
+            "relaxed": relaxed, "qps": res.qps, "solve_ms": ms,
         }
 
     def compute(self, k: int, model: int, ssm, y, reference, u_last):
