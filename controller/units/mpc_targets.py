@@ -372,9 +372,9 @@ class TargetingLaw:
                 continue
             unit = self.cv_units[i]
             what = {"spec": "set point", "max": "high limit", "min": "low limit"}[r.kind]
-            out.append(f"targets: {r.cv} {what} {r.limit:.4g} {unit} cannot hold with the "
-                       f"higher-ranked limits; relaxed (rank {r.rank}) to a target of "
-                       f"{res.y[i]:.4g} {unit}")
+            out.append(f"targets: {r.cv} {what} {r.limit:.4g} {unit} cannot hold within the "
+                       f"MV ranges and the higher-ranked limits; relaxed (rank {r.rank}) to a "
+                       f"target of {res.y[i]:.4g} {unit}")
         return out
 
     def _report(self, p, res, ms) -> dict:
