@@ -60,7 +60,8 @@ point's and the targets only add the input-target term.
 A solve that fails, an active model without a steady state (an eigenvalue of Φ at or
 outside the unit circle) or a non-finite measurement: the documented safe action is the
 MPC on its own set points with the last good input targets (the current input if there
-were none), and an alarm; nothing raises out of :meth:`TargetingLaw.compute`.
+were none), and an alarm; nothing raises out of the targets' part of
+:meth:`TargetingLaw.compute` (the MPC's step then runs as without them).
 
 Measured limits (tests/test_two_phase_targets.py, the two-phase reactor's service
 controller on its nonlinear plant): the targets agree with an independent SciPy
@@ -68,15 +69,14 @@ controller on its nonlinear plant): the targets agree with an independent SciPy
 gain is the plant's own DC gain at the active model's point to 1e-6; a pressure set
 point 50 kPa above the limit settles at the targets within 0.5 kPa and 0.1 mol %,
 kmol/h, the pressure at most 5 kPa over its (soft) limit. Cost per sample
-(``ssmpc bench mpc-step``, one run, this 2-core machine at load 10-11 shared with other
-work; docs/two_phase_targets.md)::
+(``ssmpc bench mpc-step``, four calls on this 2-core machine at load 5-11 shared with
+other work; docs/two_phase_targets.md)::
 
-    case                 step median   step p99   targets median   targets p99
-    two-phase            0.58 ms       20.5 ms    -                -
-    two-phase targets    1.69 ms       28.4 ms    0.60 ms          13.8 ms
+    case                 step median     step p99       targets median  targets p99
+    two-phase            0.31-0.58 ms    1.7-20.5 ms    -               -
+    two-phase targets    0.74-1.69 ms    2.3-28.4 ms    0.29-0.60 ms    1.0-13.8 ms
 
-of which the ``TargetProblem`` checks ~0.2 ms and the solve 0.17 ms (one QP) to 0.40 ms
-(relaxed, four QPs).
+most of it in :func:`controller.targets.solve_targets` and the ``TargetProblem`` checks.
 """
 
 from __future__ import annotations
@@ -403,7 +403,7 @@ class TargetingLaw:
         try:
             p = self.problem(model, ssm, y, reference, u_last)
             res = None if p is None else solve_targets(p)
-        except ValueError as exc:  # a malformed problem: the safe action below
+        except Exception as exc:  # never out of the targets: the safe action below
             p, res = None, None
             alarms.append(f"targets: not computed ({exc}); the MPC runs on its set points")
         ms = (time.perf_counter() - t0) * 1e3
