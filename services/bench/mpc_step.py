@@ -12,6 +12,11 @@ Cases
     (order 24) plus one free-running adaptive model, P = 40, M = 4, 3 MVs;
     transitions 100 → 130 → 100 kmol/h repeated.
 
+    ``two-phase targets``: the same with the unit's steady-state targets above the MPC
+    (:mod:`controller.units.mpc_targets`, the product default), their part of the
+    ``mpc`` time also as ``targets_median_ms``/``targets_p99_ms``; the two cases run in
+    one call, side by side.
+
     ``te``: the chapter-3 TE state-shared model (``controller.units.te.linear_models``: modes 0,
     2, 3 + one adaptive model, n = 8, m = 5, shared order 80, 208 parameters per
     model; 5 MVs: XMV 3, 4, 6, T_r*, XMV 11), P = 10, M = 4 (QP: 21 variables, input,
@@ -88,16 +93,22 @@ def _case(name: str, timer: _Timer, **extra) -> dict:
     return latency_case(name, timer.parts["total"], unit="ms", **parts, **extra)
 
 
-def two_phase_case(samples: int, adapt: bool = True) -> dict:
+def two_phase_case(samples: int, adapt: bool = True, targets: bool = False) -> dict:
     from controller.adaptation import NLSSettings, NormalizedLeastSquares
-    from controller.mpc.law import MPCLaw
     from controller.reference import ReferenceTrajectory, SetpointSchedule
     from controller.state_shared import ModelSpec, StateSharedModel
     from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
-    from controller.units.two_phase_reactor import ReactorCase, reactor_models, reactor_settings
+    from controller.units.two_phase_reactor import (
+        PRODUCT_TARGETS,
+        SEED_TARGETS,
+        ReactorCase,
+        reactor_law,
+        reactor_models,
+        reactor_settings,
+    )
     from plant_sim.integrate import step as plant_step
 
-    case = ReactorCase()
+    case = ReactorCase(targets=PRODUCT_TARGETS if targets else SEED_TARGETS)
     specs, a, plant = reactor_models(case.order)
     specs = list(specs) + [ModelSpec("adaptive", specs[0].theta, specs[0].bias, "adaptive")]
     ssm = StateSharedModel(a, 3, case.dt, specs)
@@ -105,7 +116,7 @@ def two_phase_case(samples: int, adapt: bool = True) -> dict:
     y1 = plant.outputs(ops["OPI"].x, ops["OPI"].u)
     y2 = plant.outputs(ops["OPII"].x, ops["OPII"].u)
     settings = reactor_settings(case, y1, y2)
-    law = MPCLaw(settings)
+    law = reactor_law(settings, case.targets)
     law.prepare(ssm)
     span = np.abs(y2 - y1)
     index = PerformanceIndex(IndexSettings(mu=case.index_mu, nu=case.index_nu,
@@ -127,7 +138,7 @@ def two_phase_case(samples: int, adapt: bool = True) -> dict:
     ssm.initialize(u, y1)
     law.reset(u, y1)
     timer = _Timer()
-    fallbacks = 0
+    fallbacks = relaxed = 0
     actives = set()
     for k in range(per * n_tr):
         y = plant.outputs(x, np.r_[u, x4bar])
@@ -135,13 +146,18 @@ def two_phase_case(samples: int, adapt: bool = True) -> dict:
                                   reference.horizon(settings.P), u, k, timer, adapt)
         u = np.clip(u, 0.0, 100.0)
         fallbacks += bool(info.get("fallback"))
+        if targets:
+            timer.parts.setdefault("targets", []).append(info["targets"]["solve_ms"])
+            relaxed += bool(info["targets"].get("relaxed"))
         actives.add(active)
         x = plant_step(plant, x, np.r_[u, x4bar], case.dt, t=k * case.dt)
         reference.advance()
-    return _case("two-phase", timer, state_order=ssm.order, models=ssm.k, P=settings.P,
+    extra = {"relaxed_samples": relaxed} if targets else {}
+    return _case("two-phase targets" if targets else "two-phase", timer,
+                 state_order=ssm.order, models=ssm.k, P=settings.P,
                  M=settings.M, qp_variables=settings.M * settings.nu + 1,
                  fallbacks=fallbacks, models_used=sorted(actives), adapt=adapt,
-                 rebuilds=law.mpc.counters["rebuilds"])
+                 rebuilds=law.mpc.counters["rebuilds"], **extra)
 
 
 def _te_controller(ssm, P: int, M: int, u_op, y_op, adaptive_refresh: int = 50):
@@ -243,7 +259,8 @@ def run(args) -> list[dict]:
         raise ValueError(f"samples: must be >= 1, got {samples}")
     adapt = not getattr(args, "no_adapt", False)
     seed = getattr(args, "seed", 0)
-    cases = [two_phase_case(samples, adapt), te_case(samples, seed, adapt)]
+    cases = [two_phase_case(samples, adapt), two_phase_case(samples, adapt, targets=True),
+             te_case(samples, seed, adapt)]
     if getattr(args, "synthetic_te", False):
         cases.append(te_case(samples, seed, adapt, synthetic=True))
     return cases
