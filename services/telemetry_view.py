@@ -27,10 +27,11 @@ The panels are found by name with OCR (:func:`check_titles`, :mod:`services.scre
 screen each view gets, and each view's title must be read in that panel's title bar.
 The viewer's own bars and a title's place in its bar are measured constants (rerun-sdk
 0.41): the top bar 36 CSS px, the collapsed time panel 29, a title's centre 14-16 px
-below its panel's top edge and its start 28-29 px right of its left edge. On 1280 x 800
-screenshots of a TE recording every one of the 11 titles was read in its own title bar
-(centres 14-16 px below the panel tops the shares give); a title in another panel's
-bar, only in a legend lower down, or absent is reported as such.
+below its panel's top edge and its start 28-29 px right of its left edge. In 12
+screenshots of 5 TE recordings at 1280 x 800 (device scale 1, read enlarged x2) and one
+at 1600 x 1000, every one of the 11 titles was read in its own title bar; at device
+scale 2 too (8 renders of one recording). A title in another panel's bar, only in a
+legend lower down, or absent is reported as such.
 """
 
 from __future__ import annotations

@@ -14,8 +14,8 @@ then read top to bottom in the left column in the blueprint's order, the others 
 right. Two screens must not pass that check: the viewer's loading page (nothing read),
 and the real screenshot held against a blueprint that renames one panel (a key CV's
 description changed by one letter: that panel is reported missing, the others found).
-Measured at 1280 x 800, device scale 1, read enlarged x2: 11 of 11 titles in 5 renders of
-one recording (services.screen_text).
+Measured at 1280 x 800, device scale 1, read enlarged x2: 11 of 11 titles, each in its own
+title bar, in 12 renders of 5 recordings (services.screen_text).
 
 Besides the names, each panel region holds coloured pixels (series lines, legend dots; the
 viewer's own interface is grey; 1.0-5.3 % of each plot region with the recording drawn,
