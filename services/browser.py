@@ -94,6 +94,12 @@ class BrowserSettings:
     ----------
     width, height : int
         Viewport in CSS pixels, 200-4000.
+    start_timeout_s : float
+        Longest wait for Chromium to open its DevTools port, s.
+    command_timeout_s : float
+        Longest wait for the answer to one CDP command, s.
+    extra_flags : tuple of str
+        Flags added to :data:`SOFTWARE_GL_FLAGS` and the headless ones.
     scale : float
         Device scale factor, 1-4: device pixels per CSS pixel, set at start
         (``--force-device-scale-factor``); the screenshot is ``width * scale`` x
@@ -102,20 +108,14 @@ class BrowserSettings:
         ``Emulation.setDeviceMetricsOverride(deviceScaleFactor=2)``, left the Rerun
         viewer's canvas at ``width`` x ``height`` px with its interface zoomed twice:
         the layout of a viewport half the size, upsampled.)
-    start_timeout_s : float
-        Longest wait for Chromium to open its DevTools port, s.
-    command_timeout_s : float
-        Longest wait for the answer to one CDP command, s.
-    extra_flags : tuple of str
-        Flags added to :data:`SOFTWARE_GL_FLAGS` and the headless ones.
     """
 
     width: int = 1600
     height: int = 1000
-    scale: float = 1.0
     start_timeout_s: float = 20.0
     command_timeout_s: float = 60.0
     extra_flags: tuple[str, ...] = field(default=())
+    scale: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):

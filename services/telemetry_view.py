@@ -75,9 +75,6 @@ class ViewSettings:
     ----------
     width, height : int
         Browser viewport, CSS px.
-    scale : float
-        Device scale factor (:class:`services.browser.BrowserSettings`): the screenshot
-        is ``width * scale`` x ``height * scale`` px.
     theme : str
         ``"dark"`` (the viewer's default) or ``"light"``.
     timeout_s : float
@@ -86,18 +83,21 @@ class ViewSettings:
         Two screenshots this far apart must be alike, s.
     min_coloured : float
         Fraction of coloured pixels (:func:`coloured_fraction`) that counts as drawn.
+    scale : float
+        Device scale factor (:class:`services.browser.BrowserSettings`): the screenshot
+        is ``width * scale`` x ``height * scale`` px.
     """
 
     width: int = 1600
     height: int = 1000
-    scale: float = 1.0
     theme: str = "dark"
     timeout_s: float = 240.0
     settle_s: float = 1.5
     min_coloured: float = 0.002
+    scale: float = 1.0
 
     def __post_init__(self) -> None:
-        BrowserSettings(self.width, self.height, self.scale)  # validates the size
+        BrowserSettings(self.width, self.height, scale=self.scale)  # validates the size
         if self.theme not in ("dark", "light"):
             raise ValueError(f"theme: {self.theme!r} is not 'dark' or 'light'")
         if not self.timeout_s > 0 or not self.settle_s > 0:
@@ -278,7 +278,7 @@ def screenshot_recording(rrd, settings: ViewSettings | None = None,
     s = settings or ViewSettings()
     own = browser is None
     if own:
-        browser = HeadlessChromium(BrowserSettings(s.width, s.height, s.scale))
+        browser = HeadlessChromium(BrowserSettings(s.width, s.height, scale=s.scale))
     else:
         if browser.settings.scale != s.scale:
             raise ValueError(f"the browser runs at device scale {browser.settings.scale:g}, "

@@ -1,11 +1,15 @@
-"""The browser-side helpers of the trend display without a browser: settings refuse bad
-values, the coloured-pixel measure tells grey interface from drawn series, and a missing
-recording or browser is a clear error."""
+"""The browser-side helpers of the trend display without the viewer: settings refuse bad
+values, the coloured-pixel measure tells grey interface from drawn series, a missing
+recording or browser is a clear error, a device scale enlarges the screenshot and not
+the layout (a blank page), the blueprint's shares give each panel its place, and titles
+drawn in their panels' title bars pass the OCR check while swapped, misplaced or absent
+ones do not."""
 
 import io
 
 import numpy as np
 import pytest
+from system_tools import require
 
 from services.browser import BrowserSettings, BrowserUnavailable, HeadlessChromium
 from services.telemetry_view import ServedRecording, ViewSettings, coloured_fraction, viewer_url
@@ -126,8 +130,6 @@ def _two_columns():
 
 @pytest.fixture
 def ocr():
-    from system_tools import require
-
     from services.screen_text import find_tesseract
 
     require(find_tesseract() is not None,
@@ -160,3 +162,23 @@ def test_titles_swapped_misplaced_or_absent_fail(ocr):
     assert set(r.missing) == {"events", "timing (ms)"}
     r = check_titles(_screen([]), _two_columns(), 800, 600)
     assert len(r.missing) == 3 and not r.found
+
+
+def test_device_scale_multiplies_the_screenshot_not_the_layout():
+    from services.browser import find_chromium
+    from services.telemetry_view import decode_png
+
+    require(find_chromium() is not None,
+            "no chromium on PATH (apt-get install chromium, or set SSMPC_CHROMIUM)")
+    try:
+        browser = HeadlessChromium(BrowserSettings(400, 300, scale=2))
+    except BrowserUnavailable as exc:
+        require(False, f"chromium does not run here: {exc}")
+    try:
+        browser.navigate("about:blank")
+        size = browser.evaluate("[innerWidth, innerHeight, devicePixelRatio]")
+        shot = decode_png(browser.screenshot())
+    finally:
+        browser.close()
+    assert size == [400, 300, 2]  # laid out at 400 x 300 CSS px
+    assert shot.shape == (600, 800, 3)
