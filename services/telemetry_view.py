@@ -21,6 +21,17 @@ page before the wasm starts                         0.0 %
 TE 0 -> 2 recording drawn (1600 x 1000, dark)       2.1 %
 3-CV test recording drawn (1000 x 700, dark)        0.9 %
 ==================================================  ===============
+
+The panels are found by name with OCR (:func:`check_titles`, :mod:`services.screen_text`):
+:func:`panel_layout` walks the blueprint's containers and shares to the part of the
+screen each view gets, and each view's title must be read in that panel's title bar.
+The viewer's own bars and a title's place in its bar are measured constants (rerun-sdk
+0.41): the top bar 36 CSS px, the collapsed time panel 29, a title's centre 14-16 px
+below its panel's top edge and its start 28-29 px right of its left edge. In 12
+screenshots of 5 TE recordings at 1280 x 800 (device scale 1, read enlarged x2) and one
+at 1600 x 1000, every one of the 11 titles was read in its own title bar; at device
+scale 2 too (8 renders of one recording). A title in another panel's bar, only in a
+legend lower down, or absent is reported as such.
 """
 
 from __future__ import annotations
@@ -40,7 +51,8 @@ import numpy as np
 from services.browser import BrowserSettings, HeadlessChromium, stop_group
 
 __all__ = ["NotDrawn", "ViewSettings", "ServedRecording", "viewer_url", "coloured_fraction",
-           "screenshot_recording", "decode_png"]
+           "screenshot_recording", "decode_png", "Panel", "panel_layout", "panel_boxes",
+           "TitleCheck", "check_titles"]
 
 class NotDrawn(TimeoutError):
     """The viewer did not draw the recording in time; ``png`` is the last screenshot
@@ -62,7 +74,7 @@ class ViewSettings:
     Parameters
     ----------
     width, height : int
-        Browser viewport, px.
+        Browser viewport, CSS px.
     theme : str
         ``"dark"`` (the viewer's default) or ``"light"``.
     timeout_s : float
@@ -71,6 +83,9 @@ class ViewSettings:
         Two screenshots this far apart must be alike, s.
     min_coloured : float
         Fraction of coloured pixels (:func:`coloured_fraction`) that counts as drawn.
+    scale : float
+        Device scale factor (:class:`services.browser.BrowserSettings`): the screenshot
+        is ``width * scale`` x ``height * scale`` px.
     """
 
     width: int = 1600
@@ -79,9 +94,10 @@ class ViewSettings:
     timeout_s: float = 240.0
     settle_s: float = 1.5
     min_coloured: float = 0.002
+    scale: float = 1.0
 
     def __post_init__(self) -> None:
-        BrowserSettings(self.width, self.height)  # validates the size
+        BrowserSettings(self.width, self.height, scale=self.scale)  # validates the size
         if self.theme not in ("dark", "light"):
             raise ValueError(f"theme: {self.theme!r} is not 'dark' or 'light'")
         if not self.timeout_s > 0 or not self.settle_s > 0:
@@ -239,8 +255,8 @@ def screenshot_recording(rrd, settings: ViewSettings | None = None,
         A Rerun recording (with its blueprint).
     settings : ViewSettings, optional
     browser : HeadlessChromium, optional
-        A running browser to use, its viewport set to the settings' size (default: one
-        started and stopped here).
+        A running browser to use, its viewport set to the settings' size; it must run at
+        the settings' ``scale`` (default: one started and stopped here).
 
     Returns
     -------
@@ -253,6 +269,8 @@ def screenshot_recording(rrd, settings: ViewSettings | None = None,
     ------
     services.browser.BrowserUnavailable
         No Chromium.
+    ValueError
+        ``browser`` runs at another device scale factor than ``settings.scale``.
     NotDrawn
         (a TimeoutError) The recording was not drawn within ``timeout_s``: the message
         says what the page showed, ``png`` is the last screenshot.
@@ -260,8 +278,11 @@ def screenshot_recording(rrd, settings: ViewSettings | None = None,
     s = settings or ViewSettings()
     own = browser is None
     if own:
-        browser = HeadlessChromium(BrowserSettings(s.width, s.height))
+        browser = HeadlessChromium(BrowserSettings(s.width, s.height, scale=s.scale))
     else:
+        if browser.settings.scale != s.scale:
+            raise ValueError(f"the browser runs at device scale {browser.settings.scale:g}, "
+                             f"the view asks for {s.scale:g}")
         browser.set_viewport(s.width, s.height)
     try:
         with ServedRecording(rrd, theme=s.theme) as served:
@@ -287,3 +308,183 @@ def screenshot_recording(rrd, settings: ViewSettings | None = None,
     finally:
         if own:
             browser.close()
+
+
+# -- where the blueprint's panels are on the screen, and their titles -----------------
+
+#: The viewer's own bars above and below the blueprint's panels, CSS px (rerun-sdk 0.41
+#: web viewer, measured on 1280 x 800 screenshots): the top bar with the line under it,
+#: and the collapsed time panel (play controls, time bar) with the line above it.
+VIEWER_TOP_PX = 36
+VIEWER_BOTTOM_PX = 29
+#: A panel's title bar, CSS px from its top edge: the title's centre was measured 14-16
+#: px below it (11 panels, 1280 x 800, device scale 1 and 2).
+TITLE_BAR_PX = 30
+#: How far right of its panel's left edge a title may start, CSS px (after the view's
+#: icon: measured 28-29 px; OCR reads the icon into the title's first word at times).
+TITLE_INDENT_PX = 48
+
+
+@dataclass(frozen=True)
+class Panel:
+    """One view of a blueprint and the part of the panel area it gets.
+
+    Attributes
+    ----------
+    name : str or None
+        Its title (None: the viewer names it itself).
+    kind : str
+        The view's class, e.g. ``"TimeSeriesView"``, ``"TextLogView"``.
+    box : tuple of float
+        ``(x0, y0, x1, y1)``, fractions of the panel area (the viewer's window less
+        its top bar and time panel), from its top left corner.
+    """
+
+    name: str | None
+    kind: str
+    box: tuple[float, float, float, float]
+
+
+def _edges(n: int, shares, lo: float, hi: float) -> list[tuple[float, float]]:
+    w = np.ones(n) if shares is None else np.asarray(list(shares), float)
+    if w.shape != (n,) or not np.all(w > 0):
+        raise ValueError(f"shares {shares!r} do not fit {n} parts")
+    e = lo + (hi - lo) * np.concatenate(([0.0], np.cumsum(w))) / w.sum()
+    return [(float(a), float(b)) for a, b in zip(e[:-1], e[1:])]
+
+
+def panel_layout(blueprint) -> list[Panel]:
+    """The views of a Rerun blueprint, depth first (the order they are declared), each
+    with the part of the panel area that its containers' shares give it.
+
+    Parameters
+    ----------
+    blueprint : rerun.blueprint.Blueprint
+        With ``Horizontal`` (``column_shares``), ``Vertical`` (``row_shares``) and
+        one-view ``Tabs`` containers; no shares means equal parts.
+
+    Raises
+    ------
+    ValueError
+        A ``Grid``, or ``Tabs`` with more than one view (only one would be shown).
+    """
+    import rerun.blueprint as rrb
+
+    out: list[Panel] = []
+
+    def walk(item, box):
+        x0, y0, x1, y1 = box
+        if isinstance(item, rrb.View):
+            out.append(Panel(item.name, type(item).__name__, box))
+            return
+        kind = type(item).__name__
+        parts = list(item.contents)
+        if kind == "Horizontal":
+            for part, (a, b) in zip(parts, _edges(len(parts), item.column_shares, x0, x1)):
+                walk(part, (a, y0, b, y1))
+        elif kind == "Vertical":
+            for part, (a, b) in zip(parts, _edges(len(parts), item.row_shares, y0, y1)):
+                walk(part, (x0, a, x1, b))
+        elif kind == "Tabs" and len(parts) == 1:
+            walk(parts[0], box)
+        else:
+            raise ValueError(f"{kind} container with {len(parts)} views: no fixed place "
+                             f"on the screen for each")
+
+    walk(blueprint.root_container, (0.0, 0.0, 1.0, 1.0))
+    return out
+
+
+def panel_boxes(blueprint, width: int, height: int,
+                scale: float = 1.0) -> list[tuple[Panel, tuple[int, int, int, int]]]:
+    """:func:`panel_layout` on the screen: each panel with its ``(x0, y0, x1, y1)`` in
+    screenshot px, for a viewport of ``width`` x ``height`` CSS px at device scale
+    ``scale`` (the viewer's bars, :data:`VIEWER_TOP_PX` and :data:`VIEWER_BOTTOM_PX`,
+    left out)."""
+    top, bottom = VIEWER_TOP_PX, height - VIEWER_BOTTOM_PX
+    return [(p, (round(p.box[0] * width * scale),
+                 round((top + p.box[1] * (bottom - top)) * scale),
+                 round(p.box[2] * width * scale),
+                 round((top + p.box[3] * (bottom - top)) * scale)))
+            for p in panel_layout(blueprint)]
+
+
+@dataclass(frozen=True)
+class TitleCheck:
+    """What :func:`check_titles` read.
+
+    Attributes
+    ----------
+    found : dict
+        Panel title -> box ``(x0, y0, x1, y1)`` px where it was read in its panel's
+        title bar.
+    misplaced : dict
+        Panel title -> the boxes where it was read, none of them in its title bar.
+    missing : tuple of str
+        Titles not read anywhere.
+    text : tuple of str
+        Every line read (for messages).
+    """
+
+    found: dict
+    misplaced: dict
+    missing: tuple[str, ...]
+    text: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        """Every title read in its own panel's title bar."""
+        return not self.misplaced and not self.missing
+
+    def __str__(self) -> str:
+        return (f"panel titles found {len(self.found)}, misplaced {dict(self.misplaced)}, "
+                f"missing {list(self.missing)}")
+
+
+def check_titles(png: bytes, blueprint, width: int, height: int, scale: float = 1.0,
+                 ocr=None) -> TitleCheck:
+    """Read a screenshot of the viewer and find each named panel's title in its title
+    bar: the band :data:`TITLE_BAR_PX` below the panel's top edge (the title's centre
+    in it), starting at most :data:`TITLE_INDENT_PX` right of its left edge.
+
+    Parameters
+    ----------
+    png : bytes
+        Screenshot, ``width * scale`` x ``height * scale`` px.
+    blueprint : rerun.blueprint.Blueprint
+        The layout the screen should show (:func:`panel_boxes`).
+    width, height : int
+        Viewport, CSS px.
+    scale : float
+        Device scale factor of the screenshot.
+    ocr : services.screen_text.OcrSettings, optional
+        Default: inverted, enlarged twice at scale 1, as is at scale 2 or more (the
+        settings that read every title of the TE display in the module's measurement,
+        :mod:`services.screen_text`).
+
+    Raises
+    ------
+    services.screen_text.OcrUnavailable
+        No tesseract.
+    """
+    from services.screen_text import OcrSettings, find_phrase, read_lines
+
+    if ocr is None:
+        ocr = OcrSettings(upscale=2 if scale < 2 else 1)
+    lines = read_lines(png, ocr)
+    found, misplaced, missing = {}, {}, []
+    bar, indent = TITLE_BAR_PX * scale, TITLE_INDENT_PX * scale
+    for panel, (x0, y0, x1, _) in panel_boxes(blueprint, width, height, scale):
+        if panel.name is None:
+            continue
+        boxes = find_phrase(lines, panel.name)
+        placed = [b for b in boxes
+                  if y0 <= (b[1] + b[3]) / 2 <= y0 + bar and x0 <= b[0] <= x0 + indent
+                  and b[2] <= x1]
+        if placed:
+            found[panel.name] = placed[0]
+        elif boxes:
+            misplaced[panel.name] = boxes
+        else:
+            missing.append(panel.name)
+    return TitleCheck(found, misplaced, tuple(missing), tuple(ln.text for ln in lines))
