@@ -90,7 +90,7 @@ def test_operator_commands_are_validated(te):
         ("XMV3", {"hi": 120.0}, 422, "engineering range"),
         ("XMEAS7", {"mode": "manual"}, 422, "cannot be 'manual'"),
         ("XMEAS1", {"mode": "off"}, 422, "measured only"),
-        ("XMEAS7", {"hi": 2800.0}, 422, "no operator limits"),
+        ("XMEAS11", {"hi": 80.0}, 422, "no operator limits"),
         ("XMV3", {"mode": "auto", "speed": 1}, 422, "speed"),
         ("XMV3", {"value": True}, 422, "value"),
         ("XMV3", {}, 422, "nothing to change"),
