@@ -90,7 +90,7 @@ def test_operator_commands_are_validated(te):
         ("XMV3", {"hi": 120.0}, 422, "engineering range"),
         ("XMEAS7", {"mode": "manual"}, 422, "cannot be 'manual'"),
         ("XMEAS1", {"mode": "off"}, 422, "measured only"),
-        ("XMEAS7", {"hi": 2800.0}, 422, "no operator limits"),
+        ("XMEAS11", {"hi": 80.0}, 422, "no operator limits"),
         ("XMV3", {"mode": "auto", "speed": 1}, 422, "speed"),
         ("XMV3", {"value": True}, 422, "value"),
         ("XMV3", {}, 422, "nothing to change"),
@@ -99,6 +99,11 @@ def test_operator_commands_are_validated(te):
         r = c.patch(f"/api/v1/units/te/variables/{name}", headers=AUTH, json=body)
         assert r.status_code == code, (name, body, r.text)
         assert text in r.json()["detail"], (name, body, r.text)
+    # the reactor pressure takes limits: they go to the steady-state targets
+    r = c.patch("/api/v1/units/te/variables/XMEAS7", headers=AUTH, json={"hi": 2800.0})
+    assert r.status_code == 200, r.text
+    v, _ = _variable(api, "XMEAS7")
+    assert v["hi"] == 2800.0
     r = c.patch("/api/v1/units/te/variables/XMV3", headers=AUTH,
                 content=b'{"lo": NaN}', )
     assert r.status_code == 422

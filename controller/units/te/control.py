@@ -24,7 +24,18 @@ Layers (seed Fig. 7.2)
          values, no feedback core), the reference a feedback core has to beat. The MPC's
          input targets follow the grade plan (:class:`TEMPCOptions`), trimmed by an
          outer production loop (XMEAS 17 -> A+C feed);
-       - a high-pressure override cuts the A+C feed above 2900 kPa (all strategies).
+       - a high-pressure override cuts the A+C feed above 2900 kPa (all strategies);
+       - MPC strategies: the input targets and CV references pass through the
+         steady-state targets of the active model
+         (:mod:`controller.units.te.targets`): the plan's values as they stand while
+         the model's steady state, moved by the plant's slow offset from it, meets the
+         limits (reactor pressure <= 2895 kPa, the operator's limits on XMEAS 7), else
+         the least change of the pressure set point's target that meets them, the
+         lowest-ranked limit relaxed and reported when none can. In the 0 -> 2
+         transition, the 3 -> 0, 3 -> 1, 2 -> 1 legs and IDV 1, 6, 7, 8 (noise on,
+         seed 1) no limit binds at the steady state before a trip and the moves equal
+         those without this layer: the trips are excursions of 1-3 h, faster than a
+         steady-state layer.
 
 Switching
     The index compares the models on their output errors at low frequency on one
@@ -40,18 +51,19 @@ Switching
     ======================  ===================================================
     settled 24 h, modes     the mode's own model active in 100 % of samples
     0, 2, 3
-    0 -> 3                  mode-3 model from 1.2 h on
-    0 -> 2                  mode 2 at 1.2 h, mode 3 from 3.4-3.6 h, mode 2 for
-                            good from 8.4 h (the plan reaches mode 2 at 6.8 h)
-    2 -> 0                  mode 3 from 4.4-4.7 h, mode 0 for good from 8.4-8.8 h
-    0 -> 2 -> 3 (48 h)      no trip; mode 3 from 1.8 h after the second change
-    3 -> 0                  trips on reactor pressure at 3.8 h, as before this
-                            tuning (the reaction dies with the coolant valve shut:
-                            a limit of the 3 -> 0 grade plan, not of the index)
-    IDV 1, 2, 4, 6, 7, 8 at trips 4 of 18 (mode 2: IDV 6 at 13.4 h, IDV 7 at
-    modes 0, 2, 3 (24 h)    3.0 h; mode 3: IDV 7 at 5.8 h, IDV 8 at 6.5 h); 7 of
-                            18 with the seed's index on the companion basis
+    0 -> 3                  mode-3 model from 1.17-1.18 h on, for good
+    0 -> 2                  mode-2 model from 1.18-1.23 h on, for good
+    2 -> 0                  mode-0 model from 4.76-4.78 h on, for good
+    3 -> 0                  trips on reactor pressure at 3.8 h (the reaction dies
+                            with the coolant valve shut: a limit of the 3 -> 0
+                            grade plan, every strategy trips; not of the index)
     ======================  ===================================================
+
+    (Measured with the condenser XMV11 pinned to the plan, :class:`TEMPCOptions`
+    ``target_weight``, and the plant's noise seeded per run with
+    :func:`plant_seed_for`. With XMV11 free the index went 0 -> 2 by way of the
+    mode-3 model from 3.4 h to 8.4 h and 2 -> 0 by way of it from 4.4 h to 8.4 h: the
+    MPC's moves of XMV11 drove the plant where the mode-3 model predicted it best.)
 
     Strategy "ssmpc": the re-initialized adaptive model stays active through these
     runs (a fixed model must beat it by the hysteresis to replace it), taking a fixed
@@ -215,7 +227,8 @@ class TEController:
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
                  sample_h: float = SAMPLE_H, horizon: int = 10,
-                 outer_a_loop: bool = True, production_loop: bool = True) -> None:
+                 outer_a_loop: bool = True, production_loop: bool = True,
+                 targets=None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -225,6 +238,8 @@ class TEController:
         self.sample_h = float(sample_h)
         self.horizon = int(horizon)
         self.outer_a_loop = bool(outer_a_loop)
+        #: steady-state targets of the MPC core (:class:`controller.units.te.targets.CoreTargets`)
+        self.targets = targets
         self.s: float | None = None
         self.s_ff_prev: float | None = None
         self.e_g_prev: float | None = None
@@ -357,6 +372,30 @@ class TEController:
         if callable(setter):
             setter(target)
 
+    def _steady_targets(self, yc, y_now, u_now, u_plan, refs, y_plan, info, alarms):
+        """The MPC's input targets and CV references from the steady-state targets of
+        the active model (:mod:`controller.units.te.targets`): the handles' targets, and
+        the plan's CV trajectory shifted onto the CV targets. The plan's values when the
+        model has none (before the first sample, a model without a steady state)."""
+        core = self.core
+        if not getattr(core, "initialized", False):
+            return u_plan, refs
+        self.targets.observe(core.ssm, core.active, yc, core.u_last, y_now, u_now,
+                             self.sample_h)
+        res = self.targets.solve(core.ssm, core.active, u_plan, y_plan)
+        if res is None:
+            info["targets"] = {"status": "plan"}
+            return u_plan, refs
+        info["targets"] = {"status": res.status, "u": res.u.copy(), "y": res.y.copy(),
+                           "relaxed": [(r.cv, r.kind, r.rank, r.limit, r.amount)
+                                       for r in res.relaxed]}
+        for r in res.relaxed:
+            alarms.append(f"steady-state targets: {r.cv} {r.kind} limit {r.limit:g} "
+                          f"relaxed by {r.amount:.3g} (rank {r.rank})")
+        # the CV references move by what the targets' change of the handles moves them
+        offset = self.targets.offset if self.targets.offset is not None else 0.0
+        return res.u, refs + (res.y - y_plan - offset)
+
     @staticmethod
     def _core_ff(xv: np.ndarray, ym: np.ndarray) -> np.ndarray:
         """Core handles' plan values from the valve and XMEAS references."""
@@ -403,6 +442,9 @@ class TEController:
                 target[0] = min(max(target[0] + self._a_trim_step(ym, xmeas), 0.0), 100.0)
             if self.production_loop is not None:
                 target[1] = min(max(target[1] + self._production_step(ym, xmeas), 0.0), 100.0)
+            if self.targets is not None:
+                target, refs = self._steady_targets(yc, ym[_CORE_CV_INDEX], ff, target, refs,
+                                                    ym_all[-1, _CORE_CV_INDEX], info, alarms)
             self._set_input_target(target)
             dec = self.core.step(k, t, yc, refs)
             core_u, status, fallback = dec.u, dec.status, dec.fallback
@@ -468,6 +510,7 @@ class TEController:
                 "override": self.override, "a_trim": self.a_trim, "e_a_prev": self.e_a_prev,
                 "p_trim": self.p_trim, "e_p_prev": self.e_p_prev,
                 "core": None if self.core is None else self.core.checkpoint(),
+                "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
                 "t_last": self._t_last}
 
@@ -475,6 +518,8 @@ class TEController:
         self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
         if self.core is not None:
             self.core.restore(state["core"])
+        if self.targets is not None and state.get("targets") is not None:
+            self.targets.restore(state["targets"])
         self.n_samples = int(state.get("n_samples", 0))
         t_last = state.get("t_last")
         self._t_last = None if t_last is None else float(t_last)
@@ -546,12 +591,29 @@ class TEMPCOptions:
         A-in-feed and production loops. 0 = none (the seed's formulation; in this
         port the 0 -> 2 transition then trips on reactor pressure within 2-19 h,
         depending on the weights). Default 1000 on the A feed XMV3, the production
-        handle XMV4 and T_r* (pinned to the plan and the outer loops) and 10 on
-        P_r* and XMV11: when the MPC moved XMV4 and T_r* freely the 2 -> 3 leg of
+        handle XMV4, T_r* and the condenser XMV11 (pinned to the plan and the outer
+        loops) and 10 on P_r*. XMV11 is pinned because the models' gain from it to
+        the reactor pressure has the wrong sign (+1.9 kPa/% at mode 0, +0.8 at mode
+        2, where the plant's is negative): with weight 10 a falling pressure made
+        the MPC open the condenser further (IDV(7) at mode 2: XMV11 13 -> 43 % in
+        0.15 h, the pressure 2714 -> 2530 kPa, then the trip at 2.97 h). Measured
+        (noise on, seed 1, 24 h, strategy "fixed"): trips in IDV 1-20 at modes 0, 2,
+        3 from 6 of 60 to 3 (IDV 6 at mode 2, IDV 7 at modes 2 and 3); in the 12
+        transitions among modes 0-3 from 5 to 4 ("ssmpc": 6 to 4): 1 -> 2 and
+        2 -> 1 no longer trip, 1 -> 3 does (3.4 h; the A-feed trim winds up while
+        the plan opens the condenser), the three legs from mode 3 trip as with
+        every strategy. When the MPC moved XMV4 and T_r* freely the 2 -> 3 leg of
         0 -> 2 -> 3 tripped on reactor pressure at 32-35 h in every weighting tried
         (the D valve of the level loop saturates and the level collapses), and
         with XMV3 free of the A loop IDV(1) tripped. The seed notes that T_r*
         stayed in a narrow range in its 0 -> 2 -> 3 run.
+    steady_targets : bool
+        Take the MPC's input targets and CV references from the steady-state targets
+        of the active model (:mod:`controller.units.te.targets`: the plan's values
+        moved to the best steady state within the reactor-pressure limit and the
+        handle ranges, with ranked relaxation) instead of the plan's values directly.
+    target_settings : CoreTargetSettings, optional
+        Their limits (default :class:`controller.units.te.targets.CoreTargetSettings`).
     """
 
     P: int = 10
@@ -564,7 +626,7 @@ class TEMPCOptions:
     pressure_soft_max: float = 2950.0
     index_dwell_h: float = 1.0
     nls_gain: float = 10.0
-    target_weight: float | tuple = (1000.0, 1000.0, 10.0, 1000.0, 10.0)
+    target_weight: float | tuple = (1000.0, 1000.0, 10.0, 1000.0, 1000.0)
     basis: str = "orthonormal"
     model_order: int = 8
     index_errors: str = "steady_output"
@@ -572,6 +634,8 @@ class TEMPCOptions:
     index_mu: float = 0.0
     index_nu: float = 1.0
     index_forgetting: float = 1.0
+    steady_targets: bool = True
+    target_settings: Any = None
 
     def __post_init__(self) -> None:
         from controller.shared_basis import BASES
@@ -590,6 +654,14 @@ class TEMPCOptions:
         if tw.size not in (1, 5) or not np.isfinite(tw).all() or np.any(tw < 0):
             raise ValueError(f"target_weight: one or 5 finite values >= 0, got "
                              f"{self.target_weight!r}")
+        from controller.units.te.targets import CoreTargetSettings
+
+        if not isinstance(self.steady_targets, bool):
+            raise ValueError(f"steady_targets: must be true or false, got "
+                             f"{self.steady_targets!r}")
+        if self.target_settings is not None and not isinstance(self.target_settings,
+                                                                CoreTargetSettings):
+            raise ValueError("target_settings: must be a CoreTargetSettings")
         for name in ("output_weight", "move_weight", "index_dwell_h", "nls_gain"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -659,6 +731,23 @@ def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | No
     return core, opt.P
 
 
+def core_targets(strategy: str, opt: TEMPCOptions):
+    """The steady-state targets of the MPC core for these options (None when
+    ``opt.steady_targets`` is off): the least change of the plan's handles, weighted
+    by the MPC's input-target weights, that meets the limits
+    (:mod:`controller.units.te.targets`)."""
+    from controller.units.te.targets import CoreTargets
+
+    if not opt.steady_targets:
+        return None
+    scale = np.asarray(opt.output_scale, dtype=float)
+    q_y = np.zeros(5)  # the least change of the plan that meets the limits
+    q_u = np.maximum(np.broadcast_to(np.asarray(opt.target_weight, dtype=float), (5,)), 1e-6)
+    lo, hi = _core_limits()
+    return CoreTargets(q_u, q_y, scale, lo, hi, opt.target_settings,
+                       cv_names=tuple(f"XMEAS{c}" for c in CORE_CVS), mv_names=CORE_NAMES)
+
+
 def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        sample_h: float = SAMPLE_H, plant_dt_s: float = 1.8,
                        ratio: RatioSettings | None = None,
@@ -702,6 +791,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         raise ValueError(f"sample_h: must be a whole number (>= 1) of plant steps of "
                          f"{plant_dt_s} s, got {sample_h} h")
     lo, hi = _core_limits()
+    targets = None
     if strategy == "pi":
         core = VelocityPI(PI_BASELINE_LOOPS, sample_h, lo, hi)
         horizon = 1
@@ -711,8 +801,10 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         xv, ym = plan.xmv_ref(0.0), plan.xmeas_ref(0.0)
         u0 = np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
         core, horizon = make_mpc_core(strategy, sample_h, u0, mpc, realtime=realtime)
+        targets = core_targets(strategy, mpc or TEMPCOptions())
     ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon,
-                       outer_a_loop, production_loop)
+                       outer_a_loop, production_loop,
+                       targets=targets if strategy in ("fixed", "ssmpc") else None)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 

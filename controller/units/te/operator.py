@@ -14,9 +14,13 @@ What each kind of variable offers (:meth:`TEOperatorLayer.capabilities`):
 - the MPC's five CVs (XMEAS 7, 11, 13, 16, 18): ``off`` removes the CV from the
   objective (its weight Ξ is 0) and from the soft limits (the QP is rebuilt when the
   set of CVs switched off changes: ~3 ms for the four models, measured on this 2-core
-  machine). No operator limits (:data:`SOFT_LIMITS_UNSAFE`): :meth:`TEOperatorLayer.
-  apply` would make them the sample's soft output limits, but the MPC as tuned trips
-  the plant when one binds;
+  machine). The reactor pressure XMEAS 7 takes operator limits as limits of the
+  steady-state targets (:mod:`controller.units.te.targets`, rank 1): the MPC is steered
+  to a steady state within them (the pressure set point's target moves), never given
+  them as dynamic constraints. The other four take none (:data:`SOFT_LIMITS_UNSAFE`):
+  as the MPC's soft output limits they trip the plant when one binds, and the targets
+  cannot meet them (only P_r*'s target moves, see
+  :class:`~controller.units.te.targets.CoreTargetSettings`);
 - the outer loops' CVs (XMEAS 17 production, 23 A in feed, 40 G in product): ``off``
   holds that loop's integral (:meth:`~controller.units.te.control.TEController.
   hold_outer_loops`); no operator limits (no constraint acts on them);
@@ -27,6 +31,10 @@ must not wind up) and the ratio loop tracks the applied E feed valve.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
 
 from controller.operator_modes import CV_MODES, MV_MODES
 from controller.units.mpc_operator import MPCOperatorLayer
@@ -43,6 +51,12 @@ SOFT_LIMITS_UNSAFE = ("the TE MPC's soft output limits below the value drive XMV
                       "set point instead (reactor_pressure_sp, reactor_temperature_sp)")
 #: The MPC's CVs as unit CV names (:data:`controller.units.te.control.CORE_CVS`).
 CORE_CV_NAMES = ("XMEAS7", "XMEAS11", "XMEAS13", "XMEAS16", "XMEAS18")
+#: The core CVs whose operator limits the steady-state targets take (reactor pressure).
+TARGET_LIMITED = ("XMEAS7",)
+TARGET_LIMIT_NOTE = ("operator limits act on the steady-state targets (rank 1): the "
+                     "pressure set point's target moves so the plant settles within them "
+                     "(a slow layer: about 1 h time constant; the interlock and the high-"
+                     "pressure override guard the fast excursions)")
 _OUTER = {"XMEAS17": "production loop (XMEAS 17 -> A+C feed target)",
           "XMEAS23": "A-in-feed loop (XMEAS 23 -> A feed target)",
           "XMEAS40": "G-in-product loop (XMEAS 40 -> D share of the D+E feed)"}
@@ -71,6 +85,12 @@ class TEOperatorLayer:
                                      [TE_XMEAS.index(n) for n in CORE_CV_NAMES])
                     if None not in self.core_idx and MPCOperatorLayer.fits(core) else None)
         self._last_view = None
+        self._mpc_view = None  # the view as the MPC gets it (XMEAS 7's limits removed)
+
+    @property
+    def targets(self):
+        """The controller's steady-state targets (None: strategy without them)."""
+        return getattr(self.ctl, "targets", None) if self.has_mpc else None
 
     @property
     def has_mpc(self) -> bool:
@@ -81,7 +101,10 @@ class TEOperatorLayer:
         for n in mv_names:
             caps[n] = {"modes": MV_MODES, "limits": True, "controlled": True}
         for n in cv_names:
-            if self.has_mpc and n in CORE_CV_NAMES:
+            if self.has_mpc and n in TARGET_LIMITED and self.targets is not None:
+                caps[n] = {"modes": CV_MODES, "limits": True, "controlled": True,
+                           "note": TARGET_LIMIT_NOTE}
+            elif self.has_mpc and n in CORE_CV_NAMES:
                 caps[n] = {"modes": CV_MODES, "limits": False, "controlled": True,
                            "note": SOFT_LIMITS_UNSAFE}
             elif self.has_mpc and n in _OUTER:
@@ -104,5 +127,24 @@ class TEOperatorLayer:
             hold = getattr(self.ctl, "hold_outer_loops", None)
             if callable(hold):  # not in the decentralized baseline
                 hold(held)
+            self._mpc_view = self._route_target_limits(view, cv_index)
         if self.mpc is not None:
-            self.mpc.apply(view)
+            self.mpc.apply(self._mpc_view)
+
+    def _route_target_limits(self, view, cv_index):
+        """The operator limits of :data:`TARGET_LIMITED` to the steady-state targets;
+        the view the MPC gets, without them."""
+        targets = self.targets
+        if targets is None:
+            return view
+        lo, hi = np.full(5, -np.inf), np.full(5, np.inf)
+        cv_lo, cv_hi = view.cv_lo.copy(), view.cv_hi.copy()
+        for n in TARGET_LIMITED:
+            i = cv_index.get(n)
+            if i is None or not view.cv_on[i]:
+                continue
+            k = CORE_CV_NAMES.index(n)
+            lo[k], hi[k] = view.cv_lo[i], view.cv_hi[i]
+            cv_lo[i], cv_hi[i] = -np.inf, np.inf
+        targets.set_operator_limits(lo, hi)
+        return replace(view, cv_lo=cv_lo, cv_hi=cv_hi)

@@ -1,0 +1,290 @@
+"""Steady-state targets of the TE MPC core from the active model (the layer above the MPC).
+
+Each sample the TE controller asks :class:`CoreTargets` where the five core handles
+(XMV 3, XMV 4, P_r*, T_r*, XMV 11) and the five core CVs (XMEAS 7, 11, 13, 16, 18)
+should settle, and hands the answer to the MPC as its input targets, the CV references
+moving with it (the plan's trajectory shifted by the targets' predicted effect). The
+problem, solved by :mod:`controller.targets` (ranked limits, least relaxation)::
+
+    min_u  ½ Σ q_u,i (u_i - u_plan,i)²
+    s.t.   y = y_plan + d + G_j (u - u_plan),
+           max(u_min, u_plan - band) <= u <= min(u_max, u_plan + band),
+           XMEAS 7 <= pressure_max and the operator's XMEAS 7 limits (rank 1),
+           CV band (rank 2, optional)
+
+- ``(u_plan, y_plan)``: the grade plan's handles (trimmed by the outer A-feed and
+  production loops) and CVs at the end of the horizon, a steady state of the plant
+  (Ricker's optimum of the grade along the plan's path);
+- ``G_j``: the steady-state gain of the active model j (seed eq. 4.6 picks it) on the
+  shared state (continuous form ``n' = A n + B u + f``, ``y = C n + b``:
+  ``G_j = -C A⁻¹ B``, :func:`model_steady_state`);
+- ``d``: the plant's offset from that steady state, ``y - y_plan - G_j Δu_lag``
+  filtered over :attr:`CoreTargetSettings.offset_tau_h`, where ``Δu_lag`` is the
+  handles' departure from the plan through a first-order lag of the plant's response
+  (:attr:`CoreTargetSettings.response_tau_h`); without the lag the part of a move not
+  yet arrived counts as a disturbance and the targets oscillate (measured: a
+  2650 kPa limit at mode 0 swung the pressure 2614-2684 kPa with an 8 h period;
+  with the 1 h lag 2643-2655 kPa);
+- ``q_u``: the MPC's input-target weights (:class:`controller.units.te.control.
+  TEMPCOptions`), so the targets are the least change of the plan in the MPC's own
+  measure; no economic term beyond the plan: the plan's handle values are Ricker's
+  optimal steady states, and a linear Downs & Vogel cost would need the cost's
+  gradient in the handles, which the five-CV models do not carry.
+
+While ``y_plan + d`` meets every limit the plan's point is the answer as it stands
+(no QP), so the MPC's moves are those it makes on the plan itself. The band keeps
+the targets where the models' steady-state gains agree with the plant (see
+:class:`CoreTargetSettings`).
+
+The fixed models' steady states are computed once; the adaptive model's again when
+its parameters changed and :attr:`CoreTargetSettings.refresh_samples` samples have
+passed (one linear solve of the shared state's order). A model whose steady state is
+not finite (a singular ``A``) gives no targets: the plan's values are used and the
+decision says so (``extra["targets"]["status"] == "plan"``).
+
+Measured limits (``tests/test_te_targets.py``): the steady state equals the fixed
+point of the model's ZOH form to 1e-7 relative; a binding pressure limit gives the
+handles of an independent SLSQP solve to 1e-4; a limit out of reach is relaxed by the
+least violation HiGHS finds, to 1e-4 relative; a 2650 kPa limit at mode 0 (noise on)
+holds the pressure at 2643-2651 kPa over hours 8-16. Solve time: that of
+:mod:`controller.targets` (``ssmpc bench targets``) when a limit binds, none
+otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.targets import TargetProblem, TargetResult, solve_targets
+
+__all__ = ["CoreTargetSettings", "CoreTargets", "model_steady_state"]
+
+
+@dataclass(frozen=True)
+class CoreTargetSettings:
+    """Settings of the core's steady-state targets.
+
+    Parameters
+    ----------
+    pressure_max : float
+        Rank-1 limit of the reactor pressure (XMEAS 7) at the targets, kPa; default
+        Downs & Vogel's normal operating high limit, 2895 kPa (the interlock is 3000).
+    cv_band : tuple of (lo, hi) pairs, optional
+        Rank-2 limits of the five core CVs (XMEAS 7, 11, 13, 16, 18) in their units;
+        None = no limits beyond ``pressure_max``.
+    refresh_samples : int
+        Samples between two steady-state computations of an adaptive model (its
+        parameters move every sample; its steady state slowly).
+    band : tuple of 5 float
+        How far each handle's target may move from the plan's value (% for valves,
+        kPa for P_r*, degC for T_r*). Default: P_r* within 200 kPa, the others held
+        at the plan. The models' steady-state gains are trusted only where the three
+        fixed models agree with the plant: P_r* -> XMEAS 7 is 0.98-1.01 in every
+        model (the inner pressure loop); the condenser's XMV 11 -> XMEAS 7 is
+        +1.9 kPa/% at mode 0, +0.8 at mode 2 and 0.0 at mode 3 while the plant's is
+        negative (shutting the condenser from 18 % raised the pressure 250 kPa in
+        0.3 h), and XMV 3, XMV 4 and T_r* belong to the outer loops and the plan.
+    offset_tau_h : float
+        Time constant of the filter on the CVs' offset from the plan, h: long
+        against the transition's dynamics (the pressure swings of a grade change
+        last 0.1-0.5 h), so the offset is that of a disturbance, not of a transient.
+    """
+
+    pressure_max: float = 2895.0
+    cv_band: tuple | None = None
+    refresh_samples: int = 10
+    band: tuple = (0.0, 0.0, 200.0, 0.0, 0.0)
+    offset_tau_h: float = 1.0
+    response_tau_h: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.pressure_max) and 2000.0 < self.pressure_max <= 3000.0):
+            raise ValueError(f"pressure_max: must be in (2000, 3000] kPa, got "
+                             f"{self.pressure_max!r}")
+        if isinstance(self.refresh_samples, bool) or not isinstance(self.refresh_samples, int) \
+                or self.refresh_samples < 1:
+            raise ValueError(f"refresh_samples: must be an integer >= 1, got "
+                             f"{self.refresh_samples!r}")
+        band = np.asarray(self.band, dtype=float)
+        if band.shape != (5,) or not np.isfinite(band).all() or np.any(band < 0):
+            raise ValueError(f"band: five finite values >= 0, got {self.band!r}")
+        for name in ("offset_tau_h", "response_tau_h"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}: must be > 0 h, got {v!r}")
+        if self.cv_band is not None:
+            band = np.asarray(self.cv_band, dtype=float)
+            if band.shape != (5, 2) or np.isnan(band).any() or np.any(band[:, 0] > band[:, 1]):
+                raise ValueError("cv_band: five (lo, hi) pairs with lo <= hi (±inf = none)")
+
+
+def model_steady_state(ssm, j: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Steady state of model ``j`` of a :class:`controller.state_shared.StateSharedModel`:
+    ``y_ss = G u + a`` for a constant input ``u``.
+
+    Returns
+    -------
+    (G, a) : ndarray (p, m), ndarray (p,)
+        Gain (output units per input unit) and offset; None when the model's ``A`` is
+        singular or the result is not finite.
+    """
+    A, B, C, b, f = ssm.continuous_form(j)
+    try:
+        X = np.linalg.solve(A, np.column_stack((B, f)))
+    except np.linalg.LinAlgError:
+        return None
+    G = -C @ X[:, :-1]
+    a = b - C @ X[:, -1]
+    if not (np.isfinite(G).all() and np.isfinite(a).all()):
+        return None
+    return G, a
+
+
+class CoreTargets:
+    """Steady-state targets of the TE core on the active model (module docstring).
+
+    Parameters
+    ----------
+    q_u : array_like (5,)
+        Weights of the handles toward the plan, per (% or kPa or degC)^2 (> 0).
+    q_y : array_like (5,)
+        Weights of the CVs toward the plan, per CV unit^2 (>= 0).
+    y_scale : array_like (5,)
+        CV scales for comparing relaxations.
+    u_min, u_max : array_like (5,)
+        Handle ranges.
+    settings : CoreTargetSettings, optional
+    cv_names, mv_names : tuple of str
+    """
+
+    def __init__(self, q_u, q_y, y_scale, u_min, u_max,
+                 settings: CoreTargetSettings | None = None,
+                 cv_names: tuple[str, ...] = (), mv_names: tuple[str, ...] = ()) -> None:
+        self.settings = settings or CoreTargetSettings()
+        self.q_u = np.asarray(q_u, dtype=float).reshape(-1)
+        self.q_y = np.asarray(q_y, dtype=float).reshape(-1)
+        self.y_scale = np.asarray(y_scale, dtype=float).reshape(-1)
+        self.u_min = np.asarray(u_min, dtype=float).reshape(-1)
+        self.u_max = np.asarray(u_max, dtype=float).reshape(-1)
+        self.cv_names, self.mv_names = tuple(cv_names), tuple(mv_names)
+        self.band = np.asarray(self.settings.band, dtype=float)
+        y_min = np.full(5, -np.inf)
+        y_max = np.full(5, np.inf)
+        rank = np.full(5, 2)
+        if self.settings.cv_band is not None:
+            band = np.asarray(self.settings.cv_band, dtype=float)
+            y_min, y_max = band[:, 0].copy(), band[:, 1].copy()
+        if self.settings.pressure_max < y_max[0]:
+            y_max[0] = self.settings.pressure_max
+        rank[0] = 1
+        self.y_min, self.y_max, self.y_rank = y_min, y_max, rank
+        self._tuned = (y_min.copy(), y_max.copy())
+        # model -> (theta the steady state was computed from, samples since, (G, a) or None)
+        self._steady: dict[int, tuple] = {}
+        self.last: TargetResult | None = None
+        #: slow offset of the CVs from the plan (5,), None before the first sample
+        self.offset: np.ndarray | None = None
+        #: the handles' departure from the plan through the plant's response lag (5,)
+        self.du_lagged = np.zeros(5)
+
+    def steady_state(self, ssm, j: int):
+        """(G, a) of model j, cached while its parameters stand (adaptive models:
+        refreshed at most every ``refresh_samples`` calls); None if it has none."""
+        theta = ssm.model(j).theta
+        cached = self._steady.get(j)
+        if cached is not None:
+            th, age, ss = cached
+            if th is theta or (ssm.kinds[j] != "fixed"
+                               and age + 1 < self.settings.refresh_samples):
+                self._steady[j] = (th, age + 1, ss)
+                return ss
+        ss = model_steady_state(ssm, j)
+        self._steady[j] = (theta, 0, ss)
+        return ss
+
+    def observe(self, ssm, j: int, y, u_applied, y_plan_now, u_plan_now, dt_h: float) -> None:
+        """Take in one sample: measured CVs ``y`` (5,) under the applied handles
+        ``u_applied`` (5,), and the plan's CVs and handles at the same time
+        (``y_plan_now``, ``u_plan_now``, (5,) each). Updates the slow offset ``d`` of the
+        plant from model j's steady state about the plan, ``y - y_plan - G_j (u - u_plan)``
+        (first-order filter, :attr:`CoreTargetSettings.offset_tau_h`). Non-finite values
+        are skipped (``d`` holds)."""
+        ss = self.steady_state(ssm, j)
+        vals = (y, u_applied, y_plan_now, u_plan_now)
+        if ss is None or not all(np.isfinite(v).all() for v in vals):
+            return
+        du = np.asarray(u_applied, dtype=float) - u_plan_now
+        if self.offset is None:
+            self.offset = np.zeros(5)  # the plan is the steady state until shown otherwise
+            self.du_lagged = np.zeros(5)
+        # the plant answers a handle's move from the plan with a lag: the offset compares
+        # the measurement with the lagged steady-state answer, else it would count the
+        # part not yet arrived as a disturbance (a slow oscillation of the targets)
+        self.du_lagged += (1.0 - math.exp(-float(dt_h) / self.settings.response_tau_h)) \
+            * (du - self.du_lagged)
+        e = np.asarray(y, dtype=float) - y_plan_now - ss[0] @ self.du_lagged
+        alpha = 1.0 - math.exp(-float(dt_h) / self.settings.offset_tau_h)
+        self.offset += alpha * (e - self.offset)
+
+    def problem(self, ssm, j: int, u_plan, y_plan) -> TargetProblem | None:
+        """The target problem of model ``j`` around the plan's end point: handles
+        ``u_plan`` (5,), CVs ``y_plan`` (5,), a steady state of the plant, moved by the
+        observed offset ``d`` (:meth:`observe`): ``y = y_plan + d + G_j (u - u_plan)``.
+        None when the model has no steady state or an input is not finite."""
+        ss = self.steady_state(ssm, j)
+        if ss is None or not (np.isfinite(u_plan).all() and np.isfinite(y_plan).all()):
+            return None
+        u_ref = np.minimum(np.maximum(u_plan, self.u_min), self.u_max)
+        d = np.zeros(5) if self.offset is None else self.offset
+        u_lo = np.maximum(self.u_min, u_ref - self.band)
+        u_hi = np.minimum(self.u_max, u_ref + self.band)
+        return TargetProblem(gain=ss[0], u0=u_ref, y0=y_plan, bias=d, u_min=u_lo,
+                             u_max=u_hi, q_u=self.q_u, q_y=self.q_y, u_ref=u_ref,
+                             y_ref=y_plan, y_min=self.y_min, y_max=self.y_max,
+                             y_rank=self.y_rank, y_scale=self.y_scale,
+                             cv_names=self.cv_names, mv_names=self.mv_names)
+
+    def set_operator_limits(self, y_min=None, y_max=None) -> None:
+        """Operator limits of the five CVs (5,) each, ±inf or NaN = none; they act at
+        the targets' rank 1 inside the tuned limits. No argument: the tuned limits."""
+        lo, hi = self._tuned
+        if y_min is not None:
+            v = np.asarray(y_min, dtype=float).reshape(5)
+            lo = np.maximum(lo, np.where(np.isnan(v), -np.inf, v))
+        if y_max is not None:
+            v = np.asarray(y_max, dtype=float).reshape(5)
+            hi = np.minimum(hi, np.where(np.isnan(v), np.inf, v))
+        self.y_min, self.y_max = lo, hi
+        self.y_rank = np.where(np.isfinite(lo) | np.isfinite(hi), 1, 2)
+        self.y_rank[0] = 1
+
+    def solve(self, ssm, j: int, u_plan, y_plan) -> TargetResult | None:
+        """Targets for this sample (see :meth:`problem`); None = use the plan's values.
+        When the plan's point meets every limit it is the answer as it stands (no QP:
+        the least change of the plan that meets the limits is no change)."""
+        p = self.problem(ssm, j, u_plan, y_plan)
+        if p is None:
+            self.last = None
+            return None
+        y_pp = p.y0 + p.bias
+        if not p.q_y.any():
+            if np.all(y_pp >= self.y_min) and np.all(y_pp <= self.y_max):
+                self.last = TargetResult("optimal", p.u_ref.copy(), y_pp, (), 0.0, 0)
+                return self.last
+        res = solve_targets(p)
+        self.last = None if res.status == "failed" else res
+        return self.last
+
+    def checkpoint(self) -> dict:
+        """What a restart needs to go on (JSON-serialisable)."""
+        return {"offset": None if self.offset is None else self.offset.tolist(),
+                "du_lagged": self.du_lagged.tolist()}
+
+    def restore(self, state: dict) -> None:
+        off = state.get("offset")
+        self.offset = None if off is None else np.asarray(off, dtype=float).reshape(5)
+        self.du_lagged = np.asarray(state.get("du_lagged", np.zeros(5)),
+                                    dtype=float).reshape(5)

@@ -1,0 +1,163 @@
+"""Steady-state targets of the TE MPC core (controller.units.te.targets): the model's steady
+state, the targets against independent SciPy solves of the same problem, the plan kept when
+it meets the limits, the operator's pressure limit routed to the targets and held in closed
+loop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import linprog, minimize
+
+from controller.units.te.control import TEMPCOptions, make_te_controller, run_te
+from controller.units.te.grades import TransitionPlan
+from controller.units.te.targets import CoreTargetSettings, model_steady_state
+
+#: Independent solves agree to this (SLSQP's own tolerance is 1e-10 on the objective).
+U_TOL = 1e-4  # % or kPa or degC
+#: Base case (facts te.md): reactor pressure 2705 kPa gauge.
+BASE_PRESSURE_KPA = 2705.0
+
+
+@pytest.fixture(scope="module")
+def ctl():
+    return make_te_controller("fixed", TransitionPlan("mode0"), realtime=False)[0]
+
+
+def _plan_point(ctl):
+    plan = ctl.plan
+    xv, ym = plan.xmv_ref(0.0), plan.xmeas_ref(0.0)
+    u = np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
+    y = ym[[6, 10, 12, 15, 17]]
+    return u, y
+
+
+def test_the_model_steady_state_is_the_fixed_point_of_its_sampled_form(ctl):
+    ssm = ctl.core.ssm
+    u = np.array([30.0, 55.0, 2750.0, 121.0, 20.0])
+    for j in range(ssm.k):
+        G, a = model_steady_state(ssm, j)
+        Phi, Gam, C, b = ssm.prediction_form(j)
+        f = ssm.prediction_form(j).f
+        # the discrete model's fixed point n = Phi n + Gam u + f, solved on its own
+        n = np.linalg.solve(np.eye(Phi.shape[0]) - Phi, Gam @ u + f)
+        np.testing.assert_allclose(G @ u + a, C @ n + b, rtol=1e-7, atol=1e-6)
+
+
+def _scipy_targets(G, u_plan, y_pp, q_u, lo, hi, y_max):
+    """min ½ Σ q_u (u - u_plan)² s.t. y_pp + G (u - u_plan) <= y_max, lo <= u <= hi."""
+    cons = [{"type": "ineq", "fun": lambda u: y_max - (y_pp + G @ (u - u_plan)),
+             "jac": lambda u: -G}]
+    res = minimize(lambda u: 0.5 * np.sum(q_u * (u - u_plan) ** 2), u_plan,
+                   jac=lambda u: q_u * (u - u_plan), bounds=list(zip(lo, hi)),
+                   constraints=cons, method="SLSQP", options={"ftol": 1e-14, "maxiter": 500})
+    assert res.success, res.message
+    return res.x
+
+
+def test_a_binding_pressure_limit_moves_the_targets_as_an_independent_solve_does(ctl):
+    t = ctl.targets
+    ssm, j = ctl.core.ssm, 0
+    u_plan, y_plan = _plan_point(ctl)
+    t.offset = np.array([300.0, 0.0, 0.0, 0.0, 0.0])  # the plant 300 kPa above the plan
+    try:
+        res = t.solve(ssm, j, u_plan, y_plan)
+        G = model_steady_state(ssm, j)[0]
+        band = np.asarray(t.settings.band)
+        lo = np.maximum(t.u_min, u_plan - band)
+        hi = np.minimum(t.u_max, u_plan + band)
+        y_max = np.where(np.isfinite(t.y_max), t.y_max, 1e12)
+        ref = _scipy_targets(G, u_plan, y_plan + t.offset, t.q_u, lo, hi, y_max)
+    finally:
+        t.offset = None
+    assert res.status == "optimal" and res.qps >= 1
+    np.testing.assert_allclose(res.u, ref, atol=U_TOL)
+    assert res.y[0] == pytest.approx(t.settings.pressure_max, abs=1e-3)
+    # only the pressure set point's target moves (the band), downward
+    assert np.array_equal(res.u[[0, 1, 3, 4]], u_plan[[0, 1, 3, 4]])
+    assert res.u[2] < u_plan[2] - 100.0
+
+
+def test_a_limit_out_of_reach_is_relaxed_by_the_least_amount(ctl):
+    t = ctl.targets
+    ssm, j = ctl.core.ssm, 0
+    u_plan, y_plan = _plan_point(ctl)
+    t.offset = np.array([420.0, 0.0, 0.0, 0.0, 0.0])  # beyond what P_r*'s band can take
+    try:
+        res = t.solve(ssm, j, u_plan, y_plan)
+        G = model_steady_state(ssm, j)[0]
+        band = np.asarray(t.settings.band)
+        lo = np.maximum(t.u_min, u_plan - band)
+        hi = np.minimum(t.u_max, u_plan + band)
+        # the least violation s: min s s.t. y_pp,0 + G_0 (u - u_plan) - s <= limit
+        y_pp = y_plan[0] + 420.0
+        c = np.r_[np.zeros(5), 1.0]
+        A = np.r_[G[0], -1.0][None, :]
+        b = [t.settings.pressure_max - y_pp + G[0] @ u_plan]
+        lp = linprog(c, A_ub=A, b_ub=b, bounds=list(zip(lo, hi)) + [(0, None)],
+                     method="highs")
+    finally:
+        t.offset = None
+    assert lp.status == 0
+    assert res.status == "relaxed"
+    (r,) = res.relaxed
+    assert (r.cv, r.kind, r.rank, r.limit) == ("XMEAS7", "max", 1, t.settings.pressure_max)
+    assert r.amount == pytest.approx(lp.x[-1], rel=1e-4)
+    assert res.u[2] == pytest.approx(lo[2], abs=U_TOL)  # P_r* at the edge of its band
+
+
+def test_a_plan_within_the_limits_is_the_target_as_it_stands(ctl):
+    t = ctl.targets
+    u_plan, y_plan = _plan_point(ctl)
+    t.offset = np.array([50.0, 0.3, 40.0, 40.0, -0.2])
+    try:
+        res = t.solve(ctl.core.ssm, 0, u_plan, y_plan)
+    finally:
+        t.offset = None
+    assert res.status == "optimal" and res.qps == 0 and not res.relaxed
+    assert np.array_equal(res.u, u_plan)
+
+
+def test_settings_are_validated():
+    for bad in ({"pressure_max": 3500.0}, {"refresh_samples": 0}, {"band": (1, 2)},
+                {"offset_tau_h": 0.0}, {"response_tau_h": float("nan")},
+                {"cv_band": ((1, 0),) * 5}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            CoreTargetSettings(**bad)
+    with pytest.raises(ValueError, match="steady_targets"):
+        TEMPCOptions(steady_targets="yes")
+
+
+def test_the_operator_pressure_limit_goes_to_the_targets_not_to_the_mpc():
+    from controller.operator_modes import VariableCommand
+    from controller.units.config import build_plant, grade_setpoints
+    from controller.units.operator import operate
+    from services.registry import build_controller, get_unit
+
+    cfg = get_unit("te")
+    plant = build_plant(cfg)
+    grades = grade_setpoints(cfg, plant)
+    op = operate(cfg, plant, build_controller(cfg, plant, np.asarray(grades["mode0"]["mv"]),
+                                              grades), grades)
+    caps = {v.name: v for v in op.state.specs}
+    assert caps["XMEAS7"].limits and not caps["XMEAS11"].limits
+    op.set_state(op.state.command("XMEAS7", VariableCommand(hi=2650.0), 0.0,
+                                  BASE_PRESSURE_KPA))
+    op.inner.set_operator(op.view(0.0))
+    ctl = op.inner.ctl
+    assert ctl.targets.y_max[0] == 2650.0
+    # the MPC keeps its tuned soft pressure limit: no operator limit reached the QP
+    law = ctl.core.law
+    assert law.settings.y_max[0] == TEMPCOptions().pressure_soft_max
+
+
+@pytest.mark.slow
+def test_an_operator_pressure_limit_below_the_base_case_is_held_in_closed_loop():
+    opts = TEMPCOptions(target_settings=CoreTargetSettings(pressure_max=2650.0))
+    r = run_te("fixed", TransitionPlan("mode0"), 12.0, noise=True, seed=3, mpc=opts)
+    assert r.shutdown is None
+    p = r.xmeas[:, 6]
+    last = p[r.t >= 8.0].mean()
+    # measured 2643-2651 kPa over the last hours (seeds 1, 3); the plan's own 2705
+    assert 2630.0 < last < 2670.0, last
+    assert r.setpoints[-1, 4] < BASE_PRESSURE_KPA - 30.0  # the set point's target moved
