@@ -31,6 +31,7 @@ when encoded (ValueError) and when loaded (StoreError).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sqlite3
@@ -135,6 +136,7 @@ class UnitStore:
         self.unit = unit
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()
+        self.busy_timeout_s = float(busy_timeout_s)
         try:
             self._db = sqlite3.connect(str(self.path), check_same_thread=False,
                                        isolation_level=None, timeout=float(busy_timeout_s))
@@ -162,6 +164,20 @@ class UnitStore:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    @contextlib.contextmanager
+    def waiting_at_most(self, seconds: float):
+        """Within the block, a write waits at most ``seconds`` (>= 0) for another
+        connection's lock instead of ``busy_timeout_s``: a write a request is answered on
+        keeps to the request's time budget."""
+        ms = max(0, int(float(seconds) * 1000.0))
+        with self._lock:
+            self._db.execute(f"PRAGMA busy_timeout = {ms}")
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._db.execute(f"PRAGMA busy_timeout = {int(self.busy_timeout_s * 1000.0)}")
 
     def _check_integrity(self) -> None:
         """``PRAGMA quick_check``: StoreError naming the first problems unless ``ok``."""

@@ -165,11 +165,23 @@ class _Worker:
 
     def call(self, fn, *args, timeout: float = 30.0):
         """Run ``fn(*args)`` in order after everything submitted so far; its result, or
-        its exception raised here (TimeoutError if it has not run within ``timeout``)."""
+        its exception raised here.
+
+        TimeoutError if it has not *started* within ``timeout``: it is then withdrawn
+        and never runs, so a write answered as not committed does not commit later (a
+        store held locked by another process makes every write ahead of it wait out
+        the busy timeout). One that has started is waited for to the end (at most the
+        store's busy timeout) and answers as it ends."""
         done = threading.Event()
         out: dict = {}
+        state = {"started": False, "withdrawn": False}
+        gate = threading.Lock()
 
         def task():
+            with gate:
+                if state["withdrawn"]:
+                    return
+                state["started"] = True
             try:
                 out["value"] = fn(*args)
             except BaseException as exc:  # handed to the caller, not to on_error
@@ -179,7 +191,12 @@ class _Worker:
 
         self._q.put((task, (), None))
         if not done.wait(timeout):
-            raise TimeoutError(f"store: the write did not finish within {timeout:g} s")
+            with gate:
+                if not state["started"]:
+                    state["withdrawn"] = True
+                    raise TimeoutError(f"store: the write did not start within {timeout:g} s "
+                                       "(withdrawn, not committed)")
+            done.wait()  # it runs now: its own outcome is the answer
         if "error" in out:
             raise out["error"]
         return out.get("value")
@@ -501,10 +518,13 @@ class ControllerNode:
                 self.alarms.append(f"checkpoint not written at sample {k}: {exc}")
             return
         if not wait:
-            self._worker.submit(self.store.save_checkpoint, k, t, payload)
+            # a newer snapshot replaces one still queued: a store that cannot commit
+            # holds one checkpoint write, not one per period
+            self._worker.submit_latest("checkpoint", self.store.save_checkpoint, k, t,
+                                       payload)
             return
         try:
-            self._worker.call(self.store.save_checkpoint, k, t, payload)
+            self._commit(self.store.save_checkpoint, k, t, payload)
         except (sqlite3.Error, TimeoutError) as exc:
             self._store_failed(f"checkpoint at sample {k}", exc)
 
@@ -573,7 +593,7 @@ class ControllerNode:
         503 reply to send (the store degraded, with an alarm)."""
         event = action_event(what, detail, identity, self.t, event_id=event_id)
         try:
-            self._worker.call(self.store.add_events, [event])
+            self._commit(self.store.add_events, [event])
         except (sqlite3.Error, TimeoutError) as exc:
             self._store_failed(f"operator action {event.kind}", exc)
             return Reply(503, error=f"store: cannot commit the action ({exc}); retry later")
@@ -789,6 +809,27 @@ class ControllerNode:
 
     #: Longest wait for the store to commit an abort, s (no sample runs meanwhile).
     ABORT_COMMIT_TIMEOUT_S = 5.0
+    #: Time budget of a write a request is answered on (transition, operator action,
+    #: checkpoint), s, from the request to the end of the write: under the API's 2 s, so
+    #: that a store that cannot commit answers 503, not the API's 504.
+    ACK_COMMIT_BUDGET_S = 1.5
+
+    def _commit(self, fn, *args):
+        """``fn(*args)`` on the store's worker, after what is queued, within
+        :data:`ACK_COMMIT_BUDGET_S`: withdrawn if it has not started by then, and a lock
+        held by another connection waited for only for what is left of the budget.
+        TimeoutError or the store's error when it did not commit."""
+        deadline = time.monotonic() + self.ACK_COMMIT_BUDGET_S
+
+        def within():
+            left = deadline - time.monotonic()
+            if left <= 0.0:
+                raise TimeoutError("store: no time left in the request's budget (not "
+                                   "committed)")
+            with self.store.waiting_at_most(left):
+                return fn(*args)
+
+        return self._worker.call(within, timeout=self.ACK_COMMIT_BUDGET_S)
 
     def _abort(self, tid: str, args: dict) -> Reply | None:
         """Abort transition ``tid``: committed to the store before anything changes.
@@ -877,8 +918,7 @@ class ControllerNode:
                 {"transition": tr.id, "grade": grade, "duration_h": tr.duration_s / 3600.0,
                  "queue": queue}, identity, t, event_id=f"action-{tr.id}-create")
             try:  # committed before it is admitted and acknowledged
-                self._worker.call(self._save_transition, record, "pending", t, detail,
-                                  (action,))
+                self._commit(self._save_transition, record, "pending", t, detail, (action,))
             except (sqlite3.Error, TimeoutError) as exc:
                 self._store_failed(f"transition {tr.id}", exc)  # never admitted: not run
                 return Reply(503, error=f"store: cannot commit, transition not accepted "
