@@ -495,6 +495,14 @@ class StateSharedModel:
         T = self.basis.from_companion()
         return np.kron(np.eye(self.m + self.p), T).T @ th
 
+    def theta_rows(self, j: int) -> np.ndarray:
+        """Model j's ``Theta_j^T``, shape (p, 2nm): a read-only view of the stacked
+        parameters (no :class:`ModelSpec` built), current after :meth:`set_params`."""
+        j = self._index(j)
+        view = self._T[j * self.p : (j + 1) * self.p]
+        view.flags.writeable = False
+        return view
+
     def theta2_all(self) -> np.ndarray:
         """theta2 (= a - d, eq. 3.16) of every model, shape (k, n): the first output
         block's (all blocks hold the same vector for structured models). A read-only
