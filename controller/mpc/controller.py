@@ -381,12 +381,16 @@ class MPCController:
             form = self.prepare(view.key, view.Phi, view.Gamma, view.C, view.Gamma_d)
             solver = self._solvers[view.key][1]
             t_build = self.clock()
-            x_a = np.concatenate([np.asarray(view.x) - np.asarray(view.x_prev), y_f])
             dd = None
             if view.Gamma_d is not None and self.d is not None:
                 dd = self.d - self.d_prev
             self.d_prev = self.d
-            vec = form.qp_vectors(x_a, self.u, R, dd, self.u_target, self.op_limits)
+            if (dd is None or form.S_d is None) and self.op_limits is None:
+                x_a, vec = form.sample_vectors(view.x, view.x_prev, y_f, self.u, R,
+                                               self.u_target)
+            else:
+                x_a = np.concatenate([np.asarray(view.x) - np.asarray(view.x_prev), y_f])
+                vec = form.qp_vectors(x_a, self.u, R, dd, self.u_target, self.op_limits)
             if self.op_fixed is not None:  # held inputs: no move over the horizon
                 held = np.concatenate([np.tile(self.op_fixed, s.M),
                                        np.zeros(form.nz - form.n_moves, dtype=bool)])
