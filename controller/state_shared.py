@@ -84,6 +84,7 @@ from controller.shared_basis import (
     hurwitz_coefficients,
     orthonormal_theta,
 )
+from controller.state_kernel import model_errors, write_params
 
 __all__ = [
     "companion_pair",
@@ -575,21 +576,13 @@ class StateSharedModel:
         """
         j = self._index(j)
         n, m, q = self.n_deg, self.m, self.p
-        nm = n * m
         p = np.asarray(p, dtype=float).reshape(-1)
         if p.shape != (self.n_params + q,) or not np.isfinite(p).all():
             theta, bias = self.theta_from_params(p)  # raises naming the field
             self.set_theta(j, theta, bias)
             return
-        rows = self._T[j * q : (j + 1) * q]  # Theta_j^T, (q, n(m+q))
-        rows[:, :nm] = p[: nm * q].reshape(q, nm)
-        rows[:, nm:] = 0.0
-        t2 = p[nm * q : nm * q + n]
-        for i in range(q):
-            rows[i, nm + i * n : nm + (i + 1) * n] = t2
-        self._Taug.reshape(-1, m + q, n + 1)[j * q : (j + 1) * q, :, :n] = (
-            rows.reshape(q, m + q, n))
-        self._B[j] = p[nm * q + n :]
+        # Theta_j^T rows of the stack (q, n(m+q)): [Theta1 rows | theta2 block diagonal]
+        write_params(self._T, self._Taug, self._B, j, p, n, m, q)
         old = self._slots[j]
         self._slots[j] = _Slot(None, old.name, old.kind)
 
@@ -705,6 +698,11 @@ class StateSharedModel:
 
     def errors(self, y: ArrayLike) -> np.ndarray:
         """``y - y_j`` for every model, shape (k, m)."""
+        if (isinstance(y, np.ndarray) and y.dtype == np.float64 and y.shape == (self.p,)
+                and self.k):
+            e = model_errors(y, self._Taug, self._Z.reshape(-1), self._B)  # one call
+            if e.shape[0] == self.k:
+                return e
         return finite_vector(y, self.p, "y")[None, :] - self.estimates()
 
     # -- prediction form ---------------------------------------------------------------
