@@ -70,3 +70,38 @@ def test_kernel_vectors_against_the_formula_written_out():
     np.testing.assert_allclose(v.bl[n_in + form.ymax_rows.size:],
                                np.tile(s.y_min, s.P)[form.ymin_rows]
                                - Sx[form.ymin_rows] @ x_a, rtol=1e-13)
+
+
+def test_stacked_bounds_check_and_order():
+    from controller.mpc.vector_kernel import stacked_bounds
+
+    f, lb, ub = np.array([1.0, 2.0]), np.array([-1.0, 0.0]), np.array([1.0, np.inf])
+    bl, bu = np.array([-np.inf, -3.0]), np.array([4.0, 5.0])
+    clean, upper, lower = stacked_bounds(f, lb, ub, bl, bu)
+    assert clean
+    np.testing.assert_array_equal(upper, np.concatenate([ub, bu]))
+    np.testing.assert_array_equal(lower, np.concatenate([lb, bl]))
+    for name, arr, bad in (("f", f, np.inf), ("f", f, np.nan), ("lb", lb, np.nan),
+                           ("bu", bu, np.nan)):
+        changed = {"f": f, "lb": lb, "ub": ub, "bl": bl, "bu": bu}
+        arr = arr.copy()
+        arr[1] = bad
+        changed[name] = arr
+        assert not stacked_bounds(*changed.values())[0], name
+
+
+def test_clip_move_equals_numpy_minimum_maximum():
+    from controller.mpc.vector_kernel import clip_move
+
+    rng = np.random.default_rng(9)
+    for _ in range(500):
+        nu = int(rng.integers(1, 7))
+        du = rng.standard_normal(nu) * 3.0
+        du_max = rng.uniform(0.1, 2.0, nu)
+        u_prev = rng.standard_normal(nu) * 5.0
+        u_min = np.where(rng.uniform(size=nu) < 0.2, -np.inf, -4.0)
+        u_max = np.where(rng.uniform(size=nu) < 0.2, np.inf, 4.0)
+        d, u = clip_move(du, du_max, u_prev, u_min, u_max)
+        want_d = np.minimum(np.maximum(du, -du_max), du_max)
+        np.testing.assert_array_equal(d, want_d)
+        np.testing.assert_array_equal(u, np.minimum(np.maximum(u_prev + want_d, u_min), u_max))

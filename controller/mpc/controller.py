@@ -34,6 +34,7 @@ from controller.mpc.filters import FirstOrderFilter
 from controller.mpc.formulation import DeltaUFormulation, FormulationCache
 from controller.mpc.qp import QPResult, QPSolver, make_solver
 from controller.mpc.settings import MPCSettings
+from controller.mpc.vector_kernel import clip_move
 
 __all__ = ["ModelView", "StateSource", "LinearModelState", "MPCController"]
 
@@ -407,10 +408,10 @@ class MPCController:
                 z = res.x
                 plan = z[:form.n_moves].reshape(s.M, s.nu)
                 self.plan, self.plan_index = plan.copy(), 0
-                du = np.minimum(np.maximum(plan[0], -s.du_max), s.du_max)  # as np.clip
-                if self.op_fixed is None and self.op_limits is None:
-                    u = np.minimum(np.maximum(self.u + du, s.u_min), s.u_max)
+                if self.op_fixed is None and self.op_limits is None:  # one compiled call
+                    du, u = clip_move(plan[0], s.du_max, self.u, s.u_min, s.u_max)
                 else:  # an operator's held inputs and limits
+                    du = np.minimum(np.maximum(plan[0], -s.du_max), s.du_max)  # as np.clip
                     if self.op_fixed is not None:
                         du[self.op_fixed] = 0.0
                     u_min, u_max = self._u_limits()

@@ -22,10 +22,12 @@ this kernel 6.6-10.5 µs (most of it the call's argument unboxing).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
-__all__ = ["qp_vectors_kernel"]
+__all__ = ["clip_move", "qp_vectors_kernel", "stacked_bounds"]
 
 
 @njit(cache=True)
@@ -101,3 +103,59 @@ def qp_vectors_kernel(x, x_prev, y, F_x, F_r, r, F_ut, ut_dev, slack_linear, has
             for i in range(Sx_min.shape[0]):
                 bl[n_in + n_max + i] -= smin[i]
     return x_a, f, bl, bu
+
+
+@njit(cache=True)
+def stacked_bounds(f, lb, ub, bl, bu):
+    """The QP data check and DAQP's stacked bounds in one call.
+
+    Parameters
+    ----------
+    f, lb, ub : ndarray, shape (nz,)
+    bl, bu : ndarray, shape (rows,)
+
+    Returns
+    -------
+    clean : bool
+        ``f`` finite and no bound NaN (an infinite bound is an open one).
+    upper, lower : ndarray, shape (nz + rows,)
+        ``[ub; bu]`` and ``[lb; bl]``, the order DAQP takes them in.
+    """
+    clean = True
+    for i in range(f.size):
+        if not math.isfinite(f[i]):
+            clean = False
+    nz, rows = lb.size, bl.size
+    upper = np.empty(nz + rows)
+    lower = np.empty(nz + rows)
+    for i in range(nz):
+        upper[i], lower[i] = ub[i], lb[i]
+    for i in range(rows):
+        upper[nz + i], lower[nz + i] = bu[i], bl[i]
+    for i in range(nz + rows):
+        if math.isnan(upper[i]) or math.isnan(lower[i]):
+            clean = False
+    return clean, upper, lower
+
+
+@njit(cache=True)
+def clip_move(du, du_max, u_prev, u_min, u_max):
+    """``u = clip(u(k-1) + clip(du, -du_max, du_max), u_min, u_max)`` (as numpy's
+    ``minimum(maximum(.))``); returns ``(clipped du, u)``, shapes (nu,)."""
+    nu = du.size
+    d = np.empty(nu)
+    u = np.empty(nu)
+    for i in range(nu):
+        v = du[i]
+        if v < -du_max[i]:  # a NaN stays NaN, as in numpy.maximum
+            v = -du_max[i]
+        if v > du_max[i]:
+            v = du_max[i]
+        d[i] = v
+        w = u_prev[i] + v
+        if w < u_min[i]:
+            w = u_min[i]
+        if w > u_max[i]:
+            w = u_max[i]
+        u[i] = w
+    return d, u
