@@ -493,8 +493,13 @@ class NormalizedLeastSquares:
             if not np.isfinite(block).all():
                 self.reset_covariance("nonfinite")
                 return "nonfinite"
-            cross = self._V.T @ block  # the Gram matrix V' V grows by one block
-            self._G = np.block([[self._G, cross], [cross.T, block.T @ block]])
+            r, m = self._G.shape[0], block.shape[1]  # the Gram matrix V' V grows by a block
+            G = np.empty((r + m, r + m))
+            G[:r, :r] = self._G
+            G[:r, r:] = self._V.T @ block
+            G[r:, :r] = G[:r, r:].T
+            G[r:, r:] = block.T @ block
+            self._G = G
             self._V = np.hstack((self._V, block))
             if self._V.shape[1] > self.settings.lowrank_max_rank:
                 _ = self.P  # densify

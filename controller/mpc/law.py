@@ -297,8 +297,9 @@ class MPCLaw:
 
 def relative_change(now: np.ndarray, made: np.ndarray) -> float:
     """``‖now − made‖_F / ‖made‖_F`` (inf when ``made`` is zero and ``now`` is not)."""
-    scale = float(np.linalg.norm(made))
-    diff = float(np.linalg.norm(now - made))
+    scale = math.sqrt(float(np.vdot(made, made)))
+    d = now - made
+    diff = math.sqrt(float(np.vdot(d, d)))
     if scale == 0.0:
         return 0.0 if diff == 0.0 else math.inf
     return diff / scale
