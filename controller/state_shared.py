@@ -552,6 +552,10 @@ class StateSharedModel:
         self._Taug = np.zeros((km, q, n + 1))
         self._Taug[:, :, :n] = self._T.reshape(km, q, n)
         self._Taug = self._Taug.reshape(km, -1)
+        if self._slots:  # compile or load the sample's kernels now, not in a sample
+            model_errors(np.zeros(self.p), self._Taug, self._Z.reshape(-1), self._B)
+            write_params(self._T.copy(), self._Taug.copy(), self._B.copy(), 0,
+                         np.zeros(self.n_params + self.p), n, self.m, self.p)
 
     def set_theta(self, j: int, theta: ArrayLike, bias: ArrayLike | None = None) -> None:
         """Replace model j's Theta (and bias; kept when None). The shared state is untouched."""

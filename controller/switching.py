@@ -107,6 +107,9 @@ class PerformanceIndex:
         self.integral = np.zeros(n_models)
         self._w = (None if settings.output_weights is None
                    else np.asarray(settings.output_weights, dtype=float))
+        if self._w is not None:  # compile or load the kernel now, not in a sample
+            index_step(np.zeros((n_models, self._w.size)), self._w, np.zeros(n_models),
+                       self.decay, self.dt, 1.0, 1.0)
 
     @property
     def n_models(self) -> int:
@@ -245,6 +248,7 @@ class ModelSwitcher:
         self.since_switch = self.dwell_samples  # free to switch at the first sample
         self.n_switches = 0
         self.n_held = 0
+        smallest_index(np.zeros(self.n_models), 0, self.hysteresis, self.J_TOL)  # compile now
 
     def step(self, J, allowed=None) -> SwitchDecision:
         """Choose the model for this sample from the index values ``J`` (n_models,).

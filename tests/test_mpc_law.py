@@ -149,7 +149,7 @@ def test_rebuild_only_between_samples_and_only_when_theta_moved_past_the_toleran
     s = MPCSettings(nu=2, ny=2, P=8, M=3, Lambda=[0.1, 0.1], du_max=[0.5, 0.5],
                     budget_ms=1e3)
     tol = 1e-3
-    law = MPCLaw(s, refresh_tol=tol)
+    law = MPCLaw(s, refresh_tol=tol, min_refresh_samples=1)
     law.prepare(ssm)
     u = np.zeros(2)
     ssm.initialize(u, np.zeros(2))
@@ -178,3 +178,28 @@ def test_rebuild_only_between_samples_and_only_when_theta_moved_past_the_toleran
         expected += moved > tol
     assert built_in_compute == 0
     assert expected >= 3  # 0 -> 1.5 tol, 1.5 -> 3.0 tol, 3.2 -> 2.1 tol, 2.1 -> 0 tol
+
+
+def test_refreshes_of_a_fast_adapting_model_are_spaced_by_min_refresh_samples():
+    rng = np.random.default_rng(7)
+    ssm = small_ssm(rng)
+    s = MPCSettings(nu=2, ny=2, P=8, M=3, Lambda=[0.1, 0.1], du_max=[0.5, 0.5],
+                    budget_ms=1e3)
+    law = MPCLaw(s, refresh_tol=1e-6, min_refresh_samples=4)
+    law.prepare(ssm)
+    u = np.zeros(2)
+    ssm.initialize(u, np.zeros(2))
+    law.reset(u, np.zeros(2))
+    rebuilt_at = []
+    for k in range(20):
+        p = ssm.params_from_theta(ssm.theta(2), ssm.bias(2))
+        ssm.set_params(2, p + 1e-2 * rng.standard_normal(p.size))  # moves every sample
+        y = ssm.estimates()[0]
+        u, _ = law.compute(k, 2, ssm, y, np.full((8, 2), 0.1), u)
+        ssm.update(u, y)
+        before = law.mpc.counters["rebuilds"]
+        law.finish_sample(ssm, 2)
+        if law.mpc.counters["rebuilds"] > before:
+            rebuilt_at.append(k)
+    assert len(rebuilt_at) >= 4
+    assert np.all(np.diff(rebuilt_at) == 4)  # every 4th sample, never closer

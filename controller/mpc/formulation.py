@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.mpc.settings import MPCSettings
-from controller.mpc.vector_kernel import qp_vectors_kernel
+from controller.mpc.vector_kernel import clip_move, qp_vectors_kernel, stacked_bounds
 
 #: What the QP solvers read as no bound (DAQP's DAQP_INF).
 _OPEN = 1e30
@@ -202,6 +202,19 @@ class DeltaUFormulation:
                   "_no_dev": np.zeros(0)}
         for k, v in consts.items():
             object.__setattr__(self, k, v)
+        self._warm_kernels()
+
+    def _warm_kernels(self) -> None:
+        """Call the sample's compiled kernels once with this formulation's argument
+        types, so that their compilation (or their load from numba's cache, ~10-50 ms
+        the first time in a process) never falls into a sample."""
+        s = self.settings
+        n = self.Phi.shape[0]
+        zero_u = np.zeros(s.nu)
+        _, vec = self.sample_vectors(np.zeros(n), np.zeros(n), np.zeros(s.ny), zero_u,
+                                     np.zeros((s.P, s.ny)))
+        stacked_bounds(vec.f, vec.lb, vec.ub, vec.bl, vec.bu)
+        clip_move(np.zeros(s.nu), s.du_max, zero_u, s.u_min, s.u_max)
 
     @property
     def n_rows(self) -> int:

@@ -40,7 +40,10 @@ class SharedStateSource:
 
     which is exactly how the controller advances n with y held over the sample, and
     refreshes it (and the model's QP) only when Θ has moved since the form was made by
-    more than ``refresh_tol`` relative to it, ``‖Θ − Θ_made‖_F > refresh_tol ‖Θ_made‖_F``.
+    more than ``refresh_tol`` relative to it, ``‖Θ − Θ_made‖_F > refresh_tol ‖Θ_made‖_F``,
+    and at most every ``min_refresh_samples`` samples (a model that adapts fast, such as
+    the random n = 40 model of ``ssmpc bench mpc-step --synthetic-te``, moves by more than
+    the tolerance at every sample; its QP build then costs ~16 ms).
     The test runs between samples (:meth:`refresh_ahead`, from
     :meth:`MPCLaw.finish_sample`, after the move is out), so no sample's critical path
     pays for a rebuild; a law used without ``finish_sample`` applies the same test when
@@ -51,27 +54,39 @@ class SharedStateSource:
     valve range) against moves with the form rebuilt whenever Θ changed at all
     (``refresh_tol = 0``, 4801 rebuilds)::
 
-        refresh rule                 rebuilds   max |Δu| (%)
-        every 10 samples (before)       481       0.020
-        refresh_tol = 1e-4              165       0.012
-        refresh_tol = 1e-3               16       0.048
-        refresh_tol = 1e-2 ... 1e-1       3       0.048
+        refresh rule                                 rebuilds   max |Δu| (%)
+        every 10 samples (before)                       481       0.020
+        refresh_tol = 1e-5, at most every 10 samples    269       0.018
+        refresh_tol = 1e-4                              165       0.012
+        refresh_tol = 1e-4, at most every 5 samples     155       0.012
+        refresh_tol = 1e-4, at most every 10 samples    129       0.017
+        refresh_tol = 1e-3                               16       0.048
+        refresh_tol = 1e-2 ... 1e-1                       3       0.048
 
-    The default ``1e-4`` keeps the moves within 0.02 % of valve range of the
-    always-current model (the documented tolerance; the periodic rule it replaces was
-    0.020 % off) with a third of the rebuilds. Above ``1e-3`` only the
+    The defaults (``1e-4``, at most every 10 samples) keep the moves within 0.02 % of
+    valve range of the always-current model (the documented tolerance; the periodic
+    rule it replaces was 0.020 % off) with about a quarter of the rebuilds, and never
+    rebuild more often than the periodic rule did. Above ``1e-3`` only the
     re-initializations (jumps of Θ) rebuild.
     """
 
     #: Default relative change of Θ that makes an adaptive model's form stale.
     REFRESH_TOL = 1e-4
+    #: Default least number of samples between two refreshes of one model.
+    MIN_REFRESH_SAMPLES = 10
 
-    def __init__(self, refresh_tol: float = REFRESH_TOL) -> None:
+    def __init__(self, refresh_tol: float = REFRESH_TOL,
+                 min_refresh_samples: int = MIN_REFRESH_SAMPLES) -> None:
         if isinstance(refresh_tol, bool) or not isinstance(refresh_tol, int | float) or not (
                 math.isfinite(refresh_tol) and refresh_tol >= 0):
             raise ValueError(f"refresh_tol: must be a finite number >= 0, got "
                              f"{refresh_tol!r}")
+        if isinstance(min_refresh_samples, bool) or not isinstance(
+                min_refresh_samples, int) or min_refresh_samples < 1:
+            raise ValueError(f"min_refresh_samples: must be an integer >= 1, got "
+                             f"{min_refresh_samples!r}")
         self.refresh_tol = float(refresh_tol)
+        self.min_refresh_samples = int(min_refresh_samples)
         self.ssm = None
         self.model = 0
         self.n_prev: np.ndarray | None = None
@@ -97,7 +112,7 @@ class SharedStateSource:
     def _form(self, j: int):
         if self.ssm.kinds[j] != "adaptive":
             return self.ssm.prediction_form(j)
-        if self._decided.get(j) == self._k or not self._stale(j):
+        if self._decided.get(j) == self._k or not self._stale(j, self._k):
             self._restore_form(j)
             return self._snap[j]
         return self._refresh(j, self._k)
@@ -107,11 +122,14 @@ class SharedStateSource:
         if j not in self._snap and j in self._restored:
             self._snap[j] = self._discrete_form(j, self._restored[j])
 
-    def _stale(self, j: int) -> bool:
-        """Adaptive model j has no form yet, or its Θ has moved by more than
-        ``refresh_tol`` (relative, Frobenius) since its form was made."""
+    def _stale(self, j: int, k: int) -> bool:
+        """Adaptive model j has no form yet, or, ``min_refresh_samples`` or more since
+        its form was made (at sample ``k``), its Θ has moved by more than
+        ``refresh_tol`` (relative, Frobenius)."""
         if j not in self._made:
             return True
+        if k - self._made[j] < self.min_refresh_samples:
+            return False
         made = self._snap[j][2] if j in self._snap else self._restored[j].T  # Θ_madeᵀ
         now = self.ssm.theta_rows(j)
         return relative_change(now, made) > self.refresh_tol
@@ -136,7 +154,7 @@ class SharedStateSource:
             return None
         nxt = self._k + 1
         self._decided[j] = nxt
-        return self._refresh(j, nxt) if self._stale(j) else None
+        return self._refresh(j, nxt) if self._stale(j, nxt) else None
 
     def observe(self, u_prev, y) -> ModelView:
         n = self.ssm.n
@@ -205,6 +223,8 @@ class MPCLaw:
         Relative change of an adaptive model's Θ that makes its prediction form and
         QP stale (:class:`SharedStateSource`; the forms are part of :meth:`checkpoint`,
         so a restored law makes the same moves).
+    min_refresh_samples : int
+        Least number of samples between two refreshes of one adaptive model.
 
     Notes
     -----
@@ -215,9 +235,10 @@ class MPCLaw:
     """
 
     def __init__(self, settings: MPCSettings,
-                 refresh_tol: float = SharedStateSource.REFRESH_TOL) -> None:
+                 refresh_tol: float = SharedStateSource.REFRESH_TOL,
+                 min_refresh_samples: int = SharedStateSource.MIN_REFRESH_SAMPLES) -> None:
         self.settings = settings
-        self.source = SharedStateSource(refresh_tol)
+        self.source = SharedStateSource(refresh_tol, min_refresh_samples)
         self.mpc = MPCController(settings, self.source, u0=np.zeros(settings.nu))
 
     def prepare(self, ssm) -> None:
