@@ -11,6 +11,10 @@ update (eq. 3.10, ``update``), the covariance step and the next step's products
 (``rebuild``). Each case reports the total (median, p99, max) and the medians/p99
 of the parts.
 
+Measured (shared 2-core AMD EPYC, load 1.3-1.5, three runs; more in
+``docs/realtime.md``): TE total median 0.105-0.190 ms, p99 0.27-0.36 ms; two-phase
+0.126-0.192 / 0.29-0.37 ms; synthetic n = 40 (load ~3) 0.19-0.26 / 1.0-4.8 ms.
+
 Cases
     ``two-phase``: the chapter-6 reactor study in closed loop with the nonlinear plant
     (plant integration not timed): state-shared model of the OPI/OPII linearizations
