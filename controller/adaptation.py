@@ -25,10 +25,14 @@ would make ``P`` indefinite, so it is rejected.
 
 Covariance resetting: a cheap lower bound on ``lambda_min(P)`` is carried from
 sample to sample (each update lowers it by at most ``g_d trace(K W P)``); only
-when the bound reaches the floor is the exact smallest eigenvalue computed (for
+when the bound reaches the floor is ``lambda_min(P) > floor`` decided exactly (for
 ``N`` up to :attr:`NLSSettings.exact_check_max_params`; larger problems reset on
-the bound alone). A covariance that is not finite, not symmetric positive
-definite, or a singular ``S`` also triggers a reset. Every reset is counted.
+the bound alone). The exact decision is a Cholesky factorization of ``P - floor I``
+(:mod:`controller.definiteness`; for the implicit ``c I - V V'`` of the Gram matrix
+``V' V``, kept up to date as V grows), which decides as the smallest eigenvalue
+would; a passed check leaves the floor itself as the bound. A covariance that is not finite, not
+symmetric positive definite, or a singular ``S`` also triggers a reset. Every reset
+is counted.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.definiteness import ABOVE, floor_check, lowrank_floor_check
 from controller.nls_kernel import (
     DEAD_ZONE,
     DIVERGED,
@@ -255,6 +260,7 @@ class NormalizedLeastSquares:
         self._Pd: np.ndarray | None = None
         self._c = 0.0
         self._V = np.zeros((p0.size, 0))
+        self._G = np.zeros((0, 0))  # V' V, (r, r), kept with V
         self._pending: tuple | None = None  # a deferred covariance step (update(defer=True))
         self._prepared: tuple | None = None  # P W' of the next update (prepare())
         self._check_finite = False
@@ -271,6 +277,7 @@ class NormalizedLeastSquares:
         self._prepared = None
         if self._lowrank:
             self._Pd, self._c, self._V = None, value, np.zeros((self.p.size, 0))
+            self._G = np.zeros((0, 0))
         else:
             self._Pd = value * np.eye(self.p.size)
         self._lower = value  # lower bound on lambda_min(P)
@@ -283,6 +290,7 @@ class NormalizedLeastSquares:
         if self._Pd is None:
             self._Pd = self._c * np.eye(self.p.size) - self._V @ self._V.T
             self._V = np.zeros((self.p.size, 0))
+            self._G = np.zeros((0, 0))
         self._prepared = None
         self._check_finite = True  # the caller may write into it
         return self._Pd
@@ -485,6 +493,13 @@ class NormalizedLeastSquares:
             if not np.isfinite(block).all():
                 self.reset_covariance("nonfinite")
                 return "nonfinite"
+            r, m = self._G.shape[0], block.shape[1]  # the Gram matrix V' V grows by a block
+            G = np.empty((r + m, r + m))
+            G[:r, :r] = self._G
+            G[:r, r:] = self._V.T @ block
+            G[r:, :r] = G[:r, r:].T
+            G[r:, r:] = block.T @ block
+            self._G = G
             self._V = np.hstack((self._V, block))
             if self._V.shape[1] > self.settings.lowrank_max_rank:
                 _ = self.P  # densify
@@ -493,16 +508,29 @@ class NormalizedLeastSquares:
         if self._lower <= self.settings.eig_floor:
             exact = self._Pd is None or self.p.size <= self.settings.exact_check_max_params
             if exact:
-                lam = self.smallest_eigenvalue()
-                if not math.isfinite(lam) or lam <= self.settings.eig_floor:
-                    reason = "floor" if math.isfinite(lam) and lam > 0 else "singular"
-                    self.reset_covariance(reason)
-                    return reason
-                self._lower = lam
+                outcome, bound = self._floor_check()
+                if outcome != ABOVE:
+                    self.reset_covariance(outcome)
+                    return outcome
+                self._lower = bound
             else:
                 self.reset_covariance("floor")
                 return "floor"
         return None
+
+    def _floor_check(self) -> tuple[str, float]:
+        """``lambda_min(P) > eig_floor``? By Cholesky (:mod:`controller.definiteness`):
+        ``("above", eig_floor)`` (``eig_floor < lambda_min(P)``, the new lower bound),
+        else ``("floor" | "singular", eig_floor)``.
+
+        No tighter bound is formed: with the seed's tuning (kappa = 10, floor 1) the
+        bound reaches the floor again at once either way (TE bench, 600 samples: 573
+        checks of 650 covariance steps with the bound ``floor + 1/||(P - floor I)^-1||_F``
+        and without), and the bound costs twice the factorization."""
+        floor = float(self.settings.eig_floor)
+        if self._Pd is not None:
+            return floor_check(self._Pd, floor)
+        return lowrank_floor_check(self._c, self._G, floor)
 
     def smallest_eigenvalue(self) -> float:
         """Exact ``lambda_min(P)`` (for the dense form costly at large N)."""
@@ -559,6 +587,7 @@ class NormalizedLeastSquares:
             if not (math.isfinite(c) and np.isfinite(V).all()):
                 raise ValueError("state.V: non-finite covariance")
             self._Pd, self._c, self._V = None, c, V
+            self._G = V.T @ V
         self.p = p.copy()
         self._since_sym = 0
         if self._Pd is None or p.size <= self.settings.exact_check_max_params:

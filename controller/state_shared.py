@@ -84,6 +84,7 @@ from controller.shared_basis import (
     hurwitz_coefficients,
     orthonormal_theta,
 )
+from controller.state_kernel import model_errors, write_params
 
 __all__ = [
     "companion_pair",
@@ -495,6 +496,14 @@ class StateSharedModel:
         T = self.basis.from_companion()
         return np.kron(np.eye(self.m + self.p), T).T @ th
 
+    def theta_rows(self, j: int) -> np.ndarray:
+        """Model j's ``Theta_j^T``, shape (p, 2nm): a read-only view of the stacked
+        parameters (no :class:`ModelSpec` built), current after :meth:`set_params`."""
+        j = self._index(j)
+        view = self._T[j * self.p : (j + 1) * self.p]
+        view.flags.writeable = False
+        return view
+
     def theta2_all(self) -> np.ndarray:
         """theta2 (= a - d, eq. 3.16) of every model, shape (k, n): the first output
         block's (all blocks hold the same vector for structured models). A read-only
@@ -543,6 +552,10 @@ class StateSharedModel:
         self._Taug = np.zeros((km, q, n + 1))
         self._Taug[:, :, :n] = self._T.reshape(km, q, n)
         self._Taug = self._Taug.reshape(km, -1)
+        if self._slots:  # compile or load the sample's kernels now, not in a sample
+            model_errors(np.zeros(self.p), self._Taug, self._Z.reshape(-1), self._B)
+            write_params(self._T.copy(), self._Taug.copy(), self._B.copy(), 0,
+                         np.zeros(self.n_params + self.p), n, self.m, self.p)
 
     def set_theta(self, j: int, theta: ArrayLike, bias: ArrayLike | None = None) -> None:
         """Replace model j's Theta (and bias; kept when None). The shared state is untouched."""
@@ -567,21 +580,13 @@ class StateSharedModel:
         """
         j = self._index(j)
         n, m, q = self.n_deg, self.m, self.p
-        nm = n * m
         p = np.asarray(p, dtype=float).reshape(-1)
         if p.shape != (self.n_params + q,) or not np.isfinite(p).all():
             theta, bias = self.theta_from_params(p)  # raises naming the field
             self.set_theta(j, theta, bias)
             return
-        rows = self._T[j * q : (j + 1) * q]  # Theta_j^T, (q, n(m+q))
-        rows[:, :nm] = p[: nm * q].reshape(q, nm)
-        rows[:, nm:] = 0.0
-        t2 = p[nm * q : nm * q + n]
-        for i in range(q):
-            rows[i, nm + i * n : nm + (i + 1) * n] = t2
-        self._Taug.reshape(-1, m + q, n + 1)[j * q : (j + 1) * q, :, :n] = (
-            rows.reshape(q, m + q, n))
-        self._B[j] = p[nm * q + n :]
+        # Theta_j^T rows of the stack (q, n(m+q)): [Theta1 rows | theta2 block diagonal]
+        write_params(self._T, self._Taug, self._B, j, p, n, m, q)
         old = self._slots[j]
         self._slots[j] = _Slot(None, old.name, old.kind)
 
@@ -697,6 +702,11 @@ class StateSharedModel:
 
     def errors(self, y: ArrayLike) -> np.ndarray:
         """``y - y_j`` for every model, shape (k, m)."""
+        if (isinstance(y, np.ndarray) and y.dtype == np.float64 and y.shape == (self.p,)
+                and self.k):
+            e = model_errors(y, self._Taug, self._Z.reshape(-1), self._B)  # one call
+            if e.shape[0] == self.k:
+                return e
         return finite_vector(y, self.p, "y")[None, :] - self.estimates()
 
     # -- prediction form ---------------------------------------------------------------

@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from controller.switching_kernel import index_step, smallest_index
+
 __all__ = ["IndexSettings", "PerformanceIndex", "ModelSwitcher", "SwitchDecision"]
 
 
@@ -105,6 +107,9 @@ class PerformanceIndex:
         self.integral = np.zeros(n_models)
         self._w = (None if settings.output_weights is None
                    else np.asarray(settings.output_weights, dtype=float))
+        if self._w is not None:  # compile or load the kernel now, not in a sample
+            index_step(np.zeros((n_models, self._w.size)), self._w, np.zeros(n_models),
+                       self.decay, self.dt, 1.0, 1.0)
 
     @property
     def n_models(self) -> int:
@@ -128,6 +133,17 @@ class PerformanceIndex:
 
         Non-finite errors are not allowed here (the caller skips such samples).
         """
+        e = errors
+        if (self._w is not None and isinstance(e, np.ndarray) and e.dtype == np.float64
+                and e.ndim == 2 and e.shape == (self.n_models, self._w.size)
+                and e.flags.c_contiguous):  # the sample's case: one compiled call
+            J, integral, finite = index_step(e, self._w, self.integral, self.decay,
+                                             self.dt, float(self.settings.mu),
+                                             float(self.settings.nu))
+            if not finite:
+                raise ValueError("errors: non-finite model error (skip the sample instead)")
+            self.integral, self.J = integral, J
+            return self.J
         e2 = self.squared_errors(errors)
         if not np.isfinite(e2).all():
             raise ValueError("errors: non-finite model error (skip the sample instead)")
@@ -232,6 +248,7 @@ class ModelSwitcher:
         self.since_switch = self.dwell_samples  # free to switch at the first sample
         self.n_switches = 0
         self.n_held = 0
+        smallest_index(np.zeros(self.n_models), 0, self.hysteresis, self.J_TOL)  # compile now
 
     def step(self, J, allowed=None) -> SwitchDecision:
         """Choose the model for this sample from the index values ``J`` (n_models,).
@@ -241,16 +258,17 @@ class ModelSwitcher:
         J = np.asarray(J, dtype=float).reshape(-1)
         if J.size != self.n_models:
             raise ValueError(f"J: expected {self.n_models} values, got {J.size}")
-        masked = np.where(np.isfinite(J), J, np.inf)
         if allowed is not None:
-            masked = np.where(np.asarray(allowed, dtype=bool), masked, np.inf)
+            J = np.where(np.asarray(allowed, dtype=bool), J, np.inf)
         self.since_switch += 1
-        if not np.any(np.isfinite(masked)):
+        # smallest finite J; J differences at round-off level (all models exact at a
+        # steady state) never switch
+        best, any_finite, beats = smallest_index(np.ascontiguousarray(J), self.active,
+                                                 self.hysteresis, self.J_TOL)
+        if not any_finite:
             return SwitchDecision(self.active, self.active, False, False)
-        best = int(np.argmin(masked))
-        # J differences at round-off level (all models exact at a steady state) never switch
-        threshold = (1.0 - self.hysteresis) * masked[self.active] - self.J_TOL
-        if best == self.active or masked[best] >= threshold:
+        best = int(best)
+        if not beats:
             return SwitchDecision(self.active, best, False, False)
         if self.since_switch < self.dwell_samples:
             self.n_held += 1

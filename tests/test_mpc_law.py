@@ -49,7 +49,7 @@ def test_law_switches_models_without_rebuilds_and_never_raises():
     ssm = small_ssm(rng)
     s = MPCSettings(nu=2, ny=2, P=8, M=3, Lambda=[0.1, 0.1], du_max=[0.5, 0.5],
                     budget_ms=1e3)
-    law = MPCLaw(s, adaptive_refresh=5)
+    law = MPCLaw(s)
     law.prepare(ssm)
     builds = law.mpc.counters["rebuilds"]
     u = np.zeros(2)
@@ -110,7 +110,7 @@ def _drive_adaptive(law, ssm, rng, k0, n, u):
     return np.array(out), u
 
 
-def test_checkpoint_keeps_the_adaptive_refresh_phase():
+def test_checkpoint_keeps_the_adaptive_forms():
     import json
 
     s = MPCSettings(nu=2, ny=2, P=8, M=3, Lambda=[0.1, 0.1], du_max=[0.5, 0.5],
@@ -120,14 +120,14 @@ def test_checkpoint_keeps_the_adaptive_refresh_phase():
         rng = np.random.default_rng(4)
         ssm = small_ssm(rng)
         ssm.initialize(np.zeros(2), np.zeros(2))
-        law = MPCLaw(s, adaptive_refresh=5)
+        law = MPCLaw(s, refresh_tol=0.03)  # Θ moves ~2 % a sample: a refresh every few
         law.prepare(ssm)
         law.reset(np.zeros(2), np.zeros(2))
-        _, u = _drive_adaptive(law, ssm, rng, 0, 7, np.zeros(2))  # mid-phase (7 % 5)
+        _, u = _drive_adaptive(law, ssm, rng, 0, 7, np.zeros(2))  # a form some samples old
         state = json.loads(json.dumps(law.checkpoint()))
-        if not restore_phase:  # a checkpoint without the phase (before the fix)
+        if not restore_phase:  # a checkpoint without the forms (an older one)
             state["source"] = {"n_prev": state["source"]["n_prev"]}
-        twin = MPCLaw(s, adaptive_refresh=5)
+        twin = MPCLaw(s, refresh_tol=0.03)
         twin.prepare(ssm)
         twin.restore(state)
         ss = ssm.checkpoint()
@@ -137,5 +137,69 @@ def test_checkpoint_keeps_the_adaptive_refresh_phase():
         return np.max(np.abs(a - b))
 
     assert run(True) <= RESTORE_ATOL
-    # the check can fail: without the phase the restored law refreshes at other samples
+    # the check can fail: without the forms the restored law predicts with today's Θ
     assert run(False) > RESTORE_ATOL
+
+
+def test_rebuild_only_between_samples_and_only_when_theta_moved_past_the_tolerance():
+    """finish_sample rebuilds the adaptive model's QP when its Θ moved by more than
+    refresh_tol (relative, Frobenius) since its form was made; compute never builds."""
+    rng = np.random.default_rng(6)
+    ssm = small_ssm(rng)
+    s = MPCSettings(nu=2, ny=2, P=8, M=3, Lambda=[0.1, 0.1], du_max=[0.5, 0.5],
+                    budget_ms=1e3)
+    tol = 1e-3
+    law = MPCLaw(s, refresh_tol=tol, min_refresh_samples=1)
+    law.prepare(ssm)
+    u = np.zeros(2)
+    ssm.initialize(u, np.zeros(2))
+    law.reset(u, np.zeros(2))
+    theta0 = ssm.theta(2).copy()
+    direction = rng.standard_normal(theta0.shape[0])[:, None] * np.ones((1, 2))
+    nm = ssm.Fd.shape[0]
+    direction[nm:] = 0.0  # move Θ1 only (Θ2 keeps its block structure)
+    direction *= np.linalg.norm(theta0) / np.linalg.norm(direction)
+    built_in_compute = 0
+    expected = 0
+    for k, rel in enumerate([0.2, 0.5, 0.9, 1.5, 1.6, 3.0, 3.2, 2.1, 0.0]):
+        ssm.set_theta(2, theta0 + rel * tol * direction)
+        before = law.mpc.counters["rebuilds"]
+        y = ssm.estimates()[0]
+        u, info = law.compute(k, 2, ssm, y, np.full((8, 2), 0.1), u)
+        assert info["status"] == "solved"
+        built_in_compute += law.mpc.counters["rebuilds"] - before
+        ssm.update(u, y)
+        made = law.source._snap[2][2].T  # Θ the current form was made from
+        moved = np.linalg.norm(ssm.theta(2) - made) / np.linalg.norm(made)
+        before = law.mpc.counters["rebuilds"]
+        law.finish_sample(ssm, 2)
+        rebuilt = law.mpc.counters["rebuilds"] - before
+        assert rebuilt == (1 if moved > tol else 0), (k, moved)
+        expected += moved > tol
+    assert built_in_compute == 0
+    assert expected >= 3  # 0 -> 1.5 tol, 1.5 -> 3.0 tol, 3.2 -> 2.1 tol, 2.1 -> 0 tol
+
+
+def test_refreshes_of_a_fast_adapting_model_are_spaced_by_min_refresh_samples():
+    rng = np.random.default_rng(7)
+    ssm = small_ssm(rng)
+    s = MPCSettings(nu=2, ny=2, P=8, M=3, Lambda=[0.1, 0.1], du_max=[0.5, 0.5],
+                    budget_ms=1e3)
+    law = MPCLaw(s, refresh_tol=1e-6, min_refresh_samples=4)
+    law.prepare(ssm)
+    u = np.zeros(2)
+    ssm.initialize(u, np.zeros(2))
+    law.reset(u, np.zeros(2))
+    rebuilt_at = []
+    for k in range(20):
+        p = ssm.params_from_theta(ssm.theta(2), ssm.bias(2))
+        ssm.set_params(2, p + 1e-2 * rng.standard_normal(p.size))  # moves every sample
+        y = ssm.estimates()[0]
+        u, _ = law.compute(k, 2, ssm, y, np.full((8, 2), 0.1), u)
+        ssm.update(u, y)
+        before = law.mpc.counters["rebuilds"]
+        law.finish_sample(ssm, 2)
+        if law.mpc.counters["rebuilds"] > before:
+            rebuilt_at.append(k)
+    assert len(rebuilt_at) >= 4
+    assert np.all(np.diff(rebuilt_at) == 4)  # every 4th sample, never closer

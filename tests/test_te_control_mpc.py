@@ -122,7 +122,7 @@ def no_wall_clock_budget(monkeypatch):
 @pytest.mark.parametrize("strategy", ["pi", "fixed", "ssmpc"])
 def test_checkpoint_restore_is_bumpless(strategy):
     # the restored controller makes the same moves as the original for the next 12
-    # samples (through an adaptive-refresh boundary of the MPC law), to round-off
+    # samples (the adaptive model predicting with its form as restored), to round-off
     import json
 
     from plant_sim.tennessee_eastman import TESimulator

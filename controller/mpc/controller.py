@@ -34,6 +34,7 @@ from controller.mpc.filters import FirstOrderFilter
 from controller.mpc.formulation import DeltaUFormulation, FormulationCache
 from controller.mpc.qp import QPResult, QPSolver, make_solver
 from controller.mpc.settings import MPCSettings
+from controller.mpc.vector_kernel import clip_move
 
 __all__ = ["ModelView", "StateSource", "LinearModelState", "MPCController"]
 
@@ -381,12 +382,16 @@ class MPCController:
             form = self.prepare(view.key, view.Phi, view.Gamma, view.C, view.Gamma_d)
             solver = self._solvers[view.key][1]
             t_build = self.clock()
-            x_a = np.concatenate([np.asarray(view.x) - np.asarray(view.x_prev), y_f])
             dd = None
             if view.Gamma_d is not None and self.d is not None:
                 dd = self.d - self.d_prev
             self.d_prev = self.d
-            vec = form.qp_vectors(x_a, self.u, R, dd, self.u_target, self.op_limits)
+            if (dd is None or form.S_d is None) and self.op_limits is None:
+                x_a, vec = form.sample_vectors(view.x, view.x_prev, y_f, self.u, R,
+                                               self.u_target)
+            else:
+                x_a = np.concatenate([np.asarray(view.x) - np.asarray(view.x_prev), y_f])
+                vec = form.qp_vectors(x_a, self.u, R, dd, self.u_target, self.op_limits)
             if self.op_fixed is not None:  # held inputs: no move over the horizon
                 held = np.concatenate([np.tile(self.op_fixed, s.M),
                                        np.zeros(form.nz - form.n_moves, dtype=bool)])
@@ -403,10 +408,10 @@ class MPCController:
                 z = res.x
                 plan = z[:form.n_moves].reshape(s.M, s.nu)
                 self.plan, self.plan_index = plan.copy(), 0
-                du = np.minimum(np.maximum(plan[0], -s.du_max), s.du_max)  # as np.clip
-                if self.op_fixed is None and self.op_limits is None:
-                    u = np.minimum(np.maximum(self.u + du, s.u_min), s.u_max)
+                if self.op_fixed is None and self.op_limits is None:  # one compiled call
+                    du, u = clip_move(plan[0], s.du_max, self.u, s.u_min, s.u_max)
                 else:  # an operator's held inputs and limits
+                    du = np.minimum(np.maximum(plan[0], -s.du_max), s.du_max)  # as np.clip
                     if self.op_fixed is not None:
                         du[self.op_fixed] = 0.0
                     u_min, u_max = self._u_limits()

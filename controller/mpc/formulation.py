@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.mpc.settings import MPCSettings
+from controller.mpc.vector_kernel import clip_move, qp_vectors_kernel, stacked_bounds
 
 #: What the QP solvers read as no bound (DAQP's DAQP_INF).
 _OPEN = 1e30
@@ -195,9 +196,25 @@ class DeltaUFormulation:
         bu0 = np.concatenate([np.tile(s.u_max, s.M)[rows], ymax, np.full(ymin.size, np.inf)])
         consts = {"_in_idx": rows % s.nu, "_n_in": n_in, "_n_max": n_max, "_bl0": bl0,
                   "_bu0": bu0, "_Sx_max": np.ascontiguousarray(self.S_x[self.ymax_rows]),
-                  "_Sx_min": np.ascontiguousarray(self.S_x[self.ymin_rows])}
+                  "_Sx_min": np.ascontiguousarray(self.S_x[self.ymin_rows]),
+                  "_F_ut": (np.zeros((0, 0)) if self.F_ut is None
+                            else np.ascontiguousarray(self.F_ut)),
+                  "_no_dev": np.zeros(0)}
         for k, v in consts.items():
             object.__setattr__(self, k, v)
+        self._warm_kernels()
+
+    def _warm_kernels(self) -> None:
+        """Call the sample's compiled kernels once with this formulation's argument
+        types, so that their compilation (or their load from numba's cache, ~10-50 ms
+        the first time in a process) never falls into a sample."""
+        s = self.settings
+        n = self.Phi.shape[0]
+        zero_u = np.zeros(s.nu)
+        _, vec = self.sample_vectors(np.zeros(n), np.zeros(n), np.zeros(s.ny), zero_u,
+                                     np.zeros((s.P, s.ny)))
+        stacked_bounds(vec.f, vec.lb, vec.ub, vec.bl, vec.bu)
+        clip_move(np.zeros(s.nu), s.du_max, zero_u, s.u_min, s.u_max)
 
     @property
     def n_rows(self) -> int:
@@ -287,6 +304,34 @@ class DeltaUFormulation:
                 bu[n_in:n_in + n_max] -= off[self.ymax_rows]
                 bl[n_in + n_max:] -= off[self.ymin_rows]
         return QPVectors(f=f, lb=self.lb0, ub=self.ub0, bl=bl, bu=bu)
+
+    def sample_vectors(self, x, x_prev, y, u_prev, reference,
+                       u_target=None) -> tuple[np.ndarray, QPVectors]:
+        """``(x_a, qp_vectors(x_a, u_prev, reference, u_target=u_target))`` with
+        ``x_a = [x − x_prev; y]``, the settings' limits and no measured disturbance, in
+        one compiled call (:mod:`controller.mpc.vector_kernel`; the same numbers).
+
+        Parameters
+        ----------
+        x, x_prev : ndarray, shape (n,)
+        y : ndarray, shape (ny,)
+        u_prev : ndarray, shape (nu,)
+        reference : ndarray, shape (P, ny)
+        u_target : ndarray, shape (nu,), optional
+        """
+        s = self.settings
+        if self.F_ut is not None:
+            ut = s.u_target if u_target is None else u_target
+            dev = np.tile(np.asarray(u_prev, dtype=float) - ut, s.M)
+        else:
+            dev = self._no_dev
+        x_a, f, bl, bu = qp_vectors_kernel(
+            np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(x_prev, dtype=float),
+            np.ascontiguousarray(y, dtype=float), self.F_x, self.F_r,
+            np.ascontiguousarray(reference, dtype=float).reshape(-1), self._F_ut, dev,
+            float(s.slack_linear), self.has_slack, self._bl0, self._bu0, self._in_idx,
+            np.ascontiguousarray(u_prev, dtype=float), self._Sx_max, self._Sx_min)
+        return x_a, QPVectors(f=f, lb=self.lb0, ub=self.ub0, bl=bl, bu=bu)
 
     def predict(self, x_a, dU, dd=None) -> np.ndarray:
         """Predicted outputs ``y(k+1) … y(k+P)`` for the moves ``dU``, shape (P, ny)."""

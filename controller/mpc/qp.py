@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.mpc.formulation import QPVectors
+from controller.mpc.vector_kernel import stacked_bounds
 
 __all__ = ["QPResult", "QPSolver", "DAQPBackend", "ProxsuiteBackend", "make_solver"]
 
@@ -100,13 +101,13 @@ class QPSolver(ABC):
         """Solve with the vectors ``v``; ``warm`` overrides :attr:`warm_start` once."""
         warm = self.warm_start if warm is None else warm
         t0 = time.perf_counter()
-        if not (np.isfinite(v.f).all() and not np.isnan(v.lb).any()
-                and not np.isnan(v.ub).any() and not np.isnan(v.bl).any()
-                and not np.isnan(v.bu).any()):
+        clean, upper, lower = stacked_bounds(*(np.ascontiguousarray(a, dtype=float) for a in (
+            v.f, v.lb, v.ub, v.bl, v.bu)))  # the check and [ub; bu], [lb; bl] in one call
+        if not clean:
             return QPResult("nan", None, 0, (time.perf_counter() - t0) * 1e3, float("nan"),
                             self.name, "non-finite QP data")
         try:
-            status, x, it, obj, raw = self._solve(v, warm)
+            status, x, it, obj, raw = self._solve(v, warm, upper, lower)
         except Exception as exc:  # a solver failure is a status, never an exception
             return QPResult("error", None, 0, (time.perf_counter() - t0) * 1e3, float("nan"),
                             self.name, f"{type(exc).__name__}: {exc}")
@@ -122,8 +123,9 @@ class QPSolver(ABC):
         """Forget any warm-start information (the next solve is cold)."""
 
     @abstractmethod
-    def _solve(self, v: QPVectors, warm: bool):
-        """Return ``(status, x, iterations, objective, raw_status)``."""
+    def _solve(self, v: QPVectors, warm: bool, upper: np.ndarray, lower: np.ndarray):
+        """Return ``(status, x, iterations, objective, raw_status)``; ``upper``, ``lower``
+        are ``[ub; bu]`` and ``[lb; bl]``."""
 
 
 class DAQPBackend(QPSolver):
@@ -151,9 +153,8 @@ class DAQPBackend(QPSolver):
     def reset(self) -> None:
         self._model = None
 
-    def _solve(self, v: QPVectors, warm: bool):
-        bu = np.concatenate([v.ub, v.bu])
-        bl = np.concatenate([v.lb, v.bl])
+    def _solve(self, v: QPVectors, warm: bool, upper: np.ndarray, lower: np.ndarray):
+        bu, bl = upper, lower
         f = np.array(v.f, dtype=float)
         if self._model is None:
             model = self._daqp.Model()
@@ -211,7 +212,7 @@ class ProxsuiteBackend(QPSolver):
                 _clip(v.bu) if self.m else None, _clip(v.lb), _clip(v.ub))
         return qp
 
-    def _solve(self, v: QPVectors, warm: bool):
+    def _solve(self, v: QPVectors, warm: bool, upper: np.ndarray, lower: np.ndarray):
         pq = self._proxqp
         warm = warm and self._warm_ok
         if self._qp is None:

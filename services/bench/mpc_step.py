@@ -1,10 +1,19 @@
 """``ssmpc bench mpc-step``: one controller sample of the state-shared MPC, in ms.
 
-A sample is what the controller node does between a measurement and the move:
-a-priori model errors, adaptation of the adaptive model (normalized least squares,
-eq. 4.1), performance index and switching (eq. 4.6), the Δu MPC (vectors + QP with
-DAQP) on the active model, and the shared-state update (eq. 3.10). Each case
-reports the total (median, p99, max) and the medians/p99 of the parts.
+A sample is what the controller node does between a measurement and the move (the
+critical path, ``total``): a-priori model errors, adaptation of the adaptive model
+(normalized least squares, eq. 4.1, its covariance products prepared the sample
+before), performance index and switching (eq. 4.6) and the Δu MPC (vectors + QP with
+DAQP) on the active model. After the move (``after_move``, as
+:meth:`controller.multimodel.MultiModelController.finish_sample`): the shared-state
+update (eq. 3.10, ``update``), the covariance step and the next step's products
+(``covariance``) and the adaptive model's QP rebuild when its Θ moved
+(``rebuild``). Each case reports the total (median, p99, max) and the medians/p99
+of the parts.
+
+Measured (shared 2-core AMD EPYC, load 1.3-1.5, three runs; more in
+``docs/realtime.md``): TE total median 0.105-0.190 ms, p99 0.27-0.36 ms; two-phase
+0.126-0.192 / 0.29-0.37 ms; synthetic n = 40 (load ~3) 0.19-0.26 / 1.0-4.8 ms.
 
 Cases
     ``two-phase``: the chapter-6 reactor study in closed loop with the nonlinear plant
@@ -57,13 +66,17 @@ class _Timer:
 
 
 def _sample(ssm, est, j_ad, index, switcher, law, y, reference, u, k, timer, adapt=True):
-    """One controller sample; returns the move. Times each part into ``timer``."""
+    """One controller sample as :class:`controller.multimodel.MultiModelController` runs
+    it; returns the move. Times each part into ``timer``: ``total`` is the critical path
+    (measurement to move: errors, the prepared adaptation step, index and switch, the
+    MPC); ``after_move`` is the bookkeeping after the move is out (shared-state update,
+    the covariance step, the next step's products, the law's QP rebuilds)."""
     clock = time.perf_counter
     t0 = clock()
     errors = ssm.errors(y)
     t1 = clock()
     if adapt and est is not None:
-        step = est.update(ssm.regressor(), y)
+        step = est.update_prepared(y, defer=True)
         if step.updated or step.reset:
             ssm.set_params(j_ad, est.p)
     t2 = clock()
@@ -72,14 +85,24 @@ def _sample(ssm, est, j_ad, index, switcher, law, y, reference, u, k, timer, ada
     t3 = clock()
     u_new, info = law.compute(k, dec.active, ssm, y, reference, u)
     t4 = clock()
+    # the move is out: bookkeeping for the next sample
     ssm.update(u_new, y)
     t5 = clock()
+    if est is not None:
+        est.commit()
+        est.prepare(ssm.regressor())
+    t6 = clock()
+    law.finish_sample(ssm, dec.active)
+    t7 = clock()
     timer.add("errors", t0, t1)
     timer.add("adapt", t1, t2)
     timer.add("switch", t2, t3)
     timer.add("mpc", t3, t4)
     timer.add("update", t4, t5)
-    timer.add("total", t0, t5)
+    timer.add("covariance", t5, t6)
+    timer.add("rebuild", t6, t7)
+    timer.add("after_move", t4, t7)
+    timer.add("total", t0, t4)
     return u_new, dec.active, info
 
 
@@ -137,6 +160,7 @@ def two_phase_case(samples: int, adapt: bool = True, targets: bool = False) -> d
     x4bar = float(ops["OPI"].u[3])
     ssm.initialize(u, y1)
     law.reset(u, y1)
+    est.prepare(ssm.regressor())
     timer = _Timer()
     fallbacks = relaxed = 0
     actives = set()
@@ -160,7 +184,7 @@ def two_phase_case(samples: int, adapt: bool = True, targets: bool = False) -> d
                  rebuilds=law.mpc.counters["rebuilds"], **extra)
 
 
-def _te_controller(ssm, P: int, M: int, u_op, y_op, adaptive_refresh: int = 50):
+def _te_controller(ssm, P: int, M: int, u_op, y_op):
     from controller.mpc import MPCSettings
     from controller.mpc.law import MPCLaw
 
@@ -172,7 +196,7 @@ def _te_controller(ssm, P: int, M: int, u_op, y_op, adaptive_refresh: int = 50):
                            du_max=np.full(m, 2.0), y_min=np.asarray(y_op) - 5 * scale,
                            y_max=np.asarray(y_op) + 5 * scale, slack_scale=scale,
                            slack_linear=1e3, slack_quadratic=10.0, budget_ms=5.0)
-    return settings, MPCLaw(settings, adaptive_refresh=adaptive_refresh)
+    return settings, MPCLaw(settings)
 
 
 def te_case(samples: int, seed: int = 0, adapt: bool = True, synthetic: bool = False) -> dict:
@@ -223,6 +247,7 @@ def te_case(samples: int, seed: int = 0, adapt: bool = True, synthetic: bool = F
     y = C @ x_plant + b
     ssm.initialize(u, y)
     law.reset(u, y)
+    est.prepare(ssm.regressor())
     d = np.zeros(m)
     sp = y.copy()
     timer = _Timer()
