@@ -17,7 +17,8 @@ to, in engineering units:
   input the range the chapter-5 laws work to (:func:`controller.units.siso.input_limits`).
 
 :func:`at_limit` says which limit a value sits at (within :data:`AT_LIMIT_FRACTION`
-of the range, or beyond it).
+of the range, or beyond it); :func:`at_limit_flags` says it for a whole vector at once
+(the KPIs' constraint activity, every sample).
 """
 
 from __future__ import annotations
@@ -25,7 +26,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["AT_LIMIT_FRACTION", "VariableInfo", "at_limit", "unit_variables"]
+import numpy as np
+
+__all__ = ["AT_LIMIT_FRACTION", "VariableInfo", "at_limit", "at_limit_flags", "unit_variables"]
 
 #: A value within this fraction of its range from a limit is "at" it (0.5 %).
 AT_LIMIT_FRACTION = 0.005
@@ -85,6 +88,33 @@ def at_limit(value: float | None, lo: float, hi: float) -> str | None:
     if math.isfinite(lo) and value <= lo + tol:
         return "lo"
     return None
+
+
+def at_limit_flags(values, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """Vector form of :func:`at_limit`: which of ``values`` sit at their low, which at
+    their high limit (a non-finite value at neither; high wins where both would).
+
+    Parameters
+    ----------
+    values, lo, hi : array_like, shape (n,)
+        Values and limits in engineering units (±inf: no limit).
+
+    Returns
+    -------
+    at_lo, at_hi : ndarray of bool, shape (n,)
+    """
+    x = np.asarray(values, dtype=float)
+    lo = np.asarray(lo, dtype=float)
+    hi = np.asarray(hi, dtype=float)
+    f_lo, f_hi = np.isfinite(lo), np.isfinite(hi)
+    with np.errstate(invalid="ignore"):
+        one = np.maximum(np.where(f_lo, np.abs(lo), 0.0), np.where(f_hi, np.abs(hi), 0.0))
+        tol = np.where(f_lo & f_hi, AT_LIMIT_FRACTION * (hi - lo),
+                       np.maximum(AT_LIMIT_FRACTION * one, 1e-9))
+        ok = np.isfinite(x)
+        at_hi = ok & f_hi & (x >= hi - tol)
+        at_lo = ok & f_lo & (x <= lo + tol) & ~at_hi
+    return at_lo, at_hi
 
 
 def _te_variables(cfg, plant) -> tuple[VariableInfo, ...]:
