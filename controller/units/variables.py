@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AT_LIMIT_FRACTION", "VariableInfo", "at_limit", "at_limit_flags", "unit_variables"]
+__all__ = ["AT_LIMIT_FRACTION", "VariableInfo", "at_limit", "at_limit_flags", "flags_at",
+           "limit_thresholds", "unit_variables"]
 
 #: A value within this fraction of its range from a limit is "at" it (0.5 %).
 AT_LIMIT_FRACTION = 0.005
@@ -90,9 +91,47 @@ def at_limit(value: float | None, lo: float, hi: float) -> str | None:
     return None
 
 
+def limit_thresholds(lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """Where "at a limit" starts for each variable (:func:`at_limit`'s tolerance taken
+    off): a value at or below ``lo_at`` is at its low limit, at or above ``hi_at`` at its
+    high one (±inf: the variable has no such limit).
+
+    Parameters
+    ----------
+    lo, hi : array_like, shape (n,)
+        Limits in engineering units (±inf: none).
+
+    Returns
+    -------
+    lo_at, hi_at : ndarray, shape (n,)
+    """
+    lo = np.asarray(lo, dtype=float)
+    hi = np.asarray(hi, dtype=float)
+    f_lo, f_hi = np.isfinite(lo), np.isfinite(hi)
+    with np.errstate(invalid="ignore"):
+        one = np.maximum(np.where(f_lo, np.abs(lo), 0.0), np.where(f_hi, np.abs(hi), 0.0))
+        tol = np.where(f_lo & f_hi, AT_LIMIT_FRACTION * (hi - lo),
+                       np.maximum(AT_LIMIT_FRACTION * one, 1e-9))
+        return (np.where(f_lo, lo + tol, -np.inf), np.where(f_hi, hi - tol, np.inf))
+
+
+def flags_at(values, lo_at, hi_at) -> tuple[np.ndarray, np.ndarray]:
+    """Which ``values`` sit at their low / high limit, given :func:`limit_thresholds`
+    (a non-finite value at neither; high wins where both would).
+
+    Returns
+    -------
+    at_lo, at_hi : ndarray of bool, shape (n,)
+    """
+    x = np.asarray(values, dtype=float)
+    finite = np.isfinite(x)
+    at_hi = (x >= hi_at) & finite
+    return (x <= lo_at) & finite & ~at_hi, at_hi
+
+
 def at_limit_flags(values, lo, hi) -> tuple[np.ndarray, np.ndarray]:
     """Vector form of :func:`at_limit`: which of ``values`` sit at their low, which at
-    their high limit (a non-finite value at neither; high wins where both would).
+    their high limit (:func:`limit_thresholds`, :func:`flags_at`).
 
     Parameters
     ----------
@@ -103,18 +142,7 @@ def at_limit_flags(values, lo, hi) -> tuple[np.ndarray, np.ndarray]:
     -------
     at_lo, at_hi : ndarray of bool, shape (n,)
     """
-    x = np.asarray(values, dtype=float)
-    lo = np.asarray(lo, dtype=float)
-    hi = np.asarray(hi, dtype=float)
-    f_lo, f_hi = np.isfinite(lo), np.isfinite(hi)
-    with np.errstate(invalid="ignore"):
-        one = np.maximum(np.where(f_lo, np.abs(lo), 0.0), np.where(f_hi, np.abs(hi), 0.0))
-        tol = np.where(f_lo & f_hi, AT_LIMIT_FRACTION * (hi - lo),
-                       np.maximum(AT_LIMIT_FRACTION * one, 1e-9))
-        ok = np.isfinite(x)
-        at_hi = ok & f_hi & (x >= hi - tol)
-        at_lo = ok & f_lo & (x <= lo + tol) & ~at_hi
-    return at_lo, at_hi
+    return flags_at(values, *limit_thresholds(lo, hi))
 
 
 def _te_variables(cfg, plant) -> tuple[VariableInfo, ...]:

@@ -62,11 +62,12 @@ _HEAVY_SHARE = 1.0 - float(_LIGHT_BASE.sum())
 
 
 def _molar_volume_terms():
-    mw, ad, bd, cd = (C.get(n) for n in ("XMW", "AD", "BD", "CD"))
+    mw, ad, bd, cd = (tuple(float(v) for v in C.get(n)) for n in ("XMW", "AD", "BD", "CD"))
     return mw, ad, bd, cd, float(C.get("FT3_PER_M3")[0])
 
 
 _MW, _AD, _BD, _CD, _FT3_PER_M3 = _molar_volume_terms()
+_LIGHT = tuple(float(v) for v in _LIGHT_BASE)
 
 
 def product_flow_from_measurements(xmeas) -> float:
@@ -81,15 +82,22 @@ def product_flow_from_measurements(xmeas) -> float:
     -------
     float
         NaN when the analyzer's D-H do not add up to more than 0.
+
+    Notes
+    -----
+    Plain floats, not numpy: 8 terms (about 3 against 17 us a sample in numpy).
     """
-    x = np.asarray(xmeas, dtype=float)
-    heavy = x[36:41]
-    if not float(heavy.sum()) > 0.0:  # no analyzer reading: no flow known
+    heavy = [float(v) for v in xmeas[36:41]]
+    total = sum(heavy)
+    if not total > 0.0:  # no analyzer reading: no flow known
         return float("nan")
-    comp = np.concatenate((_LIGHT_BASE, heavy * (_HEAVY_SHARE / float(heavy.sum()))))
-    t = x[17]
-    molar_volume = float(np.sum(comp * _MW / (_AD + (_BD + _CD * t) * t)))  # ft³/lb-mol
-    return float(x[16] * _FT3_PER_M3 / molar_volume)
+    scale = _HEAVY_SHARE / total
+    comp = (*_LIGHT, *(h * scale for h in heavy))
+    t = float(xmeas[17])
+    molar_volume = 0.0  # ft³/lb-mol
+    for i in range(8):
+        molar_volume += comp[i] * _MW[i] / (_AD[i] + (_BD[i] + _CD[i] * t) * t)
+    return float(xmeas[16]) * _FT3_PER_M3 / molar_volume
 
 
 def measured_operating_cost(xmeas) -> float:
