@@ -36,8 +36,8 @@ def _pct(v, width: int) -> str:
     return f"{'-':>{width}}" if v is None else f"{100.0 * v:>{width}.1f}"
 
 
-def _num(v, width: int, fmt: str = ".1f") -> str:
-    return f"{'-':>{width}}" if v is None else f"{v:>{width}{fmt}}"
+def _num(v, width: int, fmt: str = ".1f", sign: str = "") -> str:
+    return f"{'-':>{width}}" if v is None else f"{v:>{sign}{width}{fmt}}"
 
 
 def kpi_lines(doc: dict, show_all: bool = False) -> list[str]:
@@ -52,14 +52,16 @@ def kpi_lines(doc: dict, show_all: bool = False) -> list[str]:
                    [:STATUS_WIDTH])
         now = doc.get("cost_now_usd_h")
         out.append(f"cost now {_num(now, 0).strip()} $/h")
-    out.append(f"{'window':<12} {'hours':>8} {'service':>8} {'on %':>6} {'fallb %':>7} "
-               f"{'warm %':>6} {'off %':>6} {'down %':>6} {'cost $/h':>9} {'vs base':>8}")
+    out.append(f"{'':<12} {'':>8} {'service':>8}  {'time, % ON / fallback / WARM / OFF / down':<42}"
+               f"{'cost':>9} {'vs base':>8}")
+    out.append(f"{'window':<12} {'hours':>8} {'factor %':>8}  {'on':>6} {'fallback':>8} "
+               f"{'warm':>6} {'off':>6} {'down':>6}   {'$/h':>9} {'$/h':>8}")
     for w in windows:
         sh, cost = w["time_share"], w["cost"]
-        out.append(f"{w['window'][:12]:<12} {w['hours']:>8.3f} {_pct(w['service_factor'], 7)}%"
-                   f" {_pct(sh['on'], 6)} {_pct(sh['fallback'], 7)} {_pct(sh['warm'], 6)} "
-                   f"{_pct(sh['off'], 6)} {_pct(sh['down'], 6)} "
-                   f"{_num(cost['mean_usd_h'], 9)} {_num(cost['vs_base_usd_h'], 8, '+.1f')}")
+        out.append(f"{w['window'][:12]:<12} {w['hours']:>8.3f} {_pct(w['service_factor'], 8)}  "
+                   f"{_pct(sh['on'], 6)} {_pct(sh['fallback'], 8)} {_pct(sh['warm'], 6)} "
+                   f"{_pct(sh['off'], 6)} {_pct(sh['down'], 6)}   "
+                   f"{_num(cost['mean_usd_h'], 9)} {_num(cost['vs_base_usd_h'], 8, sign='+')}")
     if windows:
         out.extend(_activity_lines(windows, show_all))
         out.extend(_model_lines(doc, windows))
