@@ -176,3 +176,48 @@ def test_te_kpis_cost_against_the_base_case(te):
     assert set(w["prediction_rms"]) == set(st["prediction_rms"])
     assert all(v is None or v >= 0 for v in w["prediction_rms"].values())
     assert w["service_factor"] is not None and w["service_factor"] > 0.5
+
+
+def _edit_checkpoint(path, edit):
+    import json
+    import sqlite3
+
+    db = sqlite3.connect(str(path))
+    state = json.loads(db.execute("SELECT state FROM checkpoint").fetchone()[0])
+    edit(state)
+    db.execute("UPDATE checkpoint SET state=?", (json.dumps(state),))
+    db.commit()
+    db.close()
+
+
+def test_kpis_of_a_checkpoint_that_do_not_fit_are_refused_and_old_ones_start_afresh(tmp_path):
+    from test_service_loop import Harness
+
+    h = Harness(tmp_path, telemetry=False)
+    h.wait_samples(10)
+    h.close()
+    target = tmp_path / "ssmpc-cstr.sqlite"
+    h.store_path.rename(target)
+
+    def wrong(state):  # counts of another unit's variables
+        state["kpis"]["variables"] = [["XMEAS7", "cv"]]
+
+    _edit_checkpoint(target, wrong)
+    proc = subprocess.run(
+        [sys.executable, "-m", "services.cli", "controller", "--unit", "cstr", "--state-dir",
+         str(tmp_path), "--no-telemetry", "--duration", "3"],
+        capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert proc.stderr.startswith("error: ") and "kpis" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+    _edit_checkpoint(target, lambda state: state.pop("kpis"))  # a checkpoint from before
+    target.rename(h.store_path)
+    h2 = Harness(tmp_path, telemetry=False)
+    try:
+        h2.wait_samples(5)
+        assert h2.ctrl.restored_from is not None  # the rest of the checkpoint was taken
+        with h2.ctrl._lock:  # the KPIs count this start's samples, as the status does
+            assert h2.ctrl.kpis.acc.samples == h2.ctrl.stats.samples >= 5
+    finally:
+        h2.close()
