@@ -120,6 +120,22 @@ def test_service_factor_on_warm_and_over_a_restart(cstr):
     assert share2["down"] == 0.0
     assert sum(share2.values()) == pytest.approx(later["samples"])
 
+    # the controller away for a second while the plant runs on (20 samples a second): the
+    # samples it missed are time without a controller, against the service factor
+    h.stop_plant.clear()
+    h.start_plant()
+    _wait(lambda: h.ctrl.kpi_report()["samples"] >= later["samples"] + 10, what="samples")
+    h.stop_controller()
+    time.sleep(1.0)
+    h.start_controller()
+    n_back = h.ctrl.kpi_report()["samples"]
+    _wait(lambda: h.ctrl.kpi_report()["samples"] >= n_back + 10, what="samples after")
+    _stop_plant(h)
+    last = _since_start(c.get("/api/v1/units/cstr/kpis").json())
+    down = _samples_in(last, period)["down"]
+    assert down >= 10  # 20 a second, less the start of the node and its first period
+    assert last["service_factor"] < w2["service_factor"]
+
 
 def test_kpis_cli_and_errors(cstr):
     h, api = cstr
