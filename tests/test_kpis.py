@@ -240,3 +240,28 @@ def test_vector_at_limit_flags_agree_with_the_status_rule():
     for x, a, b, fl, fh in zip(values, lo, hi, at_lo, at_hi):
         want = at_limit(x, a, b)
         assert (want == "lo", want == "hi") == (bool(fl), bool(fh)), (x, a, b)
+
+
+def test_text_view_fits_100_columns_and_lists_the_active_variables_first():
+    from services.cli.kpis import TOP_VARIABLES, kpi_lines
+
+    names = [(f"V{i:02d}_WITH_A_LONG_NAME", "cv") for i in range(20)]
+    acc = KPIAccumulator(KPISettings(TS, base_cost_usd_h=170.6, base_cost_origin="o" * 200),
+                         names)
+    for k in range(1, 101):  # variable i at its high limit in i % 15 of 15 samples
+        hi = [(k % 15) < (i % 15) for i in range(20)]
+        acc.update(k * TS, "on", False, [False] * 20, hi, cost_usd_h=150.0,
+                   prediction_rms=[1.0], models=("m" * 60,))
+    doc = {"unit": "te", "sample": 100, **acc.report()}
+    lines = kpi_lines(doc)
+    assert max(len(ln) for ln in lines) <= 100
+    rows = [ln for ln in lines if ln.startswith("V") and "_WITH" in ln]
+    assert len(rows) == TOP_VARIABLES  # the most active; the rest named by a count
+    # i = 14 is the most active: high but at k % 15 == 14, 6 of the 100 samples
+    assert rows[0].startswith("V14_") and "0.0/94.0" in rows[0]
+    assert rows[1].startswith("V13_")
+    # 18 were ever at a limit (not i = 0 and 15)
+    assert any(ln.startswith(f"({18 - TOP_VARIABLES} more at a limit") for ln in lines)
+    assert any("-20.6" in ln for ln in lines)  # 150 $/h against 170.6: cheaper
+    every = kpi_lines(doc, show_all=True)
+    assert sum(ln.startswith("V") and "_WITH" in ln for ln in every) == 20
