@@ -15,6 +15,8 @@
                                            limits, ramp)
 ``PUT /api/v1/units/{unit}/mode``          controller mode off / warm / on
 ``GET /api/v1/units/{unit}/events``        the unit's event log (``since`` ISO, ``limit``)
+``GET /api/v1/units/{unit}/kpis``          service factor, constraint activity, cost vs
+                                           base case, prediction error per model
 ``GET /docs``, ``GET /redoc``              the OpenAPI document, read in a browser
 =========================================  ===========================================
 
@@ -68,6 +70,7 @@ from api.schemas import (
     EventView,
     GradesView,
     Health,
+    KPIsView,
     ModeRequest,
     ModeView,
     StatusView,
@@ -133,6 +136,7 @@ _MODE = TypeAdapter(ModeView)
 _NUMBERS = TypeAdapter(dict[str, float])
 _DISTURBANCE_SET = TypeAdapter(DisturbanceSet)
 _EVENTS = TypeAdapter(list[EventView])
+_KPIS = TypeAdapter(KPIsView)
 
 
 class SafeJSONResponse(JSONResponse):
@@ -213,7 +217,8 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
     app: FastAPI = FastAPIOffline(
         title="ssmpc", version=_version(), default_response_class=SafeJSONResponse,
         description=("Transition controller for continuous process plants (v1): grades, "
-                     "transitions, status, disturbances and the event log of each unit. "
+                     "transitions, status, disturbances, the event log and the KPIs of each "
+                     "unit. "
                      "Writes need `Authorization: Bearer <token>` when the api has one."),
         # Swagger UI's online validator badge would call a server on the internet
         swagger_ui_parameters={"validatorUrl": None})
@@ -377,6 +382,20 @@ def create_app(mesh: Mesh, token: str | None = None, *, token_from_environment: 
             except ValueError as exc:
                 raise HTTPException(status_code=422, detail=str(exc)) from None
         return await call(unit, "events", args, _EVENTS)
+
+    @app.get("/api/v1/units/{unit}/kpis", response_model=KPIsView, responses=READ_ERRORS,
+             summary="A unit's key performance indicators",
+             description="As an APC package reports them, since the start and over the "
+                         "last 1 h and 24 h of process time: the service factor (share of "
+                         "the time ON and not in fallback; WARM, OFF and time without a "
+                         "controller count against it), the constraint activity of each "
+                         "CV and MV (share of the samples ON at its low or high limit), "
+                         "the operating cost against the unit's base case ($/h; TE: "
+                         "Downs & Vogel, base case 170.6 $/h) and each model's mean RMS "
+                         "prediction error. Kept in the controller's checkpoint: a "
+                         "restart goes on counting.")
+    async def kpis(unit: str = _unit_path()) -> KPIsView:
+        return await call(unit, "kpis", None, _KPIS)
 
     @app.patch("/api/v1/units/{unit}/variables/{name}", response_model=VariableSettingView,
                responses={**WRITE_ERRORS,

@@ -20,6 +20,7 @@ __all__ = ["DisturbanceRequest", "ModeRequest", "ModeView", "VariableRequest",
            "VariableSettingView", "TransitionRequest", "TransitionView", "Health",
            "UnitLiveliness", "UnitsResponse", "ErrorBody", "GradesView", "GradeView",
            "StatusView", "VariableView", "DisturbancesView", "DisturbanceSet", "EventView",
+           "KPIsView", "KPIWindowView", "ConstraintActivityView", "CostView", "TimeShareView",
            "valid_unicode"]
 
 
@@ -288,6 +289,76 @@ class EventView(BaseModel):
     detail: dict[str, Any] = Field(description="what happened (depends on kind)")
     identity: str = Field(description="who: the identity of the REST caller for an "
                                       "operator action, 'controller' otherwise")
+
+
+Share = Annotated[float, Field(ge=0.0, le=1.0)]
+
+
+class TimeShareView(BaseModel):
+    """How a window's time splits (shares 0..1, adding up to 1)."""
+
+    on: Share | None = Field(description="ON and in control (the service factor)")
+    fallback: Share | None = Field(description="ON, but the move written was not the "
+                                   "controller's (held: a missed deadline, a failed step)")
+    warm: Share | None = Field(description="WARM: computed, nothing written")
+    off: Share | None = Field(description="OFF: nothing computed or written")
+    down: Share | None = Field(description="no controller ran (a gap in the samples, "
+                                           "e.g. a restart)")
+
+
+class ConstraintActivityView(BaseModel):
+    """One CV's or MV's constraint activity: shares of the samples ON at a limit."""
+
+    name: str = Field(description="name on the wire, e.g. XMEAS7")
+    kind: Literal["cv", "mv"]
+    description: str = ""
+    at_lo: Share | None = Field(description="share at (or below) its low limit")
+    at_hi: Share | None = Field(description="share at (or above) its high limit")
+    active: Share | None = Field(description="share at either limit")
+
+
+class CostView(BaseModel):
+    """Operating cost against the unit's base case, $/h (None: the unit has no cost)."""
+
+    mean_usd_h: float | None = Field(description="time-mean operating cost over the window")
+    base_usd_h: float | None = Field(description="the unit's base-case cost")
+    vs_base_usd_h: float | None = Field(description="mean minus base (negative: cheaper "
+                                        "than the base case)")
+    hours: float = Field(ge=0.0, description="process hours with a cost in the window")
+
+
+class KPIWindowView(BaseModel):
+    """The KPIs over one window of process time."""
+
+    window: str = Field(description="'since start', '1 h', '24 h'")
+    length_h: float | None = Field(description="the window's length, h (None: since start)")
+    hours: float = Field(ge=0.0, description="process hours the window covers so far")
+    service_factor: Share | None = Field(description="share of the time ON and not in "
+                                         "fallback")
+    time_share: TimeShareView
+    samples_on: int = Field(ge=0, description="samples ON counted for the activity")
+    cost: CostView
+    constraint_activity: list[ConstraintActivityView]
+    prediction_rms: dict[str, float | None] = Field(
+        description="each model's mean RMS prediction error, units of the CVs' scales")
+
+
+class KPIsView(BaseModel):
+    """A controller's key performance indicators (``GET .../kpis``)."""
+
+    unit: str
+    sample: int = Field(description="latest sample processed (-1: none yet)")
+    samples: int = Field(ge=0, description="samples counted since the start (over "
+                         "restarts)")
+    process_time_s: float | None = Field(description="process time of the latest sample "
+                                         "counted, s")
+    base_cost_usd_h: float | None = Field(description="the unit's base-case operating cost")
+    base_cost_origin: str | None = Field(description="where the base-case cost comes from")
+    cost_now_usd_h: float | None = Field(description="operating cost at the latest sample")
+    prediction_rms_now: dict[str, float | None] = Field(
+        description="each model's RMS prediction error at the latest sample")
+    windows: list[KPIWindowView] = Field(description="since start, then the trailing "
+                                         "windows (1 h, 24 h)")
 
 
 class Health(BaseModel):

@@ -44,7 +44,11 @@ def _disk_full(store):
 
 
 def _fill(store):
-    """Take up what room the file has left (rows of shrinking size until none fits)."""
+    """Take up what room the file has left (rows of shrinking size until none fits), in
+    the transition tables and in the event log: a table's partly used pages keep their
+    room when the file has no free page left, so each table an abort writes is filled."""
+    from services.events import Event
+
     i = 0
     for size in (2000, 200, 20, 1):
         while True:
@@ -52,6 +56,13 @@ def _fill(store):
             try:
                 store.save_transition({"id": f"fill{i}", "grade": "OPII", "state": "settled",
                                        "pad": "x" * size}, event="settled")
+            except sqlite3.OperationalError:
+                break
+        while True:
+            i += 1
+            try:
+                store.add_events([Event(id=f"fill{i}", time_us=i, process_time_s=None,
+                                        kind="fill", detail={"pad": "x" * size})])
             except sqlite3.OperationalError:
                 break
 

@@ -17,7 +17,8 @@ to, in engineering units:
   input the range the chapter-5 laws work to (:func:`controller.units.siso.input_limits`).
 
 :func:`at_limit` says which limit a value sits at (within :data:`AT_LIMIT_FRACTION`
-of the range, or beyond it).
+of the range, or beyond it); :func:`at_limit_flags` says it for a whole vector at once
+(the KPIs' constraint activity, every sample).
 """
 
 from __future__ import annotations
@@ -25,7 +26,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["AT_LIMIT_FRACTION", "VariableInfo", "at_limit", "unit_variables"]
+import numpy as np
+
+__all__ = ["AT_LIMIT_FRACTION", "VariableInfo", "at_limit", "at_limit_flags", "flags_at",
+           "limit_thresholds", "unit_variables"]
 
 #: A value within this fraction of its range from a limit is "at" it (0.5 %).
 AT_LIMIT_FRACTION = 0.005
@@ -85,6 +89,60 @@ def at_limit(value: float | None, lo: float, hi: float) -> str | None:
     if math.isfinite(lo) and value <= lo + tol:
         return "lo"
     return None
+
+
+def limit_thresholds(lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """Where "at a limit" starts for each variable (:func:`at_limit`'s tolerance taken
+    off): a value at or below ``lo_at`` is at its low limit, at or above ``hi_at`` at its
+    high one (±inf: the variable has no such limit).
+
+    Parameters
+    ----------
+    lo, hi : array_like, shape (n,)
+        Limits in engineering units (±inf: none).
+
+    Returns
+    -------
+    lo_at, hi_at : ndarray, shape (n,)
+    """
+    lo = np.asarray(lo, dtype=float)
+    hi = np.asarray(hi, dtype=float)
+    f_lo, f_hi = np.isfinite(lo), np.isfinite(hi)
+    with np.errstate(invalid="ignore"):
+        one = np.maximum(np.where(f_lo, np.abs(lo), 0.0), np.where(f_hi, np.abs(hi), 0.0))
+        tol = np.where(f_lo & f_hi, AT_LIMIT_FRACTION * (hi - lo),
+                       np.maximum(AT_LIMIT_FRACTION * one, 1e-9))
+        return (np.where(f_lo, lo + tol, -np.inf), np.where(f_hi, hi - tol, np.inf))
+
+
+def flags_at(values, lo_at, hi_at) -> tuple[np.ndarray, np.ndarray]:
+    """Which ``values`` sit at their low / high limit, given :func:`limit_thresholds`
+    (a non-finite value at neither; high wins where both would).
+
+    Returns
+    -------
+    at_lo, at_hi : ndarray of bool, shape (n,)
+    """
+    x = np.asarray(values, dtype=float)
+    finite = np.isfinite(x)
+    at_hi = (x >= hi_at) & finite
+    return (x <= lo_at) & finite & ~at_hi, at_hi
+
+
+def at_limit_flags(values, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """Vector form of :func:`at_limit`: which of ``values`` sit at their low, which at
+    their high limit (:func:`limit_thresholds`, :func:`flags_at`).
+
+    Parameters
+    ----------
+    values, lo, hi : array_like, shape (n,)
+        Values and limits in engineering units (±inf: no limit).
+
+    Returns
+    -------
+    at_lo, at_hi : ndarray of bool, shape (n,)
+    """
+    return flags_at(values, *limit_thresholds(lo, hi))
 
 
 def _te_variables(cfg, plant) -> tuple[VariableInfo, ...]:

@@ -29,6 +29,7 @@ __all__ = ["main", "build_parser", "COMMAND_MODULES"]
 COMMAND_MODULES = (
     "services.cli.campaign",
     "services.cli.credentials",
+    "services.cli.kpis",
     "services.cli.linearize",
     "services.nodes.run",
     "services.cli.operator",

@@ -44,8 +44,10 @@ is told (``applied``) and goes on from what the plant got.
 Queries on ``ssmpc/<unit>/cmd/<action>`` with a :class:`~services.io.messages.Request`:
 ``status``, ``grades``, ``transition`` (``args.op``: ``create`` with ``grade``
 and optional ``duration_s``; ``get`` / ``abort`` with ``id``; ``list``), ``events``
-(:mod:`services.events_query`), and the operator's ``mode`` and ``variable``
-(:mod:`services.nodes.operator_commands`).
+(:mod:`services.events_query`), ``kpis`` (service factor, constraint activity, cost
+against the base case, prediction error per model: :mod:`controller.kpis`, counted
+every sample after the move is out and kept in the checkpoint), and the operator's
+``mode`` and ``variable`` (:mod:`services.nodes.operator_commands`).
 
 Operator control (:class:`controller.units.operator.OperatedController`): in mode
 ``off`` nothing is computed and in ``warm`` the move is computed and reported
@@ -76,6 +78,7 @@ import numpy as np
 from controller.blas import single_threaded_blas
 from controller.interfaces import ControlDecision
 from controller.units.config import UnitConfig, build_plant, cv_scales, plausible_ranges, unit_info
+from controller.units.kpis import UnitKPIs
 from controller.units.operator import operate
 from controller.units.takeover import align_multimodel, continue_from_applied
 from controller.units.variables import at_limit, unit_variables
@@ -369,6 +372,8 @@ class ControllerNode:
         self._ramp_in: RampIn | None = None
         self._mv_span = np.array([v.hi - v.lo for v in self.variables if v.kind == "mv"],
                                  float)
+        #: service factor, constraint activity, cost, prediction errors (in the checkpoint)
+        self.kpis = UnitKPIs(cfg, self.info.cv_names, self.info.mv_names, self.variables)
         self._restore()
         #: alarms raised and not cleared, as the event log has them (no second raise)
         self.alarm_events = AlarmTracker(self.store.active_alarms())
@@ -387,6 +392,21 @@ class ControllerNode:
         self._token = session.liveliness().declare_token(keys.alive(cfg.unit, "controller"))
         self._plant_live = session.liveliness().declare_subscriber(
             keys.alive(cfg.unit, "plant"), self._on_plant_liveliness, history=True)
+
+    # -- KPIs ---------------------------------------------------------------------------
+    def _count_kpis(self, t: float, mode: str, fallback: bool, decision) -> None:
+        """One sample into the KPIs (call with the lock held, after the move is out)."""
+        try:
+            self.kpis.count(t, mode, fallback, self.y, self.u_last, self.operated.state,
+                            decision.extra.get("prediction_rms"), decision.model_names)
+        except Exception as exc:  # counting must never stall the loop
+            self._failures.note("KPIs not counted", exc)
+
+    def kpi_report(self) -> dict:
+        """The KPIs (:meth:`controller.units.kpis.UnitKPIs.report`) with the unit and the
+        latest sample."""
+        with self._lock:
+            return {"unit": self.cfg.unit, "sample": self.k, **self.kpis.report()}
 
     # -- persistence -------------------------------------------------------------------
     def _restore(self) -> None:
@@ -424,6 +444,8 @@ class ControllerNode:
                 self.t = float(cp["process_time"])
                 if st.get("operator") is not None:
                     self.operated.operator_restore(st["operator"])
+                if st.get("kpis") is not None:  # older checkpoints: counted from now on
+                    self.kpis.restore(st["kpis"])
             except (KeyError, TypeError, ValueError, IndexError) as exc:
                 raise StoreError(f"store: {self.store.path}: the checkpoint does not fit "
                                  f"this controller ({type(exc).__name__}: {exc}); move the "
@@ -501,6 +523,7 @@ class ControllerNode:
                      "mv_seq": self.mv_seq, "deadline_misses": self.stats.misses,
                      "fallback_moves": self.stats.fallbacks,
                      "operator": self.operated.operator_checkpoint(),
+                     "kpis": self.kpis.checkpoint(),
                      "recording_id": getattr(self.telemetry, "recording_id", None)}
             steps = self._moves.steps()
             if steps is None:
@@ -748,6 +771,8 @@ class ControllerNode:
             return Reply(200, self.status())
         if req.action == "grades":
             return Reply(200, self.grades())
+        if req.action == "kpis":
+            return Reply(200, self.kpi_report())
         if req.action == "transition":
             return self._transition(req.args)
         if req.action in ("mode", "variable"):  # operator actions
@@ -1090,7 +1115,8 @@ class ControllerNode:
                                        f"controller did not send ({self._foreign_moves} "
                                        "samples so far)")
         hold = self.u_last.copy()
-        writes = self.operated.writes  # off/warm: nothing is written this sample
+        mode = self.operated.mode
+        writes = mode == "on"  # off/warm: nothing is written this sample
         y = np.asarray(msg.y, float)
         outside = (y < self.y_lower) | (y > self.y_upper)
         if np.any(outside):
@@ -1104,6 +1130,8 @@ class ControllerNode:
                 self.stats.record(time.perf_counter() - arrived, fallback=True)
             if writes:
                 self._publish_mv(msg.seq, hold, True)
+            with self._lock:  # no constraint activity or cost of an implausible sample
+                self.kpis.count_held(msg.t, mode)
             return
         deadline = arrived + self.budget.budget_s
         if writes:
@@ -1139,13 +1167,14 @@ class ControllerNode:
         fired = self._watchdog.disarm() if writes else False
         t_disarmed = time.perf_counter()
         u = np.asarray(decision.u, float)
+        invalid = False
         if not writes:
             u = np.asarray(msg.u, float)  # what the plant holds
         elif not fired:
             if u.shape != (self.nu,) or not np.all(np.isfinite(u)):
                 self.alarms.append(f"controller returned an invalid move at sample {msg.seq}; "
                                    "held")
-                u, fb = hold, True
+                u, fb, invalid = hold, True, True
                 self._continue_from(hold, msg.seq)
             else:
                 fb = decision.fallback
@@ -1188,6 +1217,8 @@ class ControllerNode:
             self.u_last = np.asarray(u, float)
             self._moves.append(self.u_last)
             self.last_decision = decision
+            self._count_kpis(msg.t, mode, fired or (writes and (decision.fallback or invalid)),
+                             decision)
             for alarm in decision.alarms:
                 self.alarms.append(alarm)
             if self.telemetry is not None and decision.alarms:
