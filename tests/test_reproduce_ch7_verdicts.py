@@ -161,6 +161,15 @@ def test_r7_14_claims_follow_the_fixed_model_runs():
     assert j.verdict == "differs" and not claim(j, "[0-2] fixed-model MPC completes")
 
 
+def test_r7_14_cost_peak_is_judged_one_sided():
+    met = r7_14_metrics()
+    met["0-2-3"]["fixed"]["cost_peak"] = 200.0  # far below the printed 320: no worse
+    assert claim(V.judge_r7_14(met), "0 -> 2 -> 3: cost peak at most")
+    met["0-2-3"]["fixed"]["cost_peak"] = 400.0  # 25 % above
+    j = V.judge_r7_14(met)
+    assert j.verdict == "differs" and not claim(j, "0 -> 2 -> 3: cost peak at most")
+
+
 # -- comparisons -------------------------------------------------------------------------
 def test_compare_ties_within_the_resolution_and_failures_lose():
     leg = V.MEASURES["leg 1"]

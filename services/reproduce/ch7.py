@@ -444,6 +444,23 @@ def _prefix(strategy: str, main: str) -> str:
     return "" if strategy == main else f"{LABEL[strategy]}: "
 
 
+def _adaptive_rows(prefix: str, met: dict) -> list[Row]:
+    """The SSMPC's adaptive model: its share, and how the index ranked it
+    (:func:`adaptive_selection`)."""
+    return [
+        Row(f"{prefix}adaptive model active share", "-", None,
+            met["active_share"].get(ADAPTIVE, 0.0)),
+        Row(f"{prefix}adaptive model active at the start (1 = yes)", "-", None,
+            1.0 if met["adaptive_started_active"] else 0.0),
+        Row(f"{prefix}model switches", "-", None, float(met["switches"])),
+        Row(f"{prefix}adaptive model share after the first switch (NaN: no switch)", "-",
+            None, met["adaptive_share_after_first_switch"]),
+        Row(f"{prefix}share of samples the index ranks the adaptive model ahead of every "
+            "fixed model by the switching margin", "-", None, met["adaptive_index_share"]),
+        Row(f"{prefix}first time the index ranks it so", "h", None,
+            met["adaptive_first_index_h"])]
+
+
 def _claim_rows(judgement) -> list[Row]:
     return [Row(f"claim holds (1 = yes): {c.name}", "-", None, 1.0 if c.holds else 0.0)
             for c in judgement.claims]
@@ -473,6 +490,7 @@ def r7_13(ctx: StudyContext) -> ReproduceResult:
             Row(f"{p}final / initial operating cost", "-", None, m["cost_ratio"]),
             Row(f"{p}final operating cost", "$/h", None, m["cost_end"]),
             Row(f"{p}purge valve time at 100 %", "h", None, m["purge_at_limit_h"])]
+    rows += _adaptive_rows(_prefix("ssmpc", "fixed"), met["ssmpc"])
     j = judge_r7_13(met)
     return ReproduceResult("R7.13", _claim_rows(j) + rows, j.verdict, j.why,
                            _figs(ctx, "R7.13", runs, case, "IDV(6) at mode 3", "fixed"))
@@ -532,15 +550,7 @@ def r7_16(ctx: StudyContext) -> ReproduceResult:
     b, a = met["ssmpc"], met["fixed"]
     rows = _transition_rows("", b, 7.5) + [
         Row("E feed valve time at 100 % (seed: never)", "h", 0.0, b["e_valve_at_limit_h"]),
-        Row("adaptive model active share", "-", None, b["active_share"].get(ADAPTIVE, 0.0)),
-        Row("adaptive model active at the start (1 = yes)", "-", None,
-            1.0 if b["adaptive_started_active"] else 0.0),
-        Row("model switches", "-", None, float(b["switches"])),
-        Row("adaptive model share after the first switch (NaN: no switch)", "-", None,
-            b["adaptive_share_after_first_switch"]),
-        Row("share of samples the index ranks the adaptive model ahead of every fixed "
-            "model by the switching margin", "-", None, b["adaptive_index_share"]),
-        Row("first time the index ranks it so", "h", None, b["adaptive_first_index_h"]),
+        *_adaptive_rows("", b),
         Row("MV total variation / fixed-model MPC's", "-", None,
             b["mv_total_variation"] / a["mv_total_variation"])]
     rows += [Row(f"prediction error of model {n} between grades (RMS, CV scales)", "-",

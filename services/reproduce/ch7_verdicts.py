@@ -10,7 +10,8 @@ The seed's claims (docs/facts/seed_results.md; seed §7.5-7.8):
 - R7.14, fixed models + MPC, mode 0 -> 2 and 0 -> 2 -> 3 (also with measurement noise
   and input noise, SNR 100): every run completes and reaches each grade; in 0 -> 2 the E
   feed valve clamps at its upper bound; in 0 -> 2 -> 3 the cost is about 165 $/h at
-  mode 0, peaks at about 320 $/h and is about 60 $/h at 36 h.
+  mode 0, peaks at about 320 $/h and is about 60 $/h at 36 h (a lower peak or a lower
+  cost at 36 h is no worse: those two are judged one-sided).
 - R7.16, SSMPC 0 -> 2: G within +-1 mol% of the mode-2 set point 7.5 h after the
   request; moves smoother than the fixed-model MPC's; the E feed valve never at its
   upper bound; the re-initialized adaptive model selected almost all the time; and
@@ -281,9 +282,29 @@ def judge_r7_13(met: dict) -> Judgement:
            f"x{_fmt(ratio)} (seed ~7), final model {a['final_model']} (seed mode2). "
            + ". ".join(lines) + ". "
            + "; ".join(ranking(met, k) for k in ("production", "cost ratio"))
-           + ". The seed's single-fixed-model run (unstable, not shown) has no strategy "
-           "here.")
+           + ". " + _adaptive_text(met.get("ssmpc"))
+           + "The seed's single-fixed-model run (unstable, not shown) has no strategy here.")
     return judge(claims, beaten, why)
+
+
+def _adaptive_text(b: dict | None) -> str:
+    """How the SSMPC's index treated its adaptive model, in words (empty without one)."""
+    if b is None or b.get("adaptive_started_active") is None:
+        return ""
+    share = b["active_share"].get(ADAPTIVE, 0.0)
+    n_sw = b.get("switches", 0)
+    after = b.get("adaptive_share_after_first_switch", math.nan)
+    earned = b.get("adaptive_index_share", math.nan)
+    first = b.get("adaptive_first_index_h", math.nan)
+    return (f"SSMPC's adaptive model active {100 * share:.1f} % of samples with {n_sw} "
+            f"switch{'' if n_sw == 1 else 'es'}"
+            + (f" ({100 * after:.1f} % from the first switch on)" if math.isfinite(after)
+               else "")
+            + ("; it starts active (model 0), so that share is not the index's doing alone"
+               if b["adaptive_started_active"] else "; it does not start active")
+            + "; the index ranks it ahead of every fixed model by the switching margin in "
+            f"{100 * earned:.1f} % of samples, from {_fmt(first)} h on (from any start slot "
+            "the index would switch it in then, the dwell permitting). ")
 
 
 # -- R7.14 ------------------------------------------------------------------------------
@@ -318,8 +339,10 @@ def judge_r7_14(met_by_case: dict) -> Judgement:
     claims += [
         Claim("0 -> 2 -> 3: cost about 165 $/h at mode 0", about(a023["cost_start"], 165.0),
               f"ours {_fmt(a023['cost_start'])}"),
-        Claim("0 -> 2 -> 3: cost peak about 320 $/h", about(a023["cost_peak"], 320.0),
-              f"ours {_fmt(a023['cost_peak'])}"),
+        Claim("0 -> 2 -> 3: cost peak at most about 320 $/h",
+              math.isfinite(a023["cost_peak"]) and a023["cost_peak"] <= 320.0 * (1 + COST_BAND),
+              f"ours {_fmt(a023['cost_peak'])}, {100 * (a023['cost_peak'] / 320.0 - 1):+.0f} % "
+              "of the printed 320"),
         Claim("0 -> 2 -> 3: cost about 60 $/h or lower at 36 h",
               math.isfinite(a023["cost_36h"]) and a023["cost_36h"] <= 60.0 * (1 + COST_BAND),
               f"ours {_fmt(a023['cost_36h'])}"),
@@ -345,7 +368,6 @@ def judge_r7_16(met: dict) -> Judgement:
     tg = b["time_to_g_h"][0]
     share = b["active_share"].get(ADAPTIVE, 0.0)
     earned = b.get("adaptive_index_share", math.nan)
-    after = b.get("adaptive_share_after_first_switch", math.nan)
     keys = ("completed", "leg 1", "E valve", "smoothness")
     vs_fixed = versus(met, "ssmpc", "fixed", keys)
     smooth = compare(MEASURES["smoothness"], b["mv_total_variation"],
@@ -373,18 +395,9 @@ def judge_r7_16(met: dict) -> Judgement:
     ]
     others = [s for s in STRATEGIES if s in met and s not in ("ssmpc", "fixed")]
     lines = [versus(met, "ssmpc", s, keys).text() for s in others]
-    n_sw = b.get("switches", 0)
-    first = b.get("adaptive_first_index_h", math.nan)
     why = (f"SSMPC 0 -> 2 requested at 1 h, every strategy on the same plant. SSMPC: "
            f"{'no shutdown' if b['completed'] else 'SHUTDOWN'}, G in band after {_fmt(tg)} h "
            f"(seed 7.5 h). {vs_fixed.text()}. " + ". ".join(lines) + ". "
            + "; ".join(ranking(met, k) for k in ("leg 1", "smoothness")) + ". "
-           f"Adaptive model active {100 * share:.1f} % of samples with {n_sw} switch"
-           f"{'' if n_sw == 1 else 'es'}"
-           + (f" ({100 * after:.1f} % after the first)" if math.isfinite(after) else "")
-           + ("; it starts active (model 0), so its share is not the index's doing alone"
-              if b.get("adaptive_started_active") else "; it does not start active")
-           + f"; the index ranks it ahead of every fixed model by the switching margin in "
-           f"{100 * earned:.1f} % of samples, from {_fmt(first)} h on (from any start slot "
-           f"the index would switch it in then).")
+           + _adaptive_text(b).rstrip())
     return judge(claims, vs_fixed.beats and math.isfinite(tg) and tg < 7.5, why)
