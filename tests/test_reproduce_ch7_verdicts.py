@@ -271,3 +271,12 @@ def test_figures_draw_every_strategy_with_a_legend(tmp_path, monkeypatch):
     # CV and valve figures: the first panel's legend; the third: the cost panel's
     assert every <= set(legends[0][0]) and every <= set(legends[1][0])
     assert any(every <= set(labels) for labels in legends[2])
+
+
+def test_input_noise_that_never_reached_a_strategy_is_named():
+    clean = {"fixed": SimpleNamespace(xmv=np.zeros((4, 12))),
+             "decentralized": SimpleNamespace(xmv=np.ones((4, 12)))}
+    noisy = {"fixed": SimpleNamespace(xmv=np.full((4, 12), 0.1)),
+             "decentralized": SimpleNamespace(xmv=np.ones((4, 12)))}
+    notes = ch7._noise_not_applied("0-2 input noise", noisy, clean)
+    assert len(notes) == 1 and "decentralized loops" in notes[0]

@@ -512,6 +512,18 @@ def _transition_rows(prefix: str, met: dict, seed_time: float | None,
     return rows + (_ise_rows(prefix, met) if ise_rows else [])
 
 
+def _noise_not_applied(name: str, noisy: dict, clean: dict) -> list[str]:
+    """Sentences naming the strategies whose valves the input noise never reached: their
+    run is the noise-free one (run_te puts input noise on the supervisory valve commands;
+    a strategy that moves its valves by plant-side loops writes none)."""
+    return [f"[{name}] the input noise did not reach the {LABEL[s]} (its valves equal the "
+            "noise-free run's: they are moved by plant-side loops, which run_te's input noise "
+            "does not act on), so that comparison is not on equal terms."
+            for s in STRATEGIES
+            if s in noisy and s in clean and noisy[s].xmv.shape == clean[s].xmv.shape
+            and np.array_equal(noisy[s].xmv, clean[s].xmv)]
+
+
 R7_14_CASES = ("0-2", "0-2 noise", "0-2 input noise", "0-2-3", "0-2-3 noise",
                "0-2-3 input noise")
 
@@ -520,9 +532,13 @@ def r7_14(ctx: StudyContext) -> ReproduceResult:
     rows: list[Row] = []
     figs: list[str] = []
     met_by_case = {}
+    notes = []
     for name in R7_14_CASES:
         case = CASES[name]
         runs = case_runs(name, ctx.seed)
+        if case.input_snr is not None:
+            notes += _noise_not_applied(name, runs, case_runs(
+                name.replace(" input noise", ""), ctx.seed))
         mc = {s: case_metrics(r, case) for s, r in runs.items()}
         met_by_case[name] = mc
         p = f"[{name}] "
@@ -539,7 +555,7 @@ def r7_14(ctx: StudyContext) -> ReproduceResult:
                      for s in STRATEGIES if s != "fixed"]
         figs += _figs(ctx, f"R7.14_{name.replace(' ', '_')}", runs, case,
                       f"mode {name.replace('-', ' -> ')}", "fixed")
-    j = judge_r7_14(met_by_case)
+    j = judge_r7_14(met_by_case, notes)
     return ReproduceResult("R7.14", _claim_rows(j) + rows, j.verdict, j.why, figs)
 
 

@@ -168,7 +168,7 @@ class Versus:
         if self.worse:
             parts.append(f"{lb} better on " + ", ".join(self.worse))
         if self.tied:
-            parts.append("tied on " + ", ".join(t.split(" (")[0] for t in self.tied))
+            parts.append("tied on " + ", ".join(t.rsplit(" (", 1)[0] for t in self.tied))
         return f"{la} vs {lb}: {head} (" + "; ".join(parts) + ")"
 
 
@@ -317,9 +317,10 @@ def _transition_keys(met_case: dict) -> tuple[str, ...]:
     return tuple(k for k in TRANSITION_KEYS if k != "leg 2" or legs > 1)
 
 
-def judge_r7_14(met_by_case: dict) -> Judgement:
+def judge_r7_14(met_by_case: dict, notes=()) -> Judgement:
     """``met_by_case`` maps each case name (``"0-2"``, ``"0-2-3"``, their noise runs) to
-    strategy -> metrics; the seed's strategy is ``"fixed"``."""
+    strategy -> metrics; the seed's strategy is ``"fixed"``. ``notes``: sentences about
+    the runs for the why."""
     def done(m):
         return m["completed"] and all(math.isfinite(v) for v in m["time_to_g_h"])
 
@@ -356,7 +357,8 @@ def judge_r7_14(met_by_case: dict) -> Judgement:
     why = ("Fixed-model MPC (the seed's strategy a) and, on the same plant, noise and seed, "
            "SSMPC, the PI baseline, the grade plan alone and the decentralized loops; grade 2 "
            "requested at 1 h, grade 3 at 25 h; cost levels judged within "
-           f"{100 * COST_BAND:.0f} % (read off the seed's figures). " + ". ".join(parts) + ".")
+           f"{100 * COST_BAND:.0f} % (read off the seed's figures). " + ". ".join(parts) + "."
+           + "".join(f" {n}" for n in notes))
     return judge(claims, False, why)
 
 
