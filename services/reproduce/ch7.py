@@ -25,10 +25,11 @@ mode's state), R7.8 (cost), R7.10 (spectra), R7.11 (Table 7.10 loops hold mode 0
 R7.15 (SSMPC structure).
 
 Runs are cached per process (:func:`run_case`), so R7.14 and R7.16 share the 0 -> 2
-runs when one process asks for both. Measured wall times of one 40 h case on this
-machine (offline, ``realtime=False``): fixed 12-24 s, ssmpc 8-18 s, pi 1-2 s, plan
-about 2 s, decentralized under 1 s (the first run of a process also pays the
-plant's and the models' set-up, about 30 s).
+runs when one process asks for both. Measured (offline, ``realtime=False``, the
+shared 2-core machine at load 4.5-5): one 40 h run takes fixed 12-24 s, ssmpc 8-18 s,
+pi and plan 1-2 s, decentralized under 1 s; through the CLI R7.13 takes 20-33 s,
+R7.16 52-59 s, R7.14 157-253 s (30 runs). Results and what they show:
+``docs/reproduce_ch7.md``.
 
 Deviations from the seed, with evidence in :mod:`controller.units.te.control`:
 reactor-temperature loop gain -2 %/degC (Table 7.10's -0.5 leaves the loop
