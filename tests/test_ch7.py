@@ -86,7 +86,7 @@ def test_r7_13_idv6_no_shutdown_and_production_drop_bounded():
 
 
 @pytest.mark.slow
-def test_r7_14_all_transitions_complete_with_mpc_and_pi():  # about 5 min
+def test_r7_14_all_transitions_complete_with_mpc_and_pi():  # 30 runs, 2-4 min
     res = ch7.r7_14(CTX)
     for name in ("0-2", "0-2 noise", "0-2 input noise", "0-2-3", "0-2-3 noise",
                  "0-2-3 input noise"):
