@@ -3,8 +3,10 @@
 
 Plotting only: :func:`plot_case` takes finished runs (strategy -> TERun), writes three
 PNGs atomically (controlled variables; valves; levels, cost, production and the
-active model) and returns their paths. The PI baseline is drawn in grey on every
-panel it shares with the MPC run.
+active model) and returns their paths. Every strategy of the runs is one line on every
+panel (legend on the first panel of each figure), the case's main strategy (SSMPC, else
+the fixed-model MPC) drawn thicker. The inner-loop set point panels (T_r*, P_r*) show
+the cascade's strategies; the decentralized loops have no such set points.
 """
 
 from __future__ import annotations
@@ -12,11 +14,16 @@ from __future__ import annotations
 from pathlib import Path
 
 from services.output import atomic_output
+from services.reproduce.ch7_verdicts import LABEL
 
 __all__ = ["plot_case"]
 
 _MAIN_ORDER = ("ssmpc", "fixed")
-_LABEL = {"ssmpc": "SSMPC", "fixed": "fixed-model MPC", "pi": "PI baseline"}
+_STYLE = {"ssmpc": {"color": "tab:blue"}, "fixed": {"color": "tab:orange"},
+          "pi": {"color": "0.45"}, "plan": {"color": "tab:green", "ls": ":"},
+          "decentralized": {"color": "tab:purple", "ls": "-."}}
+#: Inner-loop set points of the cascade strategies (T_r*, three levels, P_r*).
+_CASCADE_SETPOINTS = 5
 
 
 def _figure(nrows: int, ncols: int, size):
@@ -37,13 +44,18 @@ def _save(plt, fig, path: Path) -> str:
     return str(path)
 
 
+def _style(key: str, main: str) -> dict:
+    style = dict(_STYLE.get(key, {"color": "k"}))
+    style["lw"] = 1.4 if key == main else 0.9
+    return style
+
+
 def _panel(ax, runs, main, col, label, ref=True, limit=None, source="xmeas"):
     for key, run in runs.items():
-        data = getattr(run, source)[:, col]
-        if key == main:
-            ax.plot(run.t, data, "b", lw=1.1, label=_LABEL[key])
-        elif key == "pi":
-            ax.plot(run.t, data, color="0.55", lw=0.9, label=_LABEL[key])
+        data = getattr(run, source)
+        if source == "setpoints" and data.shape[1] != _CASCADE_SETPOINTS:
+            continue  # not a cascade strategy: it has no such set point
+        ax.plot(run.t, data[:, col], label=LABEL.get(key, key), **_style(key, main))
     if ref and source == "xmeas":
         r = runs[main]
         ax.plot(r.t, r.ref[:, col], "k--", lw=0.8, label="reference")
@@ -52,11 +64,31 @@ def _panel(ax, runs, main, col, label, ref=True, limit=None, source="xmeas"):
     ax.set_ylabel(label, fontsize=8)
 
 
-def plot_case(runs: dict, case, plot_dir: Path, name: str, title: str) -> list[str]:
-    """Three figures for one case; ``runs`` maps strategy -> TERun."""
+def _models_panel(ax, runs, main) -> None:
+    """The active model of every strategy that has models, on one axis of model names."""
+    names: list[str] = []
+    for run in runs.values():
+        names += [n for n in run.model_names if n not in names]
+    for key, run in runs.items():
+        if not run.model_names:
+            continue
+        pos = [names.index(n) + 1 for n in run.model_names]
+        y = [pos[a] if a >= 0 else float("nan") for a in run.active]
+        ax.step(run.t, y, where="post", label=LABEL.get(key, key), **_style(key, main))
+    if names:
+        ax.set_yticks(range(1, len(names) + 1), names)
+        ax.legend(fontsize=7)
+    ax.set_ylabel("active model", fontsize=8)
+
+
+def plot_case(runs: dict, case, plot_dir: Path, name: str, title: str,
+              main: str | None = None) -> list[str]:
+    """Three figures for one case; ``runs`` maps strategy -> TERun, ``main`` is the
+    strategy the seed's figures show (drawn thicker; its references dashed; default
+    SSMPC, else the fixed-model MPC, else the first run)."""
     plot_dir = Path(plot_dir)
-    main = next(k for k in _MAIN_ORDER if k in runs) if any(
-        k in runs for k in _MAIN_ORDER) else "pi"
+    if main is None or main not in runs:
+        main = next((k for k in _MAIN_ORDER if k in runs), next(iter(runs)))
     out = []
     # 1. controlled variables (Figs. 7.3, 7.7, 7.9, 7.14)
     plt, fig, ax = _figure(3, 2, (11.0, 8.5))
@@ -90,16 +122,10 @@ def plot_case(runs: dict, case, plot_dir: Path, name: str, title: str) -> list[s
     _panel(ax[0, 1], runs, main, 0, "T_r* set point [°C]", ref=False, source="setpoints")
     _panel(ax[1, 0], runs, main, 16, "product flow XMEAS17 [m³/h]", ref=False)
     for key, run in runs.items():
-        style = {"color": "b"} if key == main else {"color": "0.55"}
-        if key in (main, "pi"):
-            ax[1, 1].plot(run.t, run.cost, lw=1.0, label=_LABEL[key], **style)
+        ax[1, 1].plot(run.t, run.cost, label=LABEL.get(key, key), **_style(key, main))
     ax[1, 1].set_ylabel("operating cost [$/h]", fontsize=8)
     ax[1, 1].legend(fontsize=7)
-    r = runs[main]
-    if r.model_names:
-        ax[2, 0].step(r.t, r.active + 1, where="post")
-        ax[2, 0].set_yticks(range(1, len(r.model_names) + 1), list(r.model_names))
-    ax[2, 0].set_ylabel("active model", fontsize=8)
+    _models_panel(ax[2, 0], runs, main)
     _panel(ax[2, 1], runs, main, 4, "P_r* set point [kPa]", ref=False, source="setpoints")
     for a in ax[-1]:
         a.set_xlabel("Time [h]")
