@@ -1,0 +1,333 @@
+"""Steady-state targets sample after sample: :func:`controller.targets.solve_targets`
+with the structure worked out once.
+
+The same problem and the same algorithm as :mod:`controller.targets` (ranked,
+lexicographic relaxation of soft CV limits, one DAQP QP per stage), for a unit that
+asks every sample: what does not change between samples is set up once, what does is
+written into arrays kept for it.
+
+- **Structure** (sizes, which CV limits and specifications are finite, their ranks):
+  the soft-limit rows ``a_i u <= b_i``, their order, the relaxation stages (rows per
+  rank, rows held from higher ranks) and every QP's arrays (DAQP's ``bupper``,
+  ``blower``, ``sense``; a stage's Hessian, constraint matrix with its slack block)
+  are built on the first problem of a structure and kept (a few structures at once:
+  an operator's limit switched on and off does not rebuild).
+- **Numbers** (gain, operating point, bias, limits, weights): each solve checks them
+  (the rules of :class:`~controller.targets.TargetProblem`; a bad one raises its
+  ``ValueError`` naming the field) and writes them into the kept arrays, vectorized
+  over the rows; one ``daqp.solve`` per QP.
+
+The arithmetic is that of :func:`~controller.targets.solve_targets` operation for
+operation, so the targets are the same numbers (``tests/test_targets_solver.py``
+compares them bit for bit on random feasible and infeasible problems).
+"""
+
+from __future__ import annotations
+
+import math
+
+import daqp
+import numpy as np
+
+from controller.targets import (
+    STAGE_REGULARIZATION,
+    VIOLATION_TOL,
+    RelaxedLimit,
+    TargetProblem,
+    TargetResult,
+    _vec,
+)
+
+__all__ = ["TargetSolver"]
+
+_BIG = 1e20
+_DAQP_OK = (1, 2)
+#: structures kept at once
+_MAX_LAYOUTS = 8
+_KINDS = ("max", "min", "spec", "spec")
+
+
+class _Stage:
+    """One relaxation stage's QP: variables ``[u (nu); s (k)]``, rows ``[held; current]``.
+
+    ``held``: the rows of higher ranks (original order), ``lo:hi``: the current rank's
+    rows in the rank-sorted order (the original order within the rank)."""
+
+    def __init__(self, nu: int, lo: int, hi: int, cur: np.ndarray, held: np.ndarray) -> None:
+        k, mh = cur.size, held.size
+        n = nu + k
+        self.lo, self.hi, self.cur, self.held, self.mh = lo, hi, cur, held, mh
+        self.H = np.zeros((n, n))
+        self.diag_u = np.arange(nu) * (n + 1)  # flat indices of the u block's diagonal
+        self.diag_s = (nu + np.arange(k)) * (n + 1)
+        self.f = np.zeros(n)
+        self.A = np.zeros((mh + k, n))
+        self.A[mh:, nu:] = -np.eye(k)
+        self.bupper = np.concatenate([np.zeros(nu), np.full(k, _BIG), np.zeros(mh + k)])
+        self.blower = np.concatenate([np.zeros(n), np.full(mh + k, -_BIG)])
+        self.sense = np.zeros(self.bupper.size, dtype=np.int32)
+
+
+class _Layout:
+    """Rows, metadata and QP arrays of one structure."""
+
+    def __init__(self, ny: int, nu: int, finite: np.ndarray, y_rank: np.ndarray,
+                 spec_rank: np.ndarray) -> None:
+        lim, cv, sign, rank, kind = [], [], [], [], []
+        for i in range(ny):
+            for src, s, r, kd in ((i, 1.0, y_rank[i], 0), (ny + i, -1.0, y_rank[i], 1),
+                                  (2 * ny + i, 1.0, spec_rank[i], 2),
+                                  (2 * ny + i, -1.0, spec_rank[i], 3)):
+                if finite[src]:
+                    lim.append(src), cv.append(i), sign.append(s), rank.append(int(r))
+                    kind.append(kd)
+        m = len(lim)
+        self.m = m
+        self.row_lim = np.array(lim, dtype=np.intp)  # into [y_max; y_min; y_spec]
+        self.row_cv = np.array(cv, dtype=np.intp)
+        self.row_sign = np.array(sign, dtype=float)[:, None]
+        self.row_rank = np.array(rank, dtype=int)
+        self.row_kind = tuple(_KINDS[k] for k in kind)
+        # the relaxed limits' report order: by rank, rows in order within one
+        self.report_order = tuple(np.argsort(self.row_rank, kind="stable").tolist())
+        self.A = np.zeros((m, nu))
+        self.bupper = np.zeros(nu + m)
+        self.blower = np.concatenate([np.zeros(nu), np.full(m, -_BIG)])
+        self.sense = np.zeros(nu + m, dtype=np.int32)
+        # the relaxation works on the rows sorted by rank: a rank's rows are one slice
+        self.by_rank = np.array(self.report_order, dtype=np.intp)
+        self.by_rank_cv = self.row_cv[self.by_rank]
+        sorted_rank = self.row_rank[self.by_rank]
+        self.stages = []
+        for r in sorted(set(rank)):
+            lo, hi = np.searchsorted(sorted_rank, [r, r + 1])
+            self.stages.append(_Stage(nu, int(lo), int(hi), self.by_rank[lo:hi],
+                                      np.flatnonzero(self.row_rank < r)))
+
+
+def _qp(H, f, A, bupper, blower, sense):
+    """DAQP on ``min ½xᵀHx + fᵀx``, ``blower <= [x; A x] <= bupper``: (x, ok)."""
+    x, _, flag, _ = daqp.solve(H, f, A, bupper, blower, sense)
+    x = np.asarray(x, dtype=float)
+    return x, int(flag) in _DAQP_OK and np.count_nonzero(np.isfinite(x)) == x.size
+
+
+class TargetSolver:
+    """Steady-state targets of problems of one size, one call per sample.
+
+    ``solve(...)`` takes the fields of :class:`~controller.targets.TargetProblem` (the
+    same meanings, units and defaults) and returns what
+    ``solve_targets(TargetProblem(...))`` returns, without building the problem.
+
+    Parameters
+    ----------
+    ny, nu : int
+        CVs and MVs (>= 1).
+    cv_names, mv_names : tuple of str, optional
+        Names used in :attr:`TargetResult.relaxed` (default ``cv0``..., ``mv0``...).
+    """
+
+    def __init__(self, ny: int, nu: int, cv_names: tuple[str, ...] = (),
+                 mv_names: tuple[str, ...] = ()) -> None:
+        for name, n in (("ny", ny), ("nu", nu)):
+            if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+                raise ValueError(f"{name}: must be an integer >= 1, got {n!r}")
+        self.ny, self.nu = int(ny), int(nu)
+        self.cv_names = tuple(cv_names) or tuple(f"cv{i}" for i in range(self.ny))
+        self.mv_names = tuple(mv_names) or tuple(f"mv{i}" for i in range(self.nu))
+        if len(self.cv_names) != self.ny or len(self.mv_names) != self.nu:
+            raise ValueError(f"cv_names/mv_names: expected {self.ny} and {self.nu} names")
+        self._layouts: dict[bytes, _Layout] = {}
+        self._lims = np.empty(3 * self.ny)  # [y_max; y_min; y_spec] of the current solve
+        self._inf = np.full(self.ny, math.inf)
+        self._ninf = np.full(self.ny, -math.inf)
+        self._nan = np.full(self.ny, math.nan)
+        self._ones = np.ones(self.ny)
+        self._rank1 = np.ones(self.ny)
+        self._u_zero = np.zeros(self.nu)
+
+    # -- inputs --------------------------------------------------------------------------
+    def _refuse(self, kw: dict) -> None:
+        """Raise the ValueError of :class:`~controller.targets.TargetProblem` on ``kw``."""
+        TargetProblem(**kw, cv_names=self.cv_names, mv_names=self.mv_names)
+        raise ValueError("target problem: invalid numbers")  # not reached for a bad field
+
+    def _layout(self, finite: np.ndarray, y_rank: np.ndarray, spec_rank: np.ndarray,
+                refuse) -> _Layout:
+        key = finite.tobytes() + y_rank.tobytes() + spec_rank.tobytes()
+        lay = self._layouts.get(key)
+        if lay is None:
+            for r in (y_rank, spec_rank):
+                if np.any(r < 1) or np.any(r != np.round(r)):
+                    refuse()
+            if len(self._layouts) >= _MAX_LAYOUTS:
+                self._layouts.clear()
+            lay = _Layout(self.ny, self.nu, finite, y_rank.astype(int), spec_rank.astype(int))
+            self._layouts[key] = lay
+        return lay
+
+    def solve(self, *, gain, u0, y0, u_min, u_max, q_u, bias=None, y_min=None, y_max=None,
+              y_rank=None, y_spec=None, spec_rank=None, y_scale=None, cost_u=None,
+              cost_y=None, q_y=None, u_ref=None, y_ref=None) -> TargetResult:
+        """Targets of one problem (fields of :class:`~controller.targets.TargetProblem`,
+        ``gain`` (ny, nu), the vectors (nu,) or (ny,)).
+
+        Raises
+        ------
+        ValueError
+            A field that :class:`~controller.targets.TargetProblem` refuses, named, or a
+            gain of another size than the solver's.
+        """
+        ny, nu = self.ny, self.nu
+
+        def refuse():  # a fast check failed: the problem's own checks name the field
+            self._refuse(dict(gain=gain, u0=u0, y0=y0, u_min=u_min, u_max=u_max, q_u=q_u,
+                              bias=bias, y_min=y_min, y_max=y_max, y_rank=y_rank,
+                              y_spec=y_spec, spec_rank=spec_rank, y_scale=y_scale,
+                              cost_u=cost_u, cost_y=cost_y, q_y=q_y, u_ref=u_ref,
+                              y_ref=y_ref))
+
+        G = np.asarray(gain, dtype=float)
+        if G.shape != (ny, nu):
+            G = np.atleast_2d(G)
+            if G.shape != (ny, nu):
+                raise ValueError(f"gain: expected shape ({ny}, {nu}), got {G.shape}")
+
+        def vec(name, v, n):
+            a = np.asarray(v, dtype=float)
+            return a if a.shape == (n,) else _vec(name, v, n)
+
+        u_0, y_0 = vec("u0", u0, nu), vec("y0", y0, ny)
+        lo_u, hi_u, qu = vec("u_min", u_min, nu), vec("u_max", u_max, nu), vec("q_u", q_u, nu)
+        checked = [G.ravel(), u_0, y_0, lo_u, hi_u, qu]
+        opt = {}
+        for name, v, n in (("bias", bias, ny), ("y_scale", y_scale, ny),
+                           ("cost_u", cost_u, nu), ("cost_y", cost_y, ny), ("q_y", q_y, ny),
+                           ("u_ref", u_ref, nu), ("y_ref", y_ref, ny)):
+            if v is not None:
+                opt[name] = a = vec(name, v, n)
+                checked.append(a)
+        lo = self._ninf if y_min is None else vec("y_min", y_min, ny)
+        hi = self._inf if y_max is None else vec("y_max", y_max, ny)
+        spec = self._nan if y_spec is None else vec("y_spec", y_spec, ny)
+        q_y = opt.get("q_y")
+        scale = opt.get("y_scale", self._ones)
+        cat = np.concatenate(checked)
+        cnt = np.count_nonzero  # faster than ndarray.all on a few values
+        # (a NaN limit fails its comparison)
+        if (cnt(np.isfinite(cat)) != cat.size or cnt(lo_u <= hi_u) != nu or cnt(qu > 0) != nu
+                or ((y_min is not None or y_max is not None) and cnt(lo <= hi) != ny)
+                or (q_y is not None and cnt(q_y >= 0) != ny)
+                or (y_scale is not None and cnt(scale > 0) != ny)):
+            refuse()
+        lims = self._lims
+        lims[:ny], lims[ny:2 * ny], lims[2 * ny:] = hi, lo, spec
+        rk = self._rank1 if y_rank is None else vec("y_rank", y_rank, ny)
+        srk = self._rank1 if spec_rank is None else vec("spec_rank", spec_rank, ny)
+        lay = self._layout(np.isfinite(lims), rk, srk, refuse)
+        bias = opt.get("bias")
+        u_ref = opt.get("u_ref", u_0)
+        y_ref = opt.get("y_ref", y_0)
+        u0, y0, u_min, u_max, q_u = u_0, y_0, lo_u, hi_u, qu
+        cost_u, cost_y = opt.get("cost_u"), opt.get("cost_y")
+
+        # y_b = y0 + d - G u0; the soft rows A u <= b; the economic H, f (controller.targets)
+        yb = (y0 + bias if bias is not None else y0) - G @ u0
+        m = lay.m
+        A = lay.A
+        if m:
+            np.take(G, lay.row_cv, axis=0, out=A)
+            A *= lay.row_sign
+            b = (lims.take(lay.row_lim) - yb.take(lay.row_cv)) * lay.row_sign[:, 0]
+        else:
+            b = np.zeros(0)
+        H = np.diag(q_u)
+        if q_y is not None:
+            H = H + G.T @ (q_y[:, None] * G)
+        f = cost_u if cost_u is not None else self._u_zero
+        if cost_y is not None:
+            f = f + G.T @ cost_y
+        f = f - q_u * u_ref
+        if q_y is not None:
+            f = f + G.T @ (q_y * (yb - y_ref))
+
+        qps = 1
+        bu, bl = lay.bupper, lay.blower
+        bu[:nu], bl[:nu] = u_max, u_min
+        bu[nu:] = b
+        x, ok = _qp(H, f, A, bu, bl, lay.sense)
+        widen = None
+        if not ok:
+            # lexicographic relaxation (controller.targets.solve_targets), rank by rank
+            widen = np.zeros(m)
+            bw = b.copy()  # b + widen
+            order = lay.by_rank
+            A_r, b_r = A.take(order, axis=0), b.take(order)
+            scale_r = scale.take(lay.by_rank_cv)
+            w_r = 2.0 / scale_r ** 2
+            tol_r = VIOLATION_TOL * scale_r
+            room_r = tol_r * 1e-3  # a hair of room so that the next stage stays feasible
+            d = STAGE_REGULARIZATION
+            dq = d * q_u
+            freg = -d * q_u * u_ref
+            for st in lay.stages:
+                lo, hi, mh = st.lo, st.hi, st.mh
+                n = nu + hi - lo
+                st.H.flat[st.diag_u] = dq
+                st.H.flat[st.diag_s] = w_r[lo:hi]
+                st.f[:nu] = freg
+                st.A[:mh, :nu] = A.take(st.held, axis=0)
+                st.A[mh:, :nu] = A_r[lo:hi]
+                st.bupper[:nu], st.blower[:nu] = u_max, u_min
+                st.bupper[n:n + mh] = bw.take(st.held)
+                st.bupper[n + mh:] = b_r[lo:hi]
+                xs, ok_s = _qp(st.H, st.f, st.A, st.bupper, st.blower, st.sense)
+                qps += 1
+                if not ok_s:
+                    return self._failed(G, yb, u_min, u_max, q_u, u_ref, y_ref, cost_u,
+                                        cost_y, q_y, qps)
+                # the violation found, s = max(A u - b, 0), counted where above tolerance
+                raw = A_r[lo:hi] @ xs[:nu] - b_r[lo:hi]
+                widen[st.cur] = np.where(raw > tol_r[lo:hi], raw + room_r[lo:hi], 0.0)
+                np.add(b, widen, out=bw)
+            bu[nu:] = bw
+            x, ok = _qp(H, f, A, bu, bl, lay.sense)
+            qps += 1
+            if not ok:
+                return self._failed(G, yb, u_min, u_max, q_u, u_ref, y_ref, cost_u, cost_y,
+                                    q_y, qps)
+        u = np.minimum(np.maximum(x[:nu], u_min), u_max)  # np.clip's values, faster
+        y = yb + G @ u
+        relaxed = []
+        if widen is not None and m:
+            viol = A @ u - b
+            seen = set()
+            for j in lay.report_order:
+                i, kind = int(lay.row_cv[j]), lay.row_kind[j]
+                amt = float(viol[j])
+                if widen[j] > 0 and amt > VIOLATION_TOL * scale[i] and (i, kind) not in seen:
+                    seen.add((i, kind))
+                    relaxed.append(RelaxedLimit(self.cv_names[i], kind, int(lay.row_rank[j]),
+                                                float(lims[lay.row_lim[j]]), amt))
+        return TargetResult("relaxed" if relaxed else "optimal", u, y, tuple(relaxed),
+                            _cost(u, y, q_u, u_ref, y_ref, cost_u, cost_y, q_y), qps)
+
+    def _failed(self, G, yb, u_min, u_max, q_u, u_ref, y_ref, cost_u, cost_y, q_y,
+                qps) -> TargetResult:
+        u = np.clip(u_ref, u_min, u_max)
+        y = yb + G @ u
+        return TargetResult("failed", u, y, (),
+                            _cost(u, y, q_u, u_ref, y_ref, cost_u, cost_y, q_y), qps)
+
+
+def _cost(u, y, q_u, u_ref, y_ref, cost_u, cost_y, q_y) -> float:
+    """J at (u, y); the terms of zero (default) costs and weights left out."""
+    du = u - u_ref
+    J = 0.5 * np.add.reduce(q_u * (du * du))  # np.sum's arithmetic
+    if cost_u is not None or cost_y is not None:
+        lin = (0.0 if cost_u is None else cost_u @ u) + (0.0 if cost_y is None else cost_y @ y)
+        J = lin + J
+    if q_y is not None:
+        dy = y - y_ref
+        J = J + 0.5 * np.add.reduce(q_y * (dy * dy))
+    return float(J)
