@@ -166,18 +166,21 @@ class TargetSolver:
             self._layouts[key] = lay
         return lay
 
-    def solve(self, *, gain, u0, y0, u_min, u_max, q_u, bias=None, y_min=None, y_max=None,
-              y_rank=None, y_spec=None, spec_rank=None, y_scale=None, cost_u=None,
-              cost_y=None, q_y=None, u_ref=None, y_ref=None) -> TargetResult:
-        """Targets of one problem (fields of :class:`~controller.targets.TargetProblem`,
-        ``gain`` (ny, nu), the vectors (nu,) or (ny,)).
+    def check(self, **fields) -> None:
+        """Check a problem's fields as :meth:`solve` does, without solving.
 
         Raises
         ------
         ValueError
-            A field that :class:`~controller.targets.TargetProblem` refuses, named, or a
-            gain of another size than the solver's.
+            As :meth:`solve`.
         """
+        self._take(**fields)
+
+    def _take(self, *, gain, u0, y0, u_min, u_max, q_u, bias=None, y_min=None, y_max=None,
+              y_rank=None, y_spec=None, spec_rank=None, y_scale=None, cost_u=None,
+              cost_y=None, q_y=None, u_ref=None, y_ref=None):
+        """The checked fields as arrays (the optional ones None when not given), the
+        limits in :attr:`_lims` and the structure's layout."""
         ny, nu = self.ny, self.nu
 
         def refuse():  # a fast check failed: the problem's own checks name the field
@@ -225,12 +228,23 @@ class TargetSolver:
         rk = self._rank1 if y_rank is None else vec("y_rank", y_rank, ny)
         srk = self._rank1 if spec_rank is None else vec("spec_rank", spec_rank, ny)
         lay = self._layout(np.isfinite(lims), rk, srk, refuse)
-        bias = opt.get("bias")
-        u_ref = opt.get("u_ref", u_0)
-        y_ref = opt.get("y_ref", y_0)
-        u0, y0, u_min, u_max, q_u = u_0, y_0, lo_u, hi_u, qu
-        cost_u, cost_y = opt.get("cost_u"), opt.get("cost_y")
+        return (G, u_0, y_0, lo_u, hi_u, qu, opt.get("bias"), scale, opt.get("cost_u"),
+                opt.get("cost_y"), q_y, opt.get("u_ref", u_0), opt.get("y_ref", y_0), lay)
 
+    def solve(self, **fields) -> TargetResult:
+        """Targets of one problem: the fields of :class:`~controller.targets.TargetProblem`
+        but the names (keywords; ``gain`` (ny, nu), the vectors (nu,) or (ny,)).
+
+        Raises
+        ------
+        ValueError
+            A field that :class:`~controller.targets.TargetProblem` refuses, named, or a
+            gain of another size than the solver's.
+        """
+        (G, u0, y0, u_min, u_max, q_u, bias, scale, cost_u, cost_y, q_y, u_ref, y_ref,
+         lay) = self._take(**fields)
+        nu = self.nu
+        lims = self._lims
         # y_b = y0 + d - G u0; the soft rows A u <= b; the economic H, f (controller.targets)
         yb = (y0 + bias if bias is not None else y0) - G @ u0
         m = lay.m
