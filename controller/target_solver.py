@@ -145,6 +145,7 @@ class TargetSolver:
         self._ones = np.ones(self.ny)
         self._rank1 = np.ones(self.ny)
         self._u_zero = np.zeros(self.nu)
+        self._H = np.zeros((self.nu, self.nu))
 
     # -- inputs --------------------------------------------------------------------------
     def _refuse(self, kw: dict) -> None:
@@ -208,7 +209,10 @@ class TargetSolver:
                            ("cost_u", cost_u, nu), ("cost_y", cost_y, ny), ("q_y", q_y, ny),
                            ("u_ref", u_ref, nu), ("y_ref", y_ref, ny)):
             if v is not None:
-                opt[name] = a = vec(name, v, n)
+                a = np.asarray(v, dtype=float)
+                if a.shape != (n,):
+                    a = _vec(name, v, n)
+                opt[name] = a
                 checked.append(a)
         lo = self._ninf if y_min is None else vec("y_min", y_min, ny)
         hi = self._inf if y_max is None else vec("y_max", y_max, ny)
@@ -255,7 +259,8 @@ class TargetSolver:
             b = (lims.take(lay.row_lim) - yb.take(lay.row_cv)) * lay.row_sign[:, 0]
         else:
             b = np.zeros(0)
-        H = np.diag(q_u)
+        H = self._H  # diag(q_u): DAQP copies it in
+        H.reshape(-1)[::nu + 1] = q_u
         if q_y is not None:
             H = H + G.T @ (q_y[:, None] * G)
         f = cost_u if cost_u is not None else self._u_zero
