@@ -58,6 +58,7 @@ class _Stage:
         n = nu + k
         self.lo, self.hi, self.cur, self.held, self.mh = lo, hi, cur, held, mh
         self.H = np.zeros((n, n))
+        self.H_flat = self.H.reshape(-1)  # a view
         self.diag_u = np.arange(nu) * (n + 1)  # flat indices of the u block's diagonal
         self.diag_s = (nu + np.arange(k)) * (n + 1)
         self.f = np.zeros(n)
@@ -292,14 +293,15 @@ class TargetSolver:
             for st in lay.stages:
                 lo, hi, mh = st.lo, st.hi, st.mh
                 n = nu + hi - lo
-                st.H.flat[st.diag_u] = dq
-                st.H.flat[st.diag_s] = w_r[lo:hi]
+                st.H_flat[st.diag_u] = dq
+                st.H_flat[st.diag_s] = w_r[lo:hi]
                 st.f[:nu] = freg
-                st.A[:mh, :nu] = A.take(st.held, axis=0)
                 st.A[mh:, :nu] = A_r[lo:hi]
                 st.bupper[:nu], st.blower[:nu] = u_max, u_min
-                st.bupper[n:n + mh] = bw.take(st.held)
                 st.bupper[n + mh:] = b_r[lo:hi]
+                if mh:
+                    st.A[:mh, :nu] = A.take(st.held, axis=0)
+                    st.bupper[n:n + mh] = bw.take(st.held)
                 xs, ok_s = _qp(st.H, st.f, st.A, st.bupper, st.blower, st.sense)
                 qps += 1
                 if not ok_s:
@@ -319,15 +321,19 @@ class TargetSolver:
         y = yb + G @ u
         relaxed = []
         if widen is not None and m:
-            viol = A @ u - b
+            # a relaxed limit is reported where it was widened and the targets use the room
+            # (rows by rank; a CV's limit once)
+            order = lay.by_rank
+            viol_r = (A @ u - b).take(order)
+            hit = np.flatnonzero((widen.take(order) > 0) & (viol_r > tol_r))
             seen = set()
-            for j in lay.report_order:
+            for q in hit.tolist():
+                j = order[q]
                 i, kind = int(lay.row_cv[j]), lay.row_kind[j]
-                amt = float(viol[j])
-                if widen[j] > 0 and amt > VIOLATION_TOL * scale[i] and (i, kind) not in seen:
+                if (i, kind) not in seen:
                     seen.add((i, kind))
                     relaxed.append(RelaxedLimit(self.cv_names[i], kind, int(lay.row_rank[j]),
-                                                float(lims[lay.row_lim[j]]), amt))
+                                                float(lims[lay.row_lim[j]]), float(viol_r[q])))
         return TargetResult("relaxed" if relaxed else "optimal", u, y, tuple(relaxed),
                             _cost(u, y, q_u, u_ref, y_ref, cost_u, cost_y, q_y), qps)
 
