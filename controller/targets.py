@@ -44,19 +44,20 @@ rows, stages and QP arrays are set up once, the numbers written into them.
 Measured limits (tests/test_targets.py against SciPy's HiGHS LP and SLSQP on the
 same problem): targets agree to 1e-6 relative on feasible LP-like and QP problems
 and on the relaxed violations of infeasible ones. Time (``ssmpc bench targets``, TE
-core size, 5 MVs and 5 CVs; this 2-core machine at load 3.2-4.4, shared with other
-work; six runs, median / p99 µs of the run with the lowest and the highest median)::
+core size, 5 MVs and 5 CVs; this 2-core machine at load 4.5-5.9, shared with other
+work; six runs, the range of their medians and of their p99s, µs)::
 
-    case       TargetProblem(...)         solve_targets(p)           TargetSolver.solve
-    feasible   82 / 2050 ... 158 / 4590   60 / 570 ... 126 / 4430     32 / 230 ... 67 / 4240
-    relaxed    84 / 2100 ... 159 / 4650   306 / 3530 ... 548 / 7550   109 / 3850 ... 219 / 7200
+    case       TargetProblem(...)       solve_targets(p)          TargetSolver.solve
+               median     p99           median     p99            median     p99
+    feasible   93-160     270-5280      65-111     250-4580       33-56      180-4150
+    relaxed    84-145     270-4680      268-512    860-9680       108-205    470-5450
 
-(relaxed: 5 QPs). Where the one-shot path's time goes (cProfile, 5x5): building the
-problem is 17 field conversions and ~25 whole-array checks; in
-:func:`solve_targets` the DAQP call itself is ~3 µs of the feasible case's ~60, the
-rest the row loop of the soft limits, the Hessian and gradient, the bound and matrix
-concatenations for DAQP, the cost and the report; a relaxation stage builds its QP
-with ``hstack``/``vstack``/``eye``/``diag`` each time.
+(relaxed: 5 QPs). Where the one-shot path's time goes (each part timed alone, 5x5, load
+2-4): building the problem is 17 field conversions and ~25 whole-array checks; in
+:func:`solve_targets` the soft rows' loop took 12-19 µs, the Hessian and gradient 9-14,
+one QP call 8-14 of which DAQP itself 3.3 (the rest concatenating its bounds), then
+the cost and the report; a relaxation stage builds its QP with
+``hstack``/``vstack``/``eye``/``diag`` each time.
 """
 
 from __future__ import annotations

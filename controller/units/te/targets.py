@@ -47,8 +47,9 @@ point of the model's ZOH form to 1e-7 relative; a binding pressure limit gives t
 handles of an independent SLSQP solve to 1e-4; a limit out of reach is relaxed by the
 least violation HiGHS finds, to 1e-4 relative; a 2650 kPa limit at mode 0 (noise on)
 holds the pressure at 2643-2651 kPa over hours 8-16. Solve time: that of
-:mod:`controller.targets` (``ssmpc bench targets``) when a limit binds, none
-otherwise.
+:class:`controller.target_solver.TargetSolver` (``ssmpc bench targets``: the same
+numbers as :func:`controller.targets.solve_targets`, no problem built per sample)
+when a limit binds; otherwise only the check of the sample's numbers.
 """
 
 from __future__ import annotations
