@@ -115,3 +115,26 @@ def test_a_solver_of_no_size_is_refused():
         TargetSolver(0, 2)
     with pytest.raises(ValueError, match="cv_names"):
         TargetSolver(2, 2, cv_names=("a",))
+
+
+def test_check_refuses_what_solve_refuses_and_leaves_good_fields_alone():
+    good = dict(gain=[[1.0]], u0=[0.0], y0=[0.0], u_min=[0.0], u_max=[1.0], q_u=[1.0])
+    solver = TargetSolver(1, 1)
+    solver.check(**good)
+    with pytest.raises(ValueError, match="q_u"):
+        solver.check(**dict(good, q_u=[-1.0]))
+
+
+def test_the_callers_arrays_are_not_written_and_results_are_their_own():
+    rng = np.random.default_rng(3)
+    solver = TargetSolver(4, 3)
+    for _ in range(20):
+        fields = _random_fields(rng, 4, 3)
+        before = {k: np.array(v, copy=True) for k, v in fields.items()}
+        first = solver.solve(**fields)
+        u, y = first.u.copy(), first.y.copy()
+        solver.solve(**_random_fields(rng, 4, 3))  # the next sample reuses the kept arrays
+        for k, v in fields.items():
+            np.testing.assert_array_equal(v, before[k], err_msg=k)
+        np.testing.assert_array_equal(first.u, u)
+        np.testing.assert_array_equal(first.y, y)
