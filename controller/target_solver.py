@@ -64,28 +64,28 @@ _DAQP_OK = (1, 2)
 #: structures kept at once
 _MAX_LAYOUTS = 8
 _KINDS = ("max", "min", "spec", "spec")
+#: the fields of a TargetProblem but the names (what a refusal hands to it)
+_FIELDS = ("gain", "u0", "y0", "u_min", "u_max", "q_u", "bias", "y_min", "y_max", "y_rank",
+           "y_spec", "spec_rank", "y_scale", "cost_u", "cost_y", "q_y", "u_ref", "y_ref")
 
 
 class _Stage:
     """One relaxation stage's QP: variables ``[u (nu); s (k)]``, rows ``[held; current]``.
 
     ``held``: the rows of higher ranks (original order), ``lo:hi``: the current rank's
-    rows in the rank-sorted order (the original order within the rank)."""
+    rows in the rank-sorted order (the original order within the rank). The arrays
+    are views into the layout's buffers, which a solve fills for all stages at once."""
 
-    def __init__(self, nu: int, lo: int, hi: int, cur: np.ndarray, held: np.ndarray) -> None:
+    def __init__(self, nu: int, lo: int, hi: int, cur: np.ndarray, held: np.ndarray,
+                 H: np.ndarray, f: np.ndarray, A: np.ndarray, bupper: np.ndarray,
+                 blower: np.ndarray) -> None:
         k, mh = cur.size, held.size
-        n = nu + k
-        self.lo, self.hi, self.cur, self.held, self.mh = lo, hi, cur, held, mh
-        self.H = np.zeros((n, n))
-        self.H_flat = self.H.reshape(-1)  # a view
-        self.diag_u = np.arange(nu) * (n + 1)  # flat indices of the u block's diagonal
-        self.diag_s = (nu + np.arange(k)) * (n + 1)
-        self.f = np.zeros(n)
-        self.A = np.zeros((mh + k, n))
-        self.A[mh:, nu:] = -np.eye(k)
-        self.bupper = np.concatenate([np.zeros(nu), np.full(k, _BIG), np.zeros(mh + k)])
-        self.blower = np.concatenate([np.zeros(n), np.full(mh + k, -_BIG)])
-        self.sense = np.zeros(self.bupper.size, dtype=np.int32)
+        self.lo, self.hi, self.cur, self.held, self.mh, self.n = lo, hi, cur, held, mh, nu + k
+        self.H, self.f, self.A, self.bupper, self.blower = H, f, A, bupper, blower
+        A[mh:, nu:] = -np.eye(k)
+        bupper[nu:nu + k] = _BIG
+        blower[nu + k:] = -_BIG
+        self.sense = np.zeros(bupper.size, dtype=np.int32)
 
 
 class _Layout:
@@ -118,11 +118,42 @@ class _Layout:
         self.by_rank = np.array(self.report_order, dtype=np.intp)
         self.by_rank_cv = self.row_cv[self.by_rank]
         sorted_rank = self.row_rank[self.by_rank]
+        ranks = sorted(set(rank))
+        spans = [tuple(int(v) for v in np.searchsorted(sorted_rank, [r, r + 1])) for r in ranks]
+        helds = [np.flatnonzero(self.row_rank < r) for r in ranks]
+        dims = [(nu + hi - lo, h.size + hi - lo) for (lo, hi), h in zip(spans, helds)]
+        # every stage's H, f, A, bupper, blower: views into one buffer
+        sizes = [n * n + n + n * r + 2 * (n + r) for n, r in dims]
+        self.buffer = buf = np.zeros(sum(sizes))
+        # flat positions in it of what a solve writes: per stage the u block's diagonal
+        # of H, the u part of f and of the bounds (from [δ q_u; f_reg; u_max; u_min]),
+        # the slacks' diagonal and the current rows' bounds (from [w; b], rank order)
+        # and the constraint rows' u columns (from A)
+        tiled_at, tiled_from, wb_at_w, wb_at_b, a_at, a_from = [], [], [], [], [], []
         self.stages = []
-        for r in sorted(set(rank)):
-            lo, hi = np.searchsorted(sorted_rank, [r, r + 1])
-            self.stages.append(_Stage(nu, int(lo), int(hi), self.by_rank[lo:hi],
-                                      np.flatnonzero(self.row_rank < r)))
+        o = 0
+        for (lo, hi), held, (n, r) in zip(spans, helds, dims):
+            cur = self.by_rank[lo:hi]
+            mh, k = held.size, hi - lo
+            oh, of, oa = o, o + n * n, o + n * n + n
+            ob = oa + n * r
+            ol = ob + n + r
+            st = _Stage(nu, lo, hi, cur, held, buf[oh:of].reshape(n, n), buf[of:oa],
+                        buf[oa:ob].reshape(r, n), buf[ob:ol], buf[ol:ol + n + r])
+            self.stages.append(st)
+            for part, start in enumerate((oh, of, ob, ol)):
+                step = n + 1 if part == 0 else 1
+                tiled_at += [start + i * step for i in range(nu)]
+                tiled_from += [part * nu + i for i in range(nu)]
+            wb_at_w += [oh + (nu + q) * (n + 1) for q in range(k)]
+            wb_at_b += [ob + n + mh + q for q in range(k)]
+            for t, row in enumerate(np.concatenate([held, cur]).tolist()):
+                a_at += [oa + t * n + c for c in range(nu)]
+                a_from += [row * nu + c for c in range(nu)]
+            o = ol + n + r
+        (self.tiled_at, self.tiled_from, self.wb_at, self.a_at, self.a_from) = (
+            np.array(v, dtype=np.intp)
+            for v in (tiled_at, tiled_from, wb_at_w + wb_at_b, a_at, a_from))
 
 
 def _qp(H, f, A, bupper, blower, sense):
@@ -173,18 +204,12 @@ class TargetSolver:
         TargetProblem(**kw, cv_names=self.cv_names, mv_names=self.mv_names)
         raise ValueError("target problem: invalid numbers")  # not reached for a bad field
 
-    def _layout(self, finite: np.ndarray, y_rank: np.ndarray, spec_rank: np.ndarray,
-                refuse) -> _Layout:
-        key = finite.tobytes() + y_rank.tobytes() + spec_rank.tobytes()
-        lay = self._layouts.get(key)
-        if lay is None:
-            for r in (y_rank, spec_rank):
-                if np.any(r < 1) or np.any(r != np.round(r)):
-                    refuse()
-            if len(self._layouts) >= _MAX_LAYOUTS:
-                self._layouts.clear()
-            lay = _Layout(self.ny, self.nu, finite, y_rank.astype(int), spec_rank.astype(int))
-            self._layouts[key] = lay
+    def _layout(self, key: bytes, finite: np.ndarray, y_rank: np.ndarray,
+                spec_rank: np.ndarray) -> _Layout:
+        """Set up and keep the layout of a new structure (ranks checked, whole)."""
+        if len(self._layouts) >= _MAX_LAYOUTS:
+            self._layouts.clear()
+        lay = self._layouts[key] = _Layout(self.ny, self.nu, finite, y_rank, spec_rank)
         return lay
 
     def check(self, **fields) -> None:
@@ -203,14 +228,6 @@ class TargetSolver:
         """The checked fields as arrays (the optional ones None when not given), the
         limits in :attr:`_lims` and the structure's layout."""
         ny, nu = self.ny, self.nu
-
-        def refuse():  # a fast check failed: the problem's own checks name the field
-            self._refuse(dict(gain=gain, u0=u0, y0=y0, u_min=u_min, u_max=u_max, q_u=q_u,
-                              bias=bias, y_min=y_min, y_max=y_max, y_rank=y_rank,
-                              y_spec=y_spec, spec_rank=spec_rank, y_scale=y_scale,
-                              cost_u=cost_u, cost_y=cost_y, q_y=q_y, u_ref=u_ref,
-                              y_ref=y_ref))
-
         G = np.asarray(gain, dtype=float)
         if G.shape != (ny, nu):
             G = np.atleast_2d(G)
@@ -246,12 +263,19 @@ class TargetSolver:
                 or ((y_min is not None or y_max is not None) and cnt(lo <= hi) != ny)
                 or (q_y is not None and cnt(q_y >= 0) != ny)
                 or (y_scale is not None and cnt(scale > 0) != ny)):
-            refuse()
+            self._refuse({k: v for k, v in locals().items() if k in _FIELDS})
         lims = self._lims
         lims[:ny], lims[ny:2 * ny], lims[2 * ny:] = hi, lo, spec
         rk = self._rank1 if y_rank is None else vec("y_rank", y_rank, ny)
         srk = self._rank1 if spec_rank is None else vec("spec_rank", spec_rank, ny)
-        lay = self._layout(np.isfinite(lims), rk, srk, refuse)
+        finite = np.isfinite(lims)
+        key = finite.tobytes() + rk.tobytes() + srk.tobytes()
+        lay = self._layouts.get(key)
+        if lay is None:
+            for r in (rk, srk):
+                if np.any(r < 1) or np.any(r != np.round(r)):
+                    self._refuse({k: v for k, v in locals().items() if k in _FIELDS})
+            lay = self._layout(key, finite, rk.astype(int), srk.astype(int))
         return (G, u_0, y_0, lo_u, hi_u, qu, opt.get("bias"), scale, opt.get("cost_u"),
                 opt.get("cost_y"), q_y, opt.get("u_ref", u_0), opt.get("y_ref", y_0), lay)
 
@@ -307,19 +331,15 @@ class TargetSolver:
             tol_r = VIOLATION_TOL * scale_r
             room_r = tol_r * 1e-3  # a hair of room so that the next stage stays feasible
             d = STAGE_REGULARIZATION
-            dq = d * q_u
             freg = -d * q_u * u_ref
+            buf = lay.buffer  # every stage's QP arrays: the numbers of this solve
+            buf[lay.tiled_at] = np.concatenate([d * q_u, freg, u_max, u_min]).take(
+                lay.tiled_from)
+            buf[lay.wb_at] = np.concatenate([w_r, b_r])
+            buf[lay.a_at] = A.reshape(-1).take(lay.a_from)
             for st in lay.stages:
-                lo, hi, mh = st.lo, st.hi, st.mh
-                n = nu + hi - lo
-                st.H_flat[st.diag_u] = dq
-                st.H_flat[st.diag_s] = w_r[lo:hi]
-                st.f[:nu] = freg
-                st.A[mh:, :nu] = A_r[lo:hi]
-                st.bupper[:nu], st.blower[:nu] = u_max, u_min
-                st.bupper[n + mh:] = b_r[lo:hi]
-                if mh:
-                    st.A[:mh, :nu] = A.take(st.held, axis=0)
+                lo, hi, mh, n = st.lo, st.hi, st.mh, st.n
+                if mh:  # the rows held at the violations found for them
                     st.bupper[n:n + mh] = bw.take(st.held)
                 xs, ok_s = _qp(st.H, st.f, st.A, st.bupper, st.blower, st.sense)
                 qps += 1
