@@ -21,7 +21,7 @@ The arithmetic is that of :func:`~controller.targets.solve_targets` operation fo
 operation, so the targets are the same numbers.
 
 Measured limits (``tests/test_targets_solver.py``; ``ssmpc bench targets``, TE core
-size, this 2-core machine at load 4.5-5.9 shared with other work, six runs)::
+size, this 2-core machine at load 2.5-3.2 shared with other work, six runs)::
 
     quantity                                   measured
     u, y, status, QPs, relaxed limits          bit-identical to solve_targets on 360
@@ -30,12 +30,13 @@ size, this 2-core machine at load 4.5-5.9 shared with other work, six runs)::
                                                structure on one solver, and the
                                                two-phase bench's 570 problems
     cost                                       equal (zero terms left out)
-    one solve, feasible (1 QP), median         33-56 µs (solve_targets 65-111 µs,
-                                               TargetProblem 93-160 µs beside it)
-    one solve, relaxed (5 QPs), median         108-205 µs (solve_targets 268-512 µs)
-    p99 (the machine's load)                   180-4150 µs feasible, 470-5450 relaxed
+    one solve, feasible (1 QP), median         31-58 µs (solve_targets 60-120 µs,
+                                               TargetProblem 83-150 µs beside it)
+    one solve, relaxed (5 QPs), median         97-208 µs (solve_targets 274-516 µs)
+    p99                                        90-190 µs feasible, 240-400 relaxed
     DAQP itself, relaxed case (5 QPs)          25-38 µs
     a new structure's set-up (first problem)   ~0.2 ms, then kept (8 structures)
+    two-phase unit (3x3), inside its sample    0.12 ms median (a fifth relax)
 
 What remains is ~40 NumPy calls on 5-vectors of 0.5-1.5 µs each (checks, rows,
 Hessian, bounds, cost, report) around 3-8 µs of DAQP per QP.
@@ -168,7 +169,8 @@ class TargetSolver:
 
     ``solve(...)`` takes the fields of :class:`~controller.targets.TargetProblem` (the
     same meanings, units and defaults) and returns what
-    ``solve_targets(TargetProblem(...))`` returns, without building the problem.
+    ``solve_targets(TargetProblem(...))`` returns, without building the problem. The
+    arrays it keeps are written by every solve: one solver per caller (thread).
 
     Parameters
     ----------

@@ -44,13 +44,13 @@ rows, stages and QP arrays are set up once, the numbers written into them.
 Measured limits (tests/test_targets.py against SciPy's HiGHS LP and SLSQP on the
 same problem): targets agree to 1e-6 relative on feasible LP-like and QP problems
 and on the relaxed violations of infeasible ones. Time (``ssmpc bench targets``, TE
-core size, 5 MVs and 5 CVs; this 2-core machine at load 4.5-5.9, shared with other
+core size, 5 MVs and 5 CVs; this 2-core machine at load 2.5-3.2, shared with other
 work; six runs, the range of their medians and of their p99s, µs)::
 
     case       TargetProblem(...)       solve_targets(p)          TargetSolver.solve
                median     p99           median     p99            median     p99
-    feasible   93-160     270-5280      65-111     250-4580       33-56      180-4150
-    relaxed    84-145     270-4680      268-512    860-9680       108-205    470-5450
+    feasible   83-150     190-480       60-120     180-280        31-58      90-190
+    relaxed    83-158     180-280       274-516    520-1160       97-208     240-400
 
 (relaxed: 5 QPs). Where the one-shot path's time goes (each part timed alone, 5x5, load
 2-4): building the problem is 17 field conversions and ~25 whole-array checks; in

@@ -69,19 +69,19 @@ controller on its nonlinear plant): the targets agree with an independent SciPy
 gain is the plant's own DC gain at the active model's point to 1e-6; a pressure set
 point 50 kPa above the limit settles at the targets within 0.5 kPa and 0.1 mol %,
 kmol/h, the pressure at most 5 kPa over its (soft) limit. Cost per sample
-(``ssmpc bench mpc-step``, three calls on this 2-core machine at load 5-6 shared with
-other work, each beside a call with the problem built as a
+(``ssmpc bench mpc-step``, three calls on this 2-core machine at load 3.4-4.0 shared
+with other work, each beside a call with the problem built as a
 :class:`~controller.targets.TargetProblem` and solved by
 :func:`~controller.targets.solve_targets`; docs/two_phase_targets.md)::
 
     case                 step median     step p99       targets median  targets p99
-    two-phase            0.49-0.60 ms    2.6-9.1 ms     -               -
-    two-phase targets    0.69-1.00 ms    3.7-21.4 ms    0.18-0.24 ms    1.0-5.4 ms
-    (problem + solve)    0.77-1.29 ms    4.0-9.3 ms     0.32-0.52 ms    1.1-5.3 ms
+    two-phase            0.33-0.49 ms    1.4-1.8 ms     -               -
+    two-phase targets    0.54-0.77 ms    1.9-2.2 ms     0.15-0.19 ms    0.6-0.8 ms
+    (problem + solve)    0.95-1.06 ms    2.6-2.8 ms     0.41-0.44 ms    1.1-1.2 ms
 
 The sample's problem goes to a :class:`~controller.target_solver.TargetSolver` as its
 fields (no :class:`~controller.targets.TargetProblem` per sample; ``last_problem``
-builds one when asked): of the targets' time about 0.13 ms is the solve (a fifth of
+builds one when asked): of the targets' time about 0.12 ms is the solve (a fifth of
 the samples relax: four QPs) and 0.05 ms this layer's problem fields.
 """
 
