@@ -69,14 +69,20 @@ controller on its nonlinear plant): the targets agree with an independent SciPy
 gain is the plant's own DC gain at the active model's point to 1e-6; a pressure set
 point 50 kPa above the limit settles at the targets within 0.5 kPa and 0.1 mol %,
 kmol/h, the pressure at most 5 kPa over its (soft) limit. Cost per sample
-(``ssmpc bench mpc-step``, four calls on this 2-core machine at load 5-11 shared with
-other work; docs/two_phase_targets.md)::
+(``ssmpc bench mpc-step``, three calls on this 2-core machine at load 3.4-4.0 shared
+with other work, each beside a call with the problem built as a
+:class:`~controller.targets.TargetProblem` and solved by
+:func:`~controller.targets.solve_targets`; docs/two_phase_targets.md)::
 
     case                 step median     step p99       targets median  targets p99
-    two-phase            0.31-0.58 ms    1.7-20.5 ms    -               -
-    two-phase targets    0.74-1.69 ms    2.3-28.4 ms    0.29-0.60 ms    1.0-13.8 ms
+    two-phase            0.33-0.49 ms    1.4-1.8 ms     -               -
+    two-phase targets    0.54-0.77 ms    1.9-2.2 ms     0.15-0.19 ms    0.6-0.8 ms
+    (problem + solve)    0.95-1.06 ms    2.6-2.8 ms     0.41-0.44 ms    1.1-1.2 ms
 
-most of it in :func:`controller.targets.solve_targets` and the ``TargetProblem`` checks.
+The sample's problem goes to a :class:`~controller.target_solver.TargetSolver` as its
+fields (no :class:`~controller.targets.TargetProblem` per sample; ``last_problem``
+builds one when asked): of the targets' time about 0.12 ms is the solve (a fifth of
+the samples relax: four QPs) and 0.05 ms this layer's problem fields.
 """
 
 from __future__ import annotations
@@ -88,7 +94,8 @@ from typing import Any
 
 import numpy as np
 
-from controller.targets import TargetProblem, TargetResult, solve_targets
+from controller.target_solver import TargetSolver
+from controller.targets import TargetProblem, TargetResult
 
 __all__ = ["TargetSettings", "TargetingLaw", "steady_state_map"]
 
@@ -194,6 +201,10 @@ class TargetingLaw:
     ----------
     report : dict or None
         The last sample's targets (:meth:`compute` puts it into ``info["targets"]``).
+    last_problem : TargetProblem or None
+        The last sample's target problem (built when asked; :meth:`compute` solves its
+        fields with a :class:`~controller.target_solver.TargetSolver`, the numbers of
+        ``solve_targets(last_problem)``).
     """
 
     def __init__(self, inner, settings: TargetSettings, cv_names, mv_names,
@@ -218,9 +229,22 @@ class TargetingLaw:
         self._op: dict[str, Any] = {}
         self.report: dict | None = None
         self.last: TargetResult | None = None
-        self.last_problem: TargetProblem | None = None
+        self._last_fields: dict | None = None
+        self._last_problem: TargetProblem | None = None
+        self._solver = TargetSolver(s.ny, s.nu, self.cv_names, self.mv_names)
+        self._q_u = np.full(s.nu, settings.mv_weight)
+        self._y_rank = np.full(s.ny, settings.limit_rank)
+        self._spec_rank = np.asarray(settings.spec_rank)
         self.solves = 0
         self.failures = 0
+
+    @property
+    def last_problem(self) -> TargetProblem | None:
+        """The last sample's target problem (None: there was none)."""
+        if self._last_problem is None and self._last_fields is not None:
+            self._last_problem = TargetProblem(**self._last_fields, cv_names=self.cv_names,
+                                               mv_names=self.mv_names)
+        return self._last_problem
 
     # -- the MPC law's protocol (delegated) --------------------------------------------
     @property
@@ -306,6 +330,14 @@ class TargetingLaw:
     def problem(self, model: int, ssm, y, reference, u_last) -> TargetProblem | None:
         """The target problem of this sample (module notes); None without a steady
         state of the active model or with a non-finite input."""
+        fields = self._fields(model, ssm, y, reference, u_last)
+        if fields is None:
+            return None
+        return TargetProblem(**fields, cv_names=self.cv_names, mv_names=self.mv_names)
+
+    def _fields(self, model: int, ssm, y, reference, u_last) -> dict | None:
+        """The fields of :meth:`problem` (those of :class:`TargetProblem` but the
+        names), or None."""
         s = self.inner.settings
         y = np.asarray(y, dtype=float).reshape(-1)
         u_last = np.asarray(u_last, dtype=float).reshape(-1)
@@ -342,14 +374,12 @@ class TargetingLaw:
         spec = np.where(on, R[-1], np.nan)
         scale = np.where(on, 1.0 / np.sqrt(np.where(on, s.Xi, 1.0)), 1.0)
         u_ref = u_last if self._u_ref is None else self._u_ref
-        return TargetProblem(
+        return dict(
             gain=G, u0=u_last, y0=y0, bias=y_f - y0, u_min=u_min, u_max=u_max,
-            q_u=np.full(s.nu, self.targets.mv_weight), u_ref=np.clip(u_ref, u_min, u_max),
-            y_min=y_min, y_max=y_max, y_rank=np.full(s.ny, self.targets.limit_rank),
-            y_spec=spec, spec_rank=np.asarray(self.targets.spec_rank), y_scale=scale,
-            cv_names=self.cv_names, mv_names=self.mv_names)
+            q_u=self._q_u, u_ref=np.clip(u_ref, u_min, u_max), y_min=y_min, y_max=y_max,
+            y_rank=self._y_rank, y_spec=spec, spec_rank=self._spec_rank, y_scale=scale)
 
-    def _shaped(self, R: np.ndarray, p: TargetProblem, res: TargetResult) -> np.ndarray:
+    def _shaped(self, R: np.ndarray, p: dict, res: TargetResult) -> np.ndarray:
         """The reference with each relaxed specification's rows cut at its CV target."""
         relaxed = {r.cv for r in res.relaxed if r.kind == "spec"}
         if not relaxed:
@@ -357,18 +387,18 @@ class TargetingLaw:
         R = np.array(R, dtype=float, copy=True)
         for i, name in enumerate(self.cv_names):
             if name in relaxed:
-                if p.y_spec[i] > res.y[i]:
+                if p["y_spec"][i] > res.y[i]:
                     R[:, i] = np.minimum(R[:, i], res.y[i])
                 else:
                     R[:, i] = np.maximum(R[:, i], res.y[i])
         return R
 
-    def _alarms(self, p: TargetProblem, res: TargetResult) -> list[str]:
+    def _alarms(self, p: dict, res: TargetResult) -> list[str]:
         out = []
         frac = self.targets.report_fraction
         for r in res.relaxed:
             i = self.cv_names.index(r.cv)
-            if r.amount <= frac * p.y_scale[i]:
+            if r.amount <= frac * p["y_scale"][i]:
                 continue
             unit = self.cv_units[i]
             what = {"spec": "set point", "max": "high limit", "min": "low limit"}[r.kind]
@@ -383,12 +413,12 @@ class TargetingLaw:
         frac = self.targets.report_fraction
         relaxed = [{"cv": r.cv, "kind": r.kind, "rank": r.rank, "limit": r.limit,
                     "amount": r.amount} for r in res.relaxed
-                   if r.amount > frac * p.y_scale[self.cv_names.index(r.cv)]]
+                   if r.amount > frac * p["y_scale"][self.cv_names.index(r.cv)]]
         return {
             "status": "relaxed" if relaxed else "optimal",
             "mv": dict(zip(self.mv_names, map(float, res.u))),
             "cv": dict(zip(self.cv_names, map(float, res.y))),
-            "bias": dict(zip(self.cv_names, map(float, p.bias))),
+            "bias": dict(zip(self.cv_names, map(float, p["bias"]))),
             "relaxed": relaxed, "qps": res.qps, "solve_ms": ms,
         }
 
@@ -401,13 +431,13 @@ class TargetingLaw:
         alarms: list[str] = []
         R = reference
         try:
-            p = self.problem(model, ssm, y, reference, u_last)
-            res = None if p is None else solve_targets(p)
+            p = self._fields(model, ssm, y, reference, u_last)
+            res = None if p is None else self._solver.solve(**p)
         except Exception as exc:  # never out of the targets: the safe action below
             p, res = None, None
             alarms.append(f"targets: not computed ({exc}); the MPC runs on its set points")
         ms = (time.perf_counter() - t0) * 1e3
-        self.last_problem = p
+        self._last_fields, self._last_problem = p, None
         if res is not None and res.status != "failed":
             self.solves += 1
             self.last = res

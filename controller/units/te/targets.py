@@ -47,8 +47,9 @@ point of the model's ZOH form to 1e-7 relative; a binding pressure limit gives t
 handles of an independent SLSQP solve to 1e-4; a limit out of reach is relaxed by the
 least violation HiGHS finds, to 1e-4 relative; a 2650 kPa limit at mode 0 (noise on)
 holds the pressure at 2643-2651 kPa over hours 8-16. Solve time: that of
-:mod:`controller.targets` (``ssmpc bench targets``) when a limit binds, none
-otherwise.
+:class:`controller.target_solver.TargetSolver` (``ssmpc bench targets``: the same
+numbers as :func:`controller.targets.solve_targets`, no problem built per sample)
+when a limit binds; otherwise only the check of the sample's numbers.
 """
 
 from __future__ import annotations
@@ -58,7 +59,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.targets import TargetProblem, TargetResult, solve_targets
+from controller.target_solver import TargetSolver
+from controller.targets import TargetProblem, TargetResult
 
 __all__ = ["CoreTargetSettings", "CoreTargets", "model_steady_state"]
 
@@ -171,6 +173,7 @@ class CoreTargets:
         self.u_max = np.asarray(u_max, dtype=float).reshape(-1)
         self.cv_names, self.mv_names = tuple(cv_names), tuple(mv_names)
         self.band = np.asarray(self.settings.band, dtype=float)
+        self._solver = TargetSolver(5, 5, self.cv_names, self.mv_names)
         y_min = np.full(5, -np.inf)
         y_max = np.full(5, np.inf)
         rank = np.full(5, 2)
@@ -229,11 +232,9 @@ class CoreTargets:
         alpha = 1.0 - math.exp(-float(dt_h) / self.settings.offset_tau_h)
         self.offset += alpha * (e - self.offset)
 
-    def problem(self, ssm, j: int, u_plan, y_plan) -> TargetProblem | None:
-        """The target problem of model ``j`` around the plan's end point: handles
-        ``u_plan`` (5,), CVs ``y_plan`` (5,), a steady state of the plant, moved by the
-        observed offset ``d`` (:meth:`observe`): ``y = y_plan + d + G_j (u - u_plan)``.
-        None when the model has no steady state or an input is not finite."""
+    def _fields(self, ssm, j: int, u_plan, y_plan) -> dict | None:
+        """The fields of :meth:`problem` (those of :class:`TargetProblem` but the
+        names), or None."""
         ss = self.steady_state(ssm, j)
         if ss is None or not (np.isfinite(u_plan).all() and np.isfinite(y_plan).all()):
             return None
@@ -241,11 +242,19 @@ class CoreTargets:
         d = np.zeros(5) if self.offset is None else self.offset
         u_lo = np.maximum(self.u_min, u_ref - self.band)
         u_hi = np.minimum(self.u_max, u_ref + self.band)
-        return TargetProblem(gain=ss[0], u0=u_ref, y0=y_plan, bias=d, u_min=u_lo,
-                             u_max=u_hi, q_u=self.q_u, q_y=self.q_y, u_ref=u_ref,
-                             y_ref=y_plan, y_min=self.y_min, y_max=self.y_max,
-                             y_rank=self.y_rank, y_scale=self.y_scale,
-                             cv_names=self.cv_names, mv_names=self.mv_names)
+        return dict(gain=ss[0], u0=u_ref, y0=y_plan, bias=d, u_min=u_lo, u_max=u_hi,
+                    q_u=self.q_u, q_y=self.q_y, u_ref=u_ref, y_ref=y_plan, y_min=self.y_min,
+                    y_max=self.y_max, y_rank=self.y_rank, y_scale=self.y_scale)
+
+    def problem(self, ssm, j: int, u_plan, y_plan) -> TargetProblem | None:
+        """The target problem of model ``j`` around the plan's end point: handles
+        ``u_plan`` (5,), CVs ``y_plan`` (5,), a steady state of the plant, moved by the
+        observed offset ``d`` (:meth:`observe`): ``y = y_plan + d + G_j (u - u_plan)``.
+        None when the model has no steady state or an input is not finite."""
+        fields = self._fields(ssm, j, u_plan, y_plan)
+        if fields is None:
+            return None
+        return TargetProblem(**fields, cv_names=self.cv_names, mv_names=self.mv_names)
 
     def set_operator_limits(self, y_min=None, y_max=None) -> None:
         """Operator limits of the five CVs (5,) each, ±inf or NaN = none; they act at
@@ -264,17 +273,20 @@ class CoreTargets:
     def solve(self, ssm, j: int, u_plan, y_plan) -> TargetResult | None:
         """Targets for this sample (see :meth:`problem`); None = use the plan's values.
         When the plan's point meets every limit it is the answer as it stands (no QP:
-        the least change of the plan that meets the limits is no change)."""
-        p = self.problem(ssm, j, u_plan, y_plan)
-        if p is None:
+        the least change of the plan that meets the limits is no change). Solved by
+        :class:`~controller.target_solver.TargetSolver` (the numbers of
+        ``solve_targets(self.problem(...))``)."""
+        fields = self._fields(ssm, j, u_plan, y_plan)
+        if fields is None:
             self.last = None
             return None
-        y_pp = p.y0 + p.bias
-        if not p.q_y.any():
+        if not self.q_y.any():
+            y_pp = np.asarray(y_plan, dtype=float) + fields["bias"]
             if np.all(y_pp >= self.y_min) and np.all(y_pp <= self.y_max):
-                self.last = TargetResult("optimal", p.u_ref.copy(), y_pp, (), 0.0, 0)
+                self._solver.check(**fields)  # the numbers a QP would refuse
+                self.last = TargetResult("optimal", fields["u_ref"].copy(), y_pp, (), 0.0, 0)
                 return self.last
-        res = solve_targets(p)
+        res = self._solver.solve(**fields)
         self.last = None if res.status == "failed" else res
         return self.last
 
