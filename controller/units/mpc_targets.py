@@ -7,9 +7,9 @@ handing its results to the MPC of seed eq. 6.3–6.10 (:class:`~controller.mpc.l
 
 Steady state of the active model. Its discrete form (Φ, Γ, C, f, b) as the MPC
 predicts with it (:class:`~controller.mpc.law.SharedStateSource`: the exact ZOH form of
-a fixed model, the sampled recursion of an adaptive one, taken again every
-``adaptive_refresh`` samples as the MPC does) settles, for inputs held at u,
-at ``y_m(u) = G u + K f + b`` with ``K = C (I − Φ)⁻¹`` and the DC gain ``G = K Γ``
+a fixed model, the sampled recursion of an adaptive one, taken again at most every
+``min_refresh_samples`` samples, the spacing of the MPC's own rebuilds) settles, for
+inputs held at u, at ``y_m(u) = G u + K f + b`` with ``K = C (I − Φ)⁻¹`` and the DC gain ``G = K Γ``
 (that of the continuous model: the ZOH form keeps it). The target problem takes it at
 the input in force, ``u0 = u(k−1)``, ``y0 = y_m(u0)``, with the output bias
 ``d = y_f(k) − y0``: the measurement (after the MPC's own filter) minus the model's
@@ -311,11 +311,11 @@ class TargetingLaw:
     def _form(self, ssm, j: int):
         """Model j's discrete form and its steady-state map, ``(form, (K, G) or None)``:
         a fixed model's exact ZOH form (cached while its Θ is the same); an adaptive
-        one's sampled recursion, taken again every ``adaptive_refresh`` samples as the
-        MPC law does (:class:`~controller.mpc.law.SharedStateSource`)."""
+        one's sampled recursion, taken again every ``min_refresh_samples`` samples, the
+        spacing of the MPC law's rebuilds (:class:`~controller.mpc.law.SharedStateSource`)."""
         hit = self._maps.get(j)
         if ssm.kinds[j] == "adaptive":
-            every = getattr(self.inner.source, "adaptive_refresh", 1)
+            every = getattr(self.inner.source, "min_refresh_samples", 1)
             if hit is None or self._n - hit[2] >= every:
                 pf = ssm.sampled_form(j)
                 hit = (pf, steady_state_map(pf.Phi, pf.Gamma, pf.C), self._n)
