@@ -176,6 +176,27 @@ class VariableView(BaseModel):
 Numbers = dict[str, float | None]
 
 
+class RelaxedLimitView(BaseModel):
+    """A soft limit the steady-state targets do not meet."""
+
+    cv: str
+    kind: str = Field(description="min, max or spec")
+    rank: int = Field(description="1 = most important")
+    limit: float
+    amount: float = Field(description="how far beyond the limit the targets are, CV units")
+
+
+class TargetsView(BaseModel):
+    """The steady-state targets the MPC steers to this sample."""
+
+    status: str = Field(description="optimal (every limit met), relaxed (see relaxed), "
+                                    "or plan, failed, unavailable (no targets this sample: "
+                                    "the MPC on the plan's or its own references)")
+    mv: dict[str, float] = Field(default_factory=dict, description="MV targets by name")
+    cv: dict[str, float] = Field(default_factory=dict, description="CV targets by name")
+    relaxed: list[RelaxedLimitView] = Field(default_factory=list)
+
+
 class StatusView(BaseModel):
     """A controller's status. ``unit``, ``sample`` and ``alarms`` are always there; the
     rest as the controller reports it, and fields this version does not know pass
@@ -201,6 +222,9 @@ class StatusView(BaseModel):
     prediction_rms: Numbers | None = Field(default=None, description="each model's J as "
                                            "the RMS prediction error it stands for, in "
                                            "units of the CVs' scales")
+    targets: TargetsView | None = Field(default=None, description="the sample's "
+                                        "steady-state targets (units with a target layer "
+                                        "above the MPC)")
     J: Numbers | None = Field(default=None, description="performance index per model")
     solve_ms: float | None = Field(default=None, description="last controller step, ms")
     controller_status: str | None = None

@@ -104,6 +104,11 @@ def test_operator_commands_are_validated(te):
     assert r.status_code == 200, r.text
     v, _ = _variable(api, "XMEAS7")
     assert v["hi"] == 2800.0
+    h.wait_samples(2, timeout=60)
+    st = c.get("/api/v1/units/te/status").json()  # the targets the MPC steers to
+    assert st["targets"]["status"] in ("optimal", "relaxed")
+    assert set(st["targets"]["mv"]) == {"XMV3", "XMV4", "Pr_sp", "Tr_sp", "XMV11"}
+    assert st["targets"]["cv"]["XMEAS7"] <= 2800.0 + 1e-6
     r = c.patch("/api/v1/units/te/variables/XMV3", headers=AUTH,
                 content=b'{"lo": NaN}', )
     assert r.status_code == 422

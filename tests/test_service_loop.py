@@ -345,7 +345,14 @@ def test_each_unit_controller_runs_a_transition_over_zenoh(harness, unit, contro
     if controller == "ssmpc":  # the QP's part of the step and its iterations
         assert 0 < worst["qp_solve_ms"] <= worst["controller_ms"]
         assert worst["qp_iterations"] >= 1
+        # the steady-state targets above its MPC, settled at the grade's set points
+        tg = st["targets"]
+        assert tg["status"] == "optimal" and not tg["relaxed"]
+        assert set(tg["mv"]) == set(h.ctrl.info.mv_names)
+        assert all(abs(tg["cv"][n] - v) <= h.cfg.settle_tolerance * s + 1e-9
+                   for (n, v), s in zip(target.items(), scale))
     else:
+        assert st["targets"] is None
         assert "qp_solve_ms" not in worst and "qp_iterations" not in worst
 
 

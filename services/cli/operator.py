@@ -283,6 +283,12 @@ def status_lines(st: dict, show_all: bool = False) -> list[str]:
         out.append(f"active model {st.get('active_model_name') or '-'}  {js}"[:STATUS_WIDTH])
         if st.get("active_model_detail"):
             out.append(f"  ({st['active_model_detail']})"[:STATUS_WIDTH])
+    targets = st.get("targets")
+    if targets:  # the steady-state targets above the MPC, and what they relax
+        relaxed = "  ".join(f"{r['cv']} {r['kind']} {r['limit']:g} relaxed by {r['amount']:.3g}"
+                            for r in targets.get("relaxed") or ())
+        out.append(f"steady-state targets {targets['status']}"
+                   + (f": {relaxed}" if relaxed else "")[:STATUS_WIDTH])
     alarms = st.get("alarms", [])[-5:]
     text = " ".join(alarms)
     variables = st.get("variables") or []

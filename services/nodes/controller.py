@@ -132,6 +132,22 @@ def _qp_work(extra: dict) -> dict:
     return out
 
 
+def _json_targets(report) -> dict | None:
+    """A decision's ``extra["targets"]`` as the status carries it: its status, the MV and
+    CV targets by name, the relaxed limits; None without one."""
+    if not isinstance(report, dict) or "status" not in report:
+        return None
+
+    def numbers(d):
+        return {str(k): float(v) for k, v in d.items()} if isinstance(d, dict) else {}
+
+    relaxed = [{"cv": str(r["cv"]), "kind": str(r["kind"]), "rank": int(r["rank"]),
+                "limit": float(r["limit"]), "amount": float(r["amount"])}
+               for r in report.get("relaxed") or () if isinstance(r, dict)]
+    return {"status": str(report["status"]), "mv": numbers(report.get("mv")),
+            "cv": numbers(report.get("cv")), "relaxed": relaxed}
+
+
 class _Worker:
     """One background thread for the slow chores of a sample (SQLite, Rerun),
     in submission order, so that they never delay the next move.
@@ -1010,6 +1026,8 @@ class ControllerNode:
                 "prediction_rms": ({} if d is None or d.extra.get("prediction_rms") is None
                                    else named(d.model_names,
                                               np.asarray(d.extra["prediction_rms"]))),
+                # the steady-state targets of the sample (units with a target layer)
+                "targets": None if d is None else _json_targets(d.extra.get("targets")),
                 "solve_ms": None if d is None else float(d.solve_ms),
                 "controller_status": None if d is None else d.status,
                 "deadline_misses": self.stats.misses,

@@ -386,9 +386,14 @@ class TEController:
         if res is None:
             info["targets"] = {"status": "plan"}
             return u_plan, refs
-        info["targets"] = {"status": res.status, "u": res.u.copy(), "y": res.y.copy(),
-                           "relaxed": [(r.cv, r.kind, r.rank, r.limit, r.amount)
-                                       for r in res.relaxed]}
+        # the shape of the two-phase unit's report (controller.units.mpc_targets)
+        info["targets"] = {"status": res.status,
+                           "mv": dict(zip(CORE_NAMES, map(float, res.u))),
+                           "cv": {f"XMEAS{c}": float(v) for c, v in zip(CORE_CVS, res.y)},
+                           "relaxed": [{"cv": r.cv, "kind": r.kind, "rank": r.rank,
+                                        "limit": float(r.limit), "amount": float(r.amount)}
+                                       for r in res.relaxed],
+                           "qps": int(res.qps)}
         for r in res.relaxed:
             alarms.append(f"steady-state targets: {r.cv} {r.kind} limit {r.limit:g} "
                           f"relaxed by {r.amount:.3g} (rank {r.rank})")
