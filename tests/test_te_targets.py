@@ -161,3 +161,17 @@ def test_an_operator_pressure_limit_below_the_base_case_is_held_in_closed_loop()
     # measured 2643-2651 kPa over the last hours (seeds 1, 3); the plan's own 2705
     assert 2630.0 < last < 2670.0, last
     assert r.setpoints[-1, 4] < BASE_PRESSURE_KPA - 30.0  # the set point's target moved
+
+
+def test_operator_limits_take_rank_1_and_the_tuned_band_keeps_its_rank():
+    from controller.units.te.targets import CoreTargets
+
+    band = tuple((-np.inf, np.inf) if i == 0 else (0.0, 1e4) for i in range(5))
+    t = CoreTargets(np.ones(5), np.zeros(5), np.ones(5), np.zeros(5), np.full(5, 1e4),
+                    CoreTargetSettings(cv_band=band))
+    assert t.y_rank.tolist() == [1, 2, 2, 2, 2]
+    t.set_operator_limits(y_max=[2650.0, np.nan, 90.0, np.inf, np.inf])
+    assert t.y_rank.tolist() == [1, 2, 1, 2, 2]  # the operator's limits rank 1
+    assert t.y_max[0] == 2650.0 and t.y_max[2] == 90.0 and t.y_max[1] == 1e4
+    t.set_operator_limits()
+    assert t.y_rank.tolist() == [1, 2, 2, 2, 2] and t.y_max[0] == 2895.0

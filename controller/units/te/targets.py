@@ -184,9 +184,11 @@ class CoreTargets:
             y_max[0] = self.settings.pressure_max
         rank[0] = 1
         self.y_min, self.y_max, self.y_rank = y_min, y_max, rank
-        self._tuned = (y_min.copy(), y_max.copy())
-        # model -> (theta the steady state was computed from, samples since, (G, a) or None)
+        self._tuned = (y_min.copy(), y_max.copy(), rank.copy())
+        # model -> (theta the steady state was computed from, the sample it was computed
+        # at, (G, a) or None); samples are counted by observe, once per sample
         self._steady: dict[int, tuple] = {}
+        self._n = 0
         self.last: TargetResult | None = None
         #: slow offset of the CVs from the plan (5,), None before the first sample
         self.offset: np.ndarray | None = None
@@ -195,17 +197,16 @@ class CoreTargets:
 
     def steady_state(self, ssm, j: int):
         """(G, a) of model j, cached while its parameters stand (adaptive models:
-        refreshed at most every ``refresh_samples`` calls); None if it has none."""
+        refreshed at most every ``refresh_samples`` samples); None if it has none."""
         theta = ssm.model(j).theta
         cached = self._steady.get(j)
         if cached is not None:
-            th, age, ss = cached
+            th, made, ss = cached
             if th is theta or (ssm.kinds[j] != "fixed"
-                               and age + 1 < self.settings.refresh_samples):
-                self._steady[j] = (th, age + 1, ss)
+                               and self._n - made < self.settings.refresh_samples):
                 return ss
         ss = model_steady_state(ssm, j)
-        self._steady[j] = (theta, 0, ss)
+        self._steady[j] = (theta, self._n, ss)
         return ss
 
     def observe(self, ssm, j: int, y, u_applied, y_plan_now, u_plan_now, dt_h: float) -> None:
@@ -215,6 +216,7 @@ class CoreTargets:
         plant from model j's steady state about the plan, ``y - y_plan - G_j (u - u_plan)``
         (first-order filter, :attr:`CoreTargetSettings.offset_tau_h`). Non-finite values
         are skipped (``d`` holds)."""
+        self._n += 1
         ss = self.steady_state(ssm, j)
         vals = (y, u_applied, y_plan_now, u_plan_now)
         if ss is None or not all(np.isfinite(v).all() for v in vals):
@@ -259,16 +261,18 @@ class CoreTargets:
     def set_operator_limits(self, y_min=None, y_max=None) -> None:
         """Operator limits of the five CVs (5,) each, ±inf or NaN = none; they act at
         the targets' rank 1 inside the tuned limits. No argument: the tuned limits."""
-        lo, hi = self._tuned
+        lo, hi, rank = self._tuned
+        op = np.zeros(5, dtype=bool)  # CVs with an operator limit: rank 1
         if y_min is not None:
             v = np.asarray(y_min, dtype=float).reshape(5)
+            op |= np.isfinite(v)
             lo = np.maximum(lo, np.where(np.isnan(v), -np.inf, v))
         if y_max is not None:
             v = np.asarray(y_max, dtype=float).reshape(5)
+            op |= np.isfinite(v)
             hi = np.minimum(hi, np.where(np.isnan(v), np.inf, v))
         self.y_min, self.y_max = lo, hi
-        self.y_rank = np.where(np.isfinite(lo) | np.isfinite(hi), 1, 2)
-        self.y_rank[0] = 1
+        self.y_rank = np.where(op, 1, rank)
 
     def solve(self, ssm, j: int, u_plan, y_plan) -> TargetResult | None:
         """Targets for this sample (see :meth:`problem`); None = use the plan's values.
