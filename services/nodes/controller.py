@@ -563,7 +563,7 @@ class ControllerNode:
                                        payload)
             return
         try:
-            self._commit(self.store.save_checkpoint, k, t, payload)
+            self._worker.call(self.store.save_checkpoint, k, t, payload)
         except (sqlite3.Error, TimeoutError) as exc:
             self._store_failed(f"checkpoint at sample {k}", exc)
 
@@ -850,9 +850,9 @@ class ControllerNode:
 
     #: Longest wait for the store to commit an abort, s (no sample runs meanwhile).
     ABORT_COMMIT_TIMEOUT_S = 5.0
-    #: Time budget of a write a request is answered on (transition, operator action,
-    #: checkpoint), s, from the request to the end of the write: under the API's 2 s, so
-    #: that a store that cannot commit answers 503, not the API's 504.
+    #: Time budget of a write a request is answered on (transition, operator action), s,
+    #: from the request to the end of the write: under the API's 2 s, so that a store
+    #: that cannot commit answers 503, not the API's 504.
     ACK_COMMIT_BUDGET_S = 1.5
 
     def _commit(self, fn, *args):
