@@ -24,6 +24,19 @@ def stack(tmp_path):
 
 
 @pytest.fixture
+def te_api(harness):
+    """The TE unit over real Zenoh, not in lock step (in warm and off the controller
+    writes nothing, and a lock-step plant would wait for a move every sample), at 1000x,
+    with a real api server."""
+    from test_api import ApiServer
+
+    h = harness(unit="te", speed=1000.0, lockstep=False, telemetry=False)
+    api = ApiServer(h)
+    yield h, api
+    api.close()
+
+
+@pytest.fixture
 def harness(tmp_path):
     """Make a test_service_loop.Harness (controller and plant nodes over real Zenoh) with
     ``harness(**kw)``; every one made is closed after the test."""

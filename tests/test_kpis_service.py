@@ -164,11 +164,8 @@ def test_kpis_cli_and_errors(cstr):
 
 
 @pytest.fixture
-def te(harness):
-    h = harness(unit="te", speed=1000.0, lockstep=False, telemetry=False)
-    api = ApiServer(h)
-    yield h, api
-    api.close()
+def te(te_api):
+    return te_api
 
 
 def test_te_kpis_cost_against_the_base_case(te):

@@ -29,13 +29,8 @@ def _variable(api, name):
 
 
 @pytest.fixture
-def te(harness):
-    # not in lock step: in warm and off the controller writes nothing and a lock-step
-    # plant would wait for a move every sample
-    h = harness(unit="te", speed=1000.0, lockstep=False, telemetry=False)
-    api = ApiServer(h)
-    yield h, api
-    api.close()
+def te(te_api):
+    return te_api
 
 
 def test_an_mv_in_manual_is_held_by_the_plant_and_released(te):
