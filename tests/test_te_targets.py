@@ -175,3 +175,123 @@ def test_operator_limits_take_rank_1_and_the_tuned_band_keeps_its_rank():
     assert t.y_max[0] == 2650.0 and t.y_max[2] == 90.0 and t.y_max[1] == 1e4
     t.set_operator_limits()
     assert t.y_rank.tolist() == [1, 2, 2, 2, 2] and t.y_max[0] == 2895.0
+
+
+# -- the economic term ---------------------------------------------------------------
+
+def _scipy_economic(G, u_plan, y_pp, q_u, c, lo, hi, y_max):
+    """min c·u + ½ Σ q_u (u - u_plan)² s.t. y_pp + G (u - u_plan) <= y_max, lo <= u <= hi."""
+    cons = [{"type": "ineq", "fun": lambda u: y_max - (y_pp + G @ (u - u_plan)),
+             "jac": lambda u: -G}]
+    s = float(np.abs(c).max())  # scaled to order 1 for SLSQP (the same minimizer)
+    res = minimize(lambda u: (c @ (u - u_plan) + 0.5 * np.sum(q_u * (u - u_plan) ** 2)) / s,
+                   u_plan, jac=lambda u: (c + q_u * (u - u_plan)) / s,
+                   bounds=list(zip(lo, hi)),
+                   constraints=cons, method="SLSQP",
+                   options={"ftol": 1e-14, "maxiter": 500})
+    assert res.success, res.message
+    return res.x
+
+
+@pytest.fixture()
+def eco_ctl():
+    ctl = make_te_controller("fixed", TransitionPlan("mode0"), realtime=False)[0]
+    yield ctl
+
+
+@pytest.mark.parametrize("pressure_offset", [0.0, 150.0])
+def test_the_economic_targets_are_those_of_an_independent_solve(eco_ctl, pressure_offset):
+    from controller.units.te.cost_gradient import cost_gradient
+
+    t = eco_ctl.targets
+    ssm, j = eco_ctl.core.ssm, 0
+    u_plan, y_plan = _plan_point(eco_ctl)
+    c = cost_gradient("mode0")
+    t.offset = np.array([pressure_offset, 0.0, 0.0, 0.0, 0.0])
+    t._dt_h = 100.0  # a long sample: the lift reaches the ceiling in one
+    res = t.solve(ssm, j, u_plan, y_plan, c)
+    G = model_steady_state(ssm, j)[0]
+    st = t.settings
+    band = np.asarray(st.band)
+    lo = np.maximum(t.u_min, u_plan - band)
+    hi = np.minimum(t.u_max, u_plan + band)
+    hi[2] = min(hi[2], st.economic_pressure_max)
+    y_max = np.where(np.isfinite(t.y_max), t.y_max, 1e12)
+    ref = _scipy_economic(G, u_plan, y_plan + t.offset, t.q_u, c * st.economic_weight,
+                          lo, hi, y_max)
+    assert res.status == "optimal" and res.qps >= 1
+    np.testing.assert_allclose(res.u, ref, atol=U_TOL)
+    assert np.array_equal(res.u[[0, 1, 3, 4]], u_plan[[0, 1, 3, 4]])
+    if pressure_offset == 0.0:  # the cost falls with the pressure: up to the ceiling
+        assert res.u[2] == pytest.approx(st.economic_pressure_max, abs=U_TOL)
+    else:  # the plant 150 kPa above the plan: the 2895 kPa limit stops it first
+        assert res.y[0] == pytest.approx(st.pressure_max, abs=1e-3)
+        assert u_plan[2] < res.u[2] < st.economic_pressure_max - 20.0
+
+
+def test_the_economic_lift_ramps_and_a_grade_change_takes_it_back(eco_ctl):
+    from controller.units.te.cost_gradient import cost_gradient
+
+    t = eco_ctl.targets
+    u_plan, y_plan = _plan_point(eco_ctl)
+    c = cost_gradient("mode0")
+    t.offset = np.zeros(5)
+    t._dt_h = 0.01
+    rate = t.settings.economic_ramp_kpa_h
+    p = []
+    for _ in range(100):  # one hour of samples
+        p.append(t.solve(eco_ctl.core.ssm, 0, u_plan, y_plan, c).u[2])
+    rises = np.diff(p)
+    assert np.all(rises >= 0) and np.all(rises <= rate * 0.01 + 1e-9)
+    assert p[-1] - u_plan[2] == pytest.approx(rate * 1.0, abs=1e-6)
+    # no gradient (a grade change settling): the plan's value at once
+    assert t.solve(eco_ctl.core.ssm, 0, u_plan, y_plan, None).u[2] == u_plan[2]
+    # restart: the lift survives a checkpoint
+    for _ in range(10):
+        t.solve(eco_ctl.core.ssm, 0, u_plan, y_plan, c)
+    state = t.checkpoint()
+    t2 = make_te_controller("fixed", TransitionPlan("mode0"), realtime=False)[0].targets
+    t2.restore(state)
+    assert t2.econ_lift == pytest.approx(t.econ_lift) and t2.econ_lift > 0
+
+
+def test_a_plan_at_the_economic_ceiling_keeps_its_value(eco_ctl):
+    from controller.units.te.cost_gradient import cost_gradient
+
+    t = eco_ctl.targets
+    u_plan, y_plan = _plan_point(eco_ctl)
+    u_plan = u_plan.copy()
+    u_plan[2] = y_plan[0] = t.settings.economic_pressure_max  # the plans of modes 1-3
+    t.offset = np.zeros(5)
+    t._dt_h = 1.0
+    res = t.solve(eco_ctl.core.ssm, 0, u_plan, y_plan, cost_gradient("mode2"))
+    assert res.qps == 0 and np.array_equal(res.u, u_plan)
+    # a grade without a measured gradient keeps its plan too
+    assert not cost_gradient("mode5").any()
+
+
+def test_economic_settings_are_validated():
+    for bad in ({"economic_pressure_max": 3050.0}, {"economic_weight": 0.0},
+                {"economic_settle_h": -1.0}, {"economic_ramp_kpa_h": float("inf")},
+                {"economics": 1}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            CoreTargetSettings(**bad)
+
+
+def test_the_economics_lower_the_base_case_cost_and_keep_the_grade():
+    """Closed loop at mode 0, noise on: the targets ride the pressure up to the economic
+    ceiling; production and product G stay at the grade (their loops hold them)."""
+    off = TEMPCOptions(target_settings=CoreTargetSettings(economics=False))
+    runs = {eco: run_te("ssmpc", TransitionPlan("mode0"), 16.0, noise=True, seed=1,
+                        mpc=None if eco else off) for eco in (True, False)}
+    settled = {eco: r.t >= 10.0 for eco, r in runs.items()}
+    cost = {eco: float(r.cost[settled[eco]].mean()) for eco, r in runs.items()}
+    x = {eco: r.xmeas[settled[eco]].mean(axis=0) for eco, r in runs.items()}
+    assert all(r.shutdown is None for r in runs.values())
+    # measured 143.6 against 172.9 $/h (seed 1)
+    assert cost[True] < 0.9 * cost[False], cost
+    assert x[True][6] == pytest.approx(CoreTargetSettings().economic_pressure_max, abs=10.0)
+    assert x[False][6] == pytest.approx(BASE_PRESSURE_KPA, abs=10.0)
+    # the grade: production (XMEAS 17) within 0.5 %, G mol% (XMEAS 40) within 0.2
+    assert x[True][16] == pytest.approx(x[False][16], rel=5e-3)
+    assert x[True][39] == pytest.approx(x[False][39], abs=0.2)

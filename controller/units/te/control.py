@@ -127,6 +127,7 @@ import numpy as np
 
 from controller.blas import single_threaded
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
+from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
 from controller.units.te.pi_baseline import PI_BASELINE_LOOPS, PRODUCTION_LOOP, VelocityPI
@@ -382,7 +383,11 @@ class TEController:
             return u_plan, refs
         self.targets.observe(core.ssm, core.active, yc, core.u_last, y_now, u_now,
                              self.sample_h)
-        res = self.targets.solve(core.ssm, core.active, u_plan, y_plan)
+        t = self._t_last
+        cost = None  # the economics wait for a grade change's path to settle
+        if self.plan.hours_since_change(t) >= self.targets.settings.economic_settle_h:
+            cost = cost_gradient(self.plan.grade_at(t).name)
+        res = self.targets.solve(core.ssm, core.active, u_plan, y_plan, cost)
         if res is None:
             info["targets"] = {"status": "plan"}
             return u_plan, refs

@@ -372,6 +372,15 @@ class TransitionPlan:
     def final(self) -> Grade:
         return self._grades[-1]
 
+    def hours_since_change(self, t: float) -> float:
+        """Hours from the last grade change at or before ``t`` to ``t`` (``inf`` when
+        no leg has started: the start grade has always been requested)."""
+        last = -math.inf
+        for lg in self.legs:
+            if lg.t_h <= t:
+                last = lg.t_h
+        return float(t) - last
+
     def grade_at(self, t: float) -> Grade:
         """Grade requested at time ``t`` (the target, not where the plant is)."""
         g = self._grades[0]

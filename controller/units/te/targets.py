@@ -6,9 +6,9 @@ should settle, and hands the answer to the MPC as its input targets, the CV refe
 moving with it (the plan's trajectory shifted by the targets' predicted effect). The
 problem, solved by :mod:`controller.targets` (ranked limits, least relaxation)::
 
-    min_u  ½ Σ q_u,i (u_i - u_plan,i)²
+    min_u  c_uᵀ u + ½ Σ q_u,i (u_i - u_plan,i)²
     s.t.   y = y_plan + d + G_j (u - u_plan),
-           max(u_min, u_plan - band) <= u <= min(u_max, u_plan + band),
+           max(u_min, u_plan - band) <= u <= min(u_max, u_plan + band, u_plan + lift),
            XMEAS 7 <= pressure_max and the operator's XMEAS 7 limits (rank 1),
            CV band (rank 2, optional)
 
@@ -26,13 +26,32 @@ problem, solved by :mod:`controller.targets` (ranked limits, least relaxation)::
   2650 kPa limit at mode 0 swung the pressure 2614-2684 kPa with an 8 h period;
   with the 1 h lag 2643-2655 kPa);
 - ``q_u``: the MPC's input-target weights (:class:`controller.units.te.control.
-  TEMPCOptions`), so the targets are the least change of the plan in the MPC's own
-  measure; no economic term beyond the plan: the plan's handle values are Ricker's
-  optimal steady states, and a linear Downs & Vogel cost would need the cost's
-  gradient in the handles, which the five-CV models do not carry.
+  TEMPCOptions`), so without a cost the targets are the least change of the plan in
+  the MPC's own measure;
+- ``c_u``: the economic term, the Downs & Vogel operating cost's gradient in the
+  handles at the grade (:mod:`controller.units.te.cost_gradient`, measured on the
+  plant: the five-CV models carry no cost) times
+  :attr:`CoreTargetSettings.economic_weight`. The cost falls with the reactor
+  pressure at every grade, so the economics lift P_r*'s target toward
+  :attr:`CoreTargetSettings.economic_pressure_max` (2800 kPa) at
+  :attr:`CoreTargetSettings.economic_ramp_kpa_h`, unless the pressure limit binds
+  first; ``lift`` is how far they have got. They wait
+  :attr:`CoreTargetSettings.economic_settle_h` after a grade change. Modes 1-3 sit at
+  2800 kPa already: there the plan stands; at mode 0 (the Downs & Vogel base case,
+  2705 kPa) the settled cost falls from 172.9 to 143.6 $/h (ssmpc, noise on, seed 1,
+  hours 20-30), production and product G unchanged (22.91 against 22.95 m³/h,
+  53.74 against 53.72 mol% G).
 
-While ``y_plan + d`` meets every limit the plan's point is the answer as it stands
-(no QP), so the MPC's moves are those it makes on the plan itself. The band keeps
+The grade's specifications (production and product G/H) are equalities the structure
+holds in the loops that own them: the production trim (XMEAS 17 -> the A+C feed's
+target) and the G mol% ratio loop (XMEAS 40 -> the E/D ratio) integrate their errors
+to zero at every steady state, whatever the core's targets; the cost's gradient is
+measured with them closed, so it is the gradient along the grade's specifications,
+and the targets cannot trade product for cost.
+
+While ``y_plan + d`` meets every limit and no priced handle can move to a cheaper
+value, the plan's point is the answer as it stands (no QP), so the MPC's moves are
+those it makes on the plan itself. The band keeps
 the targets where the models' steady-state gains agree with the plant (see
 :class:`CoreTargetSettings`).
 
@@ -93,6 +112,30 @@ class CoreTargetSettings:
         Time constant of the filter on the CVs' offset from the plan, h: long
         against the transition's dynamics (the pressure swings of a grade change
         last 0.1-0.5 h), so the offset is that of a disturbance, not of a transient.
+    response_tau_h : float
+        Time constant of the plant's answer to a handle's move from the plan, h.
+    economics : bool
+        Price the handles with the Downs & Vogel cost's gradient at the grade
+        (:func:`controller.units.te.cost_gradient.cost_gradient`); off = the least
+        change of the plan that meets the limits.
+    economic_pressure_max : float
+        Highest P_r* target the economics may ask for, kPa (default 2800, the limit of
+        Ricker's optimization; the plant trips from 2895 kPa set points, see
+        :mod:`~controller.units.te.cost_gradient`). A plan above it keeps its value.
+    economic_weight : float
+        Weight of 1 $/h against the handles' least-change weights (the MPC's
+        target weights): large, so the cost decides and the limits bound it, as in an
+        LP; the quadratic term only makes the answer unique.
+    economic_settle_h : float
+        Hours after a grade change before the economics act again, h: while the grade
+        plan's path moves, the transition's own path rules (as APC suspends its LP for
+        a grade change). Measured: 0 -> 2 started from the economic 2800 kPa of mode 0
+        peaked at 2915 kPa, from the plan's 2705 at 2894.
+    economic_ramp_kpa_h : float
+        Rate at which the economics may raise P_r*'s target above the plan, kPa/h (an
+        APC target's ramp rate: the economic move is a slow one, never a step into the
+        plant). When they stop acting (a grade change) the target returns to the plan
+        at once; the MPC's move weights make that a ramp of the handle.
     """
 
     pressure_max: float = 2895.0
@@ -101,6 +144,11 @@ class CoreTargetSettings:
     band: tuple = (0.0, 0.0, 200.0, 0.0, 0.0)
     offset_tau_h: float = 1.0
     response_tau_h: float = 1.0
+    economics: bool = True
+    economic_pressure_max: float = 2800.0
+    economic_weight: float = 1.0e4
+    economic_settle_h: float = 12.0
+    economic_ramp_kpa_h: float = 20.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.pressure_max) and 2000.0 < self.pressure_max <= 3000.0):
@@ -117,10 +165,41 @@ class CoreTargetSettings:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name}: must be > 0 h, got {v!r}")
+        if not isinstance(self.economics, bool):
+            raise ValueError(f"economics: must be true or false, got {self.economics!r}")
+        if not (isinstance(self.economic_pressure_max, (int, float))
+                and math.isfinite(self.economic_pressure_max)
+                and 2000.0 < self.economic_pressure_max <= 3000.0):
+            raise ValueError(f"economic_pressure_max: must be in (2000, 3000] kPa, got "
+                             f"{self.economic_pressure_max!r}")
+        if not (isinstance(self.economic_settle_h, (int, float))
+                and math.isfinite(self.economic_settle_h) and self.economic_settle_h >= 0):
+            raise ValueError(f"economic_settle_h: must be >= 0 h, got "
+                             f"{self.economic_settle_h!r}")
+        if not (isinstance(self.economic_ramp_kpa_h, (int, float))
+                and math.isfinite(self.economic_ramp_kpa_h) and self.economic_ramp_kpa_h > 0):
+            raise ValueError(f"economic_ramp_kpa_h: must be > 0 kPa/h, got "
+                             f"{self.economic_ramp_kpa_h!r}")
+        if not (isinstance(self.economic_weight, (int, float))
+                and math.isfinite(self.economic_weight) and self.economic_weight > 0):
+            raise ValueError(f"economic_weight: must be > 0, got {self.economic_weight!r}")
         if self.cv_band is not None:
             band = np.asarray(self.cv_band, dtype=float)
             if band.shape != (5, 2) or np.isnan(band).any() or np.any(band[:, 0] > band[:, 1]):
                 raise ValueError("cv_band: five (lo, hi) pairs with lo <= hi (±inf = none)")
+
+
+_P = 2  # P_r* among the core handles
+
+
+def _cheaper_within(fields: dict) -> bool:
+    """Whether a priced handle could move from the plan to a cheaper value within its
+    range (then the plan is not the answer even when it meets the limits)."""
+    c = fields.get("cost_u")
+    if c is None:
+        return False
+    u, lo, hi = fields["u_ref"], fields["u_min"], fields["u_max"]
+    return bool(np.any(((c < 0) & (u < hi)) | ((c > 0) & (u > lo))))
 
 
 def model_steady_state(ssm, j: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -194,6 +273,10 @@ class CoreTargets:
         self.offset: np.ndarray | None = None
         #: the handles' departure from the plan through the plant's response lag (5,)
         self.du_lagged = np.zeros(5)
+        #: how far above the plan the economics may take P_r*'s target now, kPa (ramped)
+        self.econ_lift = 0.0
+        self._econ_cost: np.ndarray | None = None  # the last gradient the economics used
+        self._dt_h = 0.0
 
     def steady_state(self, ssm, j: int):
         """(G, a) of model j, cached while its parameters stand (adaptive models:
@@ -217,6 +300,7 @@ class CoreTargets:
         (first-order filter, :attr:`CoreTargetSettings.offset_tau_h`). Non-finite values
         are skipped (``d`` holds)."""
         self._n += 1
+        self._dt_h = float(dt_h) if math.isfinite(dt_h) and dt_h > 0 else 0.0
         ss = self.steady_state(ssm, j)
         vals = (y, u_applied, y_plan_now, u_plan_now)
         if ss is None or not all(np.isfinite(v).all() for v in vals):
@@ -244,15 +328,46 @@ class CoreTargets:
         d = np.zeros(5) if self.offset is None else self.offset
         u_lo = np.maximum(self.u_min, u_ref - self.band)
         u_hi = np.minimum(self.u_max, u_ref + self.band)
-        return dict(gain=ss[0], u0=u_ref, y0=y_plan, bias=d, u_min=u_lo, u_max=u_hi,
-                    q_u=self.q_u, q_y=self.q_y, u_ref=u_ref, y_ref=y_plan, y_min=self.y_min,
-                    y_max=self.y_max, y_rank=self.y_rank, y_scale=self.y_scale)
+        fields = dict(gain=ss[0], u0=u_ref, y0=y_plan, bias=d, u_min=u_lo, u_max=u_hi,
+                      q_u=self.q_u, q_y=self.q_y, u_ref=u_ref, y_ref=y_plan,
+                      y_min=self.y_min, y_max=self.y_max, y_rank=self.y_rank,
+                      y_scale=self.y_scale)
+        c = self._econ_cost
+        if c is not None:
+            # the economics may raise P_r* only as far as the lift has ramped (toward
+            # the ceiling; a plan above it keeps its value); the safety limit on
+            # XMEAS 7 stays a CV limit
+            u_hi[_P] = min(u_hi[_P], u_ref[_P] + self.econ_lift)
+            fields["cost_u"] = c * self.settings.economic_weight
+        return fields
+
+    def _ramp_economics(self, cost_u, u_plan_p: float) -> None:
+        """One sample of the economic lift: up toward the ceiling at
+        :attr:`CoreTargetSettings.economic_ramp_kpa_h` while a gradient is given
+        (:attr:`CoreTargetSettings.economics` on), at once to the plan otherwise (a
+        grade change under way) or when the ceiling comes down."""
+        st = self.settings
+        c = None
+        if st.economics and cost_u is not None:
+            c = np.asarray(cost_u, dtype=float).reshape(5)
+            if not (np.isfinite(c).all() and c[_P] < 0):
+                c = None  # only a cost falling with the pressure is priced
+        want = 0.0
+        if c is not None and math.isfinite(u_plan_p):
+            want = max(st.economic_pressure_max - u_plan_p, 0.0)
+            self._econ_cost = c
+        if c is None:  # a grade change's path rules: back to the plan (the MPC's move
+            self.econ_lift, self._econ_cost = 0.0, None  # weights smooth the way)
+            return
+        step = st.economic_ramp_kpa_h * self._dt_h
+        self.econ_lift = min(self.econ_lift + step, want) if want > self.econ_lift else want
 
     def problem(self, ssm, j: int, u_plan, y_plan) -> TargetProblem | None:
         """The target problem of model ``j`` around the plan's end point: handles
         ``u_plan`` (5,), CVs ``y_plan`` (5,), a steady state of the plant, moved by the
         observed offset ``d`` (:meth:`observe`): ``y = y_plan + d + G_j (u - u_plan)``.
-        None when the model has no steady state or an input is not finite."""
+        The economic term as :meth:`solve` last left it (:attr:`econ_lift`). None
+        when the model has no steady state or an input is not finite."""
         fields = self._fields(ssm, j, u_plan, y_plan)
         if fields is None:
             return None
@@ -274,17 +389,25 @@ class CoreTargets:
         self.y_min, self.y_max = lo, hi
         self.y_rank = np.where(op, 1, rank)
 
-    def solve(self, ssm, j: int, u_plan, y_plan) -> TargetResult | None:
+    def solve(self, ssm, j: int, u_plan, y_plan, cost_u=None) -> TargetResult | None:
         """Targets for this sample (see :meth:`problem`); None = use the plan's values.
-        When the plan's point meets every limit it is the answer as it stands (no QP:
-        the least change of the plan that meets the limits is no change). Solved by
+        When the plan's point meets every limit and no priced handle can move to a
+        cheaper value within its range, it is the answer as it stands (no QP: the
+        least change of the plan that meets the limits is no change). Solved by
         :class:`~controller.target_solver.TargetSolver` (the numbers of
-        ``solve_targets(self.problem(...))``)."""
+        ``solve_targets(self.problem(...))``).
+
+        ``cost_u`` (5,): the operating cost's gradient in the handles at the grade, $/h
+        per unit (:func:`~controller.units.te.cost_gradient.cost_gradient`), None while
+        the economics wait (a grade change settling); used when
+        :attr:`CoreTargetSettings.economics` is on, P_r*'s part only, through the
+        ramped :attr:`econ_lift`."""
+        self._ramp_economics(cost_u, float(np.asarray(u_plan, dtype=float)[_P]))
         fields = self._fields(ssm, j, u_plan, y_plan)
         if fields is None:
             self.last = None
             return None
-        if not self.q_y.any():
+        if not self.q_y.any() and not _cheaper_within(fields):
             y_pp = np.asarray(y_plan, dtype=float) + fields["bias"]
             if np.all(y_pp >= self.y_min) and np.all(y_pp <= self.y_max):
                 self._solver.check(**fields)  # the numbers a QP would refuse
@@ -297,10 +420,16 @@ class CoreTargets:
     def checkpoint(self) -> dict:
         """What a restart needs to go on (JSON-serialisable)."""
         return {"offset": None if self.offset is None else self.offset.tolist(),
-                "du_lagged": self.du_lagged.tolist()}
+                "du_lagged": self.du_lagged.tolist(), "econ_lift": float(self.econ_lift),
+                "econ_cost": None if self._econ_cost is None else self._econ_cost.tolist()}
 
     def restore(self, state: dict) -> None:
         off = state.get("offset")
         self.offset = None if off is None else np.asarray(off, dtype=float).reshape(5)
         self.du_lagged = np.asarray(state.get("du_lagged", np.zeros(5)),
                                     dtype=float).reshape(5)
+        lift = float(state.get("econ_lift", 0.0) or 0.0)
+        cost = state.get("econ_cost")
+        ok = math.isfinite(lift) and lift > 0.0 and cost is not None
+        self.econ_lift = lift if ok else 0.0
+        self._econ_cost = np.asarray(cost, dtype=float).reshape(5) if ok else None
