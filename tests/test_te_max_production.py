@@ -69,7 +69,6 @@ def test_cascade_settles_at_the_grade_with_every_valve_in_its_margin(name):
     np.testing.assert_allclose(u[[0, 1, 3]], g.xmv[[0, 1, 3]], atol=1.0)
 
 
-@pytest.mark.slow
 def test_closed_loop_0_to_4_with_noise_does_not_trip():
     plan = TransitionPlan("mode0", (Leg(1.0, "mode4"),))
     run = run_te("ssmpc", plan, 12.0, noise=True, plant_seed=plant_seed_for(1))
