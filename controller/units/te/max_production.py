@@ -26,7 +26,10 @@ Back-off rule
 
 Why 5 %: with measurement noise on, the ratio-controlled E feed at mode 2 moves
 with a standard deviation of 4.5 % and reaches 100 % (ssmpc, seed 1, 12 h), and the
-level-controlled D feed with 2.0 %; 5 % is about one such standard deviation.
+level-controlled D feed with 2.0 %; 5 % is about one such standard deviation. So in
+noise the limiting valve still touches 100 %: the D feed in 0.7-1.8 % of the samples
+at modes 4 and 6, the E feed in 26-27 % at mode 5 (mode 2 itself: 37.5 %; 48 h
+campaigns, ``docs/te_modes.md``).
 
 Measured (``python docs/te_modes.py``; cost Downs & Vogel from the simulator,
 Ricker's optimum evaluated with this model at his state, our grade at the cascade's
