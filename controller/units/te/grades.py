@@ -132,9 +132,11 @@ class Grade:
     name : str
         ``mode0`` ... ``mode6``.
     xmeas : ndarray, shape (41,)
-        Seed Table 7.3 outputs (XMEAS 1-41, their units).
+        Seed Table 7.3 outputs (XMEAS 1-41, their units); modes 4-6: the cascade's
+        steady state at the back-off.
     xmv : ndarray, shape (12,)
-        Ricker's (or the base case's) steady-state valve positions, %.
+        Ricker's (or the base case's) steady-state valve positions, %; modes 4-6: the
+        back-off's.
     """
 
     name: str
