@@ -101,8 +101,8 @@ def _bad(spec_patch):
 BAD_SPECS = [
     ("unit", lambda s: s.update(unit="reactor9")),
     ("cases[0].legs[0].grade", lambda s: s["cases"][0]["legs"][0].update(grade="mode9")),
-    ("cases[0].legs[0].grade", lambda s: s["cases"][0]["legs"][0].update(grade="mode4")),
     ("cases[1].start", lambda s: s["cases"][1].update(start="OPI")),
+    ("cases[0].start", lambda s: s["cases"][0].update(start="mode4")),
     ("strategies[1]", lambda s: s.update(strategies=["ssmpc", "bangbang"])),
     ("cases[1].idvs[0].idv", lambda s: s["cases"][1]["idvs"][0].update(idv=21)),
     ("hours", lambda s: s.update(hours=-2)),

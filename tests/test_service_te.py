@@ -49,6 +49,11 @@ def test_te_grades_are_the_mode_start_measurements():
     assert g["mode3"]["product_kg_h"] == {"G": 10000.0, "H": 1111.0}
     assert "maximum production" in g["mode5"]["description"]
     assert "base case" in g["mode0"]["description"]
+    # modes 4-6 at their back-off: described so, and no feed valve at 100 % as in
+    # Ricker's optima (mode 5: the E feed XMV(2) there)
+    for name in ("mode4", "mode5", "mode6"):
+        assert "backed off" in g[name]["description"]
+        assert g[name]["mv"][mvs.index("XMV2")] <= 95.0
     for name, v in g.items():  # each grade's rates have its own ratio (within 1 %)
         if v["product_kg_h"] is not None:
             share = v["product_kg_h"]["G"] / sum(v["product_kg_h"].values())

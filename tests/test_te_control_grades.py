@@ -19,6 +19,7 @@ from controller.units.te.grades import (
     limit_margins,
     parse_grade,
     production_change,
+    ricker_optimum,
     saturation_time,
     time_to_band,
 )
@@ -49,17 +50,23 @@ def test_unknown_grade_is_a_clear_error():
         TransitionPlan("mode0", (Leg(1.0, "7"),))
 
 
-@pytest.mark.parametrize("target,valve", [("mode4", "XMV\\(1\\)"), ("mode5", "XMV\\(2\\)"),
-                                          ("mode6", "XMV\\(1\\)")])
-def test_max_production_grades_are_not_reachable(target, valve):
-    with pytest.raises(GradeError, match=f"target: grade {target} is not reachable.*{valve}"):
-        check_reachable("mode0", target)
+@pytest.mark.parametrize("mode,valve", [(4, 1), (5, 2), (6, 1)])
+def test_ricker_max_production_optima_have_no_margin(mode, valve):
+    # Ricker's modes 4-6 optima (ricker1995 csv, states 39-50): a feed valve at 100 %
+    g = ricker_optimum(mode)
+    assert g.xmv[valve - 1] == 100.0
+    assert f"XMV({valve})" in g.unreachable_reason()
 
 
 def test_reachable_pairs():
-    for a in ("mode0", "mode1", "mode2", "mode3"):
-        for b in ("mode0", "mode1", "mode2", "mode3"):
+    for a in GRADES:
+        for b in GRADES:
             check_reachable(a, b)
+
+
+def test_unknown_target_stays_refused_with_the_field():
+    with pytest.raises(GradeError, match="grade: unknown grade 'mode7'"):
+        check_reachable("mode0", "mode7")
 
 
 def test_leg_validation():

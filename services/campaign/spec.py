@@ -18,7 +18,8 @@ Units and strategies
     ``te``: ``ssmpc``, ``fixed``, ``pi``, ``plan``, ``decentralized``
     (:mod:`controller.units.te.control`; the last the published decentralized structure,
     :mod:`controller.units.te.decentralized`); grades ``mode0`` ... ``mode6`` where the
-    control structure can hold them (:func:`controller.units.te.grades.check_reachable`);
+    control structure can hold them (:func:`controller.units.te.grades.check_reachable`;
+    modes 4-6 at their back-off, reached by a leg, not a start);
     IDV 1-20. Unit plants (``cstr``,
     ``bioreactor``, ``two_phase_reactor``): ``ssmpc`` (the unit's state-shared
     multiple-model controller of the registry) and ``pi`` (the multivariable PI
@@ -167,7 +168,16 @@ class _TEGrades:
     """Grade checks of TE (names, reachability with the control structure)."""
 
     def start(self, value, path: str) -> str:
-        return self.leg(None, value, path)
+        from controller.units.te.grades import BACKOFF_GRADES
+
+        name = self.leg(None, value, path)
+        if name in BACKOFF_GRADES:
+            # the plant starts from a mode's tabulated state, which for modes 4-6 is
+            # Ricker's optimum with a valve at 100 %, not the back-off grade
+            raise SpecError(f"{path}: a run cannot start at {name} (the plant's start "
+                            f"state of it is Ricker's optimum, not its back-off grade); "
+                            f"go there with a leg")
+        return name
 
     def leg(self, prev: str | None, value, path: str) -> str:
         """The grade ``value`` reachable from ``prev`` (None: a start grade, reachable

@@ -90,8 +90,8 @@ REPORT_KEYS = ("process_hours", "transitions", "shutdowns", "deadline_misses", "
                "restarts", "bumpless_resumes", "records_lost", "unhandled_errors",
                "faults_injected")
 _ORDER = {"pending": 0, "running": 1, "settled": 2, "aborted": 2, "failed": 2}
-#: Grades the soak moves TE between by default. Modes 4-6 cannot be held by the control
-#: structure (``controller.units.te.grades.check_reachable``: a feed valve at 100 %).
+#: Grades the soak moves TE between by default. Modes 4-6 run at a back-off from
+#: Ricker's maximum-production optima (``controller.units.te.max_production``).
 #: Modes 1 and 3 are reachable, but measured offline without any fault (07:25 UTC) the
 #: current TE controller trips on reactor pressure in mode 0 -> 1 -> 2 (strategies
 #: "ssmpc" and "pi", 2 h into the second leg) and in mode 3 -> 0; mode 0 <-> 2 holds.

@@ -13,7 +13,11 @@ Reachability
     MPC manipulates keeps a margin from its range ends at the grade's optimum
     (:data:`CONTROL_MARGIN`). Ricker's maximum-production optima put a feed valve at
     100 % (mode 4 and mode 6: D feed, mode 5: E feed), so nothing is left to control
-    with there; asking for them, or for an unknown mode, raises :class:`GradeError`.
+    with there (:func:`ricker_optimum` keeps them as tabulated); the grades ``mode4``
+    ... ``mode6`` run at a documented back-off from them instead, where that valve
+    keeps a 5 % margin (:mod:`controller.units.te.max_production`). Asking for an
+    unknown mode, or for a grade whose valves have no margin, raises
+    :class:`GradeError`.
 
 Transition references
     Between grades every target follows a first-order trajectory,
@@ -42,6 +46,7 @@ import numpy as np
 from plant_sim.tennessee_eastman.modes import start_state
 
 __all__ = ["GradeError", "Grade", "GRADES", "CONTROL_MARGIN", "CONTROLLED_VALVES", "grade",
+           "ricker_optimum", "BACKOFF_GRADES",
            "parse_grade", "check_reachable", "Leg", "TransitionPlan", "TAU_DEFAULT_H",
            "first_order_path", "time_to_band", "ise", "saturation_time", "SHUTDOWN_LIMITS",
            "limit_margins", "production_change", "trailing_mean"]
@@ -127,9 +132,11 @@ class Grade:
     name : str
         ``mode0`` ... ``mode6``.
     xmeas : ndarray, shape (41,)
-        Seed Table 7.3 outputs (XMEAS 1-41, their units).
+        Seed Table 7.3 outputs (XMEAS 1-41, their units); modes 4-6: the cascade's
+        steady state at the back-off.
     xmv : ndarray, shape (12,)
-        Ricker's (or the base case's) steady-state valve positions, %.
+        Ricker's (or the base case's) steady-state valve positions, %; modes 4-6: the
+        back-off's.
     """
 
     name: str
@@ -190,9 +197,32 @@ def parse_grade(value) -> str:
     return name
 
 
-@lru_cache(maxsize=8)
+#: Ricker's maximum-production modes, run at a documented back-off from the optimum
+#: (:mod:`controller.units.te.max_production`).
+BACKOFF_GRADES = ("mode4", "mode5", "mode6")
+
+
+@lru_cache(maxsize=16)
 def grade(value) -> Grade:
-    """The :class:`Grade` of a mode (see :func:`parse_grade` for accepted names)."""
+    """The :class:`Grade` of a mode (see :func:`parse_grade` for accepted names).
+
+    Modes 0-3: :func:`ricker_optimum`. Modes 4-6: the back-off grade of
+    :mod:`controller.units.te.max_production` (the cascade's steady state there)."""
+    name = parse_grade(value)
+    if name in BACKOFF_GRADES:
+        from controller.units.te.max_production import steady_state
+
+        xmeas, xmv = steady_state(name)
+        xmeas.setflags(write=False)
+        xmv.setflags(write=False)
+        return Grade(name, xmeas, xmv)
+    return ricker_optimum(name)
+
+
+@lru_cache(maxsize=8)
+def ricker_optimum(value) -> Grade:
+    """The tabulated optimum of a mode: seed Table 7.3 outputs and Ricker's (or the base
+    case's) valves, also for modes 4-6 (whose optimum puts a valve at 100 %)."""
     name = parse_grade(value)
     j = GRADES.index(name)
     xmeas = np.array(_table()[:, j])

@@ -106,7 +106,7 @@ def check_config(cfg) -> None:
 def grade_values(cfg) -> dict[str, dict[str, Any]]:
     """TE grades: noise-free XMEAS at each mode's start state as CV set points; the
     mode's XMVs and its regulatory set points (the loops' CVs there) as MVs."""
-    from plant_sim.tennessee_eastman import SimSettings, TESimulator
+    from controller.units.te.grades import BACKOFF_GRADES
     from plant_sim.tennessee_eastman.modes import MODES, grade_name
 
     cvi = [int(n[5:]) - 1 for n in cfg.cvs]
@@ -115,18 +115,23 @@ def grade_values(cfg) -> dict[str, dict[str, Any]]:
     sp_cv = {te_setpoint_name(lp): lp.cv for lp in loops}
     out = {}
     for mode in MODES:
-        sim = TESimulator(SimSettings(mode=mode))
-        # the grade table's measurements (seed Table 7.3 rows) as the CV set points
-        y0 = np.asarray(te_grade(grade_name(mode)).xmeas, dtype=float)
+        g = te_grade(grade_name(mode))
+        # the grade table's measurements (seed Table 7.3 rows; modes 4-6 their back-off)
+        # as the CV set points, its valves (the mode's start state; modes 4-6 the
+        # back-off's) as the MVs
+        y0 = np.asarray(g.xmeas, dtype=float)
         mv = []
         for name in mvs:
             if name in sp_cv:
                 mv.append(float(y0[sp_cv[name] - 1]))
             else:
-                mv.append(float(sim.xmv[int(name[3:]) - 1]))
+                mv.append(float(g.xmv[int(name[3:]) - 1]))
         ratio, rates = TE_MODE_PRODUCTS[grade_name(mode)]
         rate_text = ("maximum production rate" if rates is None else
                      f"{rates[0]:.0f} kg/h G + {rates[1]:.0f} kg/h H")
+        if g.name in BACKOFF_GRADES:
+            rate_text = (f"{rate_text}, backed off to {g.xmeas[16]:.2f} m3/h product so "
+                         f"that every valve keeps a margin")
         base = " (Downs & Vogel base case)" if mode in ("base", "0") else ""
         out[grade_name(mode)] = {
             "setpoints": y0[cvi].tolist(), "mv": mv,
