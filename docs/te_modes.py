@@ -53,7 +53,7 @@ def trial_grade(name: str, xmeas, xmv):
 def settle(b: BackOff, fraction: float) -> dict:
     """The cascade's steady state toward the back-off line at ``fraction``."""
     bb = BackOff(b.grade, b.neighbour, b.limiting_valve, fraction)
-    xm, xv = interpolated(bb)
+    xm, xv = interpolated(bb, G.ricker_optimum(bb.neighbour), G.ricker_optimum(bb.grade))
     with trial_grade(b.grade, xm, xv):
         plan = G.TransitionPlan(b.neighbour, (G.Leg(1.0, b.grade),))
         run = run_te("ssmpc", plan, HOURS, noise=False)

@@ -120,14 +120,13 @@ mode6,xmv,94.9108,8.94309,20.3826,54.7113,74.1999,10.1309,30.9963,41.993,1,38.21
 """
 
 
-def interpolated(b: BackOff) -> tuple[np.ndarray, np.ndarray]:
+def interpolated(b: BackOff, neighbour, optimum) -> tuple[np.ndarray, np.ndarray]:
     """The back-off line at ``b.fraction``: (XMEAS 1-41 (41,), XMV 1-12 (12,) %).
 
     From Ricker's optima (:func:`controller.units.te.grades.ricker_optimum`) of
-    ``b.neighbour`` and ``b.grade``."""
-    from controller.units.te.grades import ricker_optimum
-
-    q, r = ricker_optimum(b.neighbour), ricker_optimum(b.grade)
+    ``b.neighbour`` (``neighbour``) and ``b.grade`` (``optimum``), each with ``xmeas``
+    (41,) and ``xmv`` (12,)."""
+    q, r = neighbour, optimum
     f = float(b.fraction)
     return q.xmeas + f * (r.xmeas - q.xmeas), q.xmv + f * (r.xmv - q.xmv)
 
