@@ -246,6 +246,13 @@ def test_the_economic_lift_ramps_and_a_grade_change_takes_it_back(eco_ctl):
     assert p[-1] - u_plan[2] == pytest.approx(rate * 1.0, abs=1e-6)
     # no gradient (a grade change settling): the plan's value at once
     assert t.solve(eco_ctl.core.ssm, 0, u_plan, y_plan, None).u[2] == u_plan[2]
+    # the handle held at the plan (the controller WARM or OFF): one step ahead at most
+    for _ in range(50):
+        t.observe(eco_ctl.core.ssm, 0, y_plan, u_plan, y_plan, u_plan, 0.01)
+        held = t.solve(eco_ctl.core.ssm, 0, u_plan, y_plan, c).u[2]
+    assert held - u_plan[2] == pytest.approx(rate * 0.01, abs=1e-9)
+    t.offset = np.zeros(5)
+    t._applied_p = float("nan")
     # restart: the lift survives a checkpoint
     for _ in range(10):
         t.solve(eco_ctl.core.ssm, 0, u_plan, y_plan, c)

@@ -379,8 +379,10 @@ class TEController:
         the plan's CV trajectory shifted onto the CV targets. The plan's values when the
         model has none (before the first sample, a model without a steady state)."""
         core = self.core
-        if not getattr(core, "initialized", False):
-            return u_plan, refs
+        if not getattr(core, "initialized", False) and self.targets.offset is None:
+            return u_plan, refs  # the first sample: nothing observed yet
+        # (after a take-over the core re-initializes its dynamics but keeps its models,
+        # and the targets go on: their economic lift tracks the handle held meanwhile)
         self.targets.observe(core.ssm, core.active, yc, core.u_last, y_now, u_now,
                              self.sample_h)
         t = self._t_last

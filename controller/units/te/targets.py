@@ -277,6 +277,7 @@ class CoreTargets:
         self.econ_lift = 0.0
         self._econ_cost: np.ndarray | None = None  # the last gradient the economics used
         self._dt_h = 0.0
+        self._applied_p = math.nan  # P_r* the plant has, kPa (observe)
 
     def steady_state(self, ssm, j: int):
         """(G, a) of model j, cached while its parameters stand (adaptive models:
@@ -301,6 +302,7 @@ class CoreTargets:
         are skipped (``d`` holds)."""
         self._n += 1
         self._dt_h = float(dt_h) if math.isfinite(dt_h) and dt_h > 0 else 0.0
+        self._applied_p = float(np.asarray(u_applied, dtype=float).reshape(-1)[_P])
         ss = self.steady_state(ssm, j)
         vals = (y, u_applied, y_plan_now, u_plan_now)
         if ss is None or not all(np.isfinite(v).all() for v in vals):
@@ -344,7 +346,8 @@ class CoreTargets:
     def _ramp_economics(self, cost_u, u_plan_p: float) -> None:
         """One sample of the economic lift: up toward the ceiling at
         :attr:`CoreTargetSettings.economic_ramp_kpa_h` while a gradient is given
-        (:attr:`CoreTargetSettings.economics` on), at once to the plan otherwise (a
+        (:attr:`CoreTargetSettings.economics` on) and never more than one ramp step
+        above the P_r* applied (:meth:`observe`), at once to the plan otherwise (a
         grade change under way) or when the ceiling comes down."""
         st = self.settings
         c = None
@@ -360,7 +363,12 @@ class CoreTargets:
             self.econ_lift, self._econ_cost = 0.0, None  # weights smooth the way)
             return
         step = st.economic_ramp_kpa_h * self._dt_h
-        self.econ_lift = min(self.econ_lift + step, want) if want > self.econ_lift else want
+        # never more than a step ahead of the handle the plant has: while the
+        # controller is WARM or OFF (moves held) the lift tracks the held P_r*, so the
+        # return to ON is bumpless
+        ahead = max(self._applied_p - u_plan_p, 0.0) + step \
+            if math.isfinite(self._applied_p) else math.inf
+        self.econ_lift = max(0.0, min(want, self.econ_lift + step, ahead))
 
     def problem(self, ssm, j: int, u_plan, y_plan) -> TargetProblem | None:
         """The target problem of model ``j`` around the plan's end point: handles
