@@ -101,8 +101,10 @@ class QPSolver(ABC):
         """Solve with the vectors ``v``; ``warm`` overrides :attr:`warm_start` once."""
         warm = self.warm_start if warm is None else warm
         t0 = time.perf_counter()
-        clean, upper, lower = stacked_bounds(*(np.ascontiguousarray(a, dtype=float) for a in (
-            v.f, v.lb, v.ub, v.bl, v.bu)))  # the check and [ub; bu], [lb; bl] in one call
+        asc = np.ascontiguousarray  # no copy of the kernels' own vectors
+        clean, upper, lower = stacked_bounds(  # the check and [ub; bu], [lb; bl] in one call
+            asc(v.f, dtype=float), asc(v.lb, dtype=float), asc(v.ub, dtype=float),
+            asc(v.bl, dtype=float), asc(v.bu, dtype=float))
         if not clean:
             return QPResult("nan", None, 0, (time.perf_counter() - t0) * 1e3, float("nan"),
                             self.name, "non-finite QP data")
