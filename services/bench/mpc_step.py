@@ -43,6 +43,8 @@ import time
 
 import numpy as np
 
+from services.realtime_process import settle_for_samples
+
 NAME = "mpc-step"
 DESCRIPTION = "state-shared update + adapt + switch + MPC QP per sample (two-phase, TE size), ms"
 
@@ -161,6 +163,7 @@ def two_phase_case(samples: int, adapt: bool = True, targets: bool = False) -> d
     ssm.initialize(u, y1)
     law.reset(u, y1)
     est.prepare(ssm.regressor())
+    settle_for_samples()  # as a node does once set up
     timer = _Timer()
     fallbacks = relaxed = 0
     actives = set()
@@ -250,6 +253,7 @@ def te_case(samples: int, seed: int = 0, adapt: bool = True, synthetic: bool = F
     est.prepare(ssm.regressor())
     d = np.zeros(m)
     sp = y.copy()
+    settle_for_samples()  # as a node does once set up
     timer = _Timer()
     fallbacks = 0
     warm = 50
