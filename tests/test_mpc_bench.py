@@ -11,6 +11,9 @@ def test_bench_qp_json_shape(capsys):
     assert main(["bench", "qp", "--json", "--samples", "30", "--repeat", "1"]) == 0
     doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert doc["bench"] == "qp" and doc["machine"]
+    # the machine's load before and after, beside the numbers it shaped
+    for when in ("before", "after"):
+        assert len(doc["load"][when]) == 3 and min(doc["load"][when]) >= 0
     names = [c["case"] for c in doc["cases"]]
     assert names[:3] == ["daqp", "daqp cold", "proxsuite"]
     for c in doc["cases"]:
