@@ -29,8 +29,10 @@ def test_bench_mpc_step_two_phase_case_shape():
     c = two_phase_case(samples=150, adapt=True)
     assert c["case"] == "two-phase" and c["unit"] == "ms" and c["n"] == 300
     assert "fallbacks" in c  # counted; its value depends on machine load
-    for part in ("errors", "adapt", "switch", "mpc", "update"):
-        assert f"{part}_median_ms" in c
+    for part in ("errors", "adapt", "switch", "mpc", "update", "cpu"):
+        assert f"{part}_median_ms" in c and f"{part}_p99_ms" in c
+    # the samples the thread was switched out of, to read a wall tail by
+    assert isinstance(c["preempted_samples"], int) and 0 <= c["preempted_samples"] <= c["n"]
 
 
 def test_bench_mpc_step_two_phase_targets_case_shape():

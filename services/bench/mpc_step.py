@@ -9,7 +9,12 @@ DAQP) on the active model. After the move (``after_move``, as
 update (eq. 3.10, ``update``), the covariance step and the next step's products
 (``covariance``) and the adaptive model's QP rebuild when its Θ moved
 (``rebuild``). Each case reports the total (median, p99, max) and the medians/p99
-of the parts.
+of the parts, ``cpu_median_ms``/``cpu_p99_ms`` (the thread's CPU time over the critical
+path: a wall tail with the usual CPU time was the machine's, not the sample's) and
+``preempted_samples`` (samples during which the thread was switched out involuntarily).
+The samples run under the controller node's process settings, made once after set-up
+(:func:`services.realtime_process.settle_for_samples`: the set-up frozen out of the
+collector, BLAS on the calling thread), so they are timed as the node runs them.
 
 Measured (shared 2-core AMD EPYC, load 1.3-1.5, three runs; more in
 ``docs/realtime.md``): TE total median 0.105-0.190 ms, p99 0.27-0.36 ms; two-phase
@@ -44,6 +49,7 @@ import time
 import numpy as np
 
 from services.realtime_process import settle_for_samples
+from services.timing import thread_switches
 
 NAME = "mpc-step"
 DESCRIPTION = "state-shared update + adapt + switch + MPC QP per sample (two-phase, TE size), ms"
@@ -74,6 +80,8 @@ def _sample(ssm, est, j_ad, index, switcher, law, y, reference, u, k, timer, ada
     MPC); ``after_move`` is the bookkeeping after the move is out (shared-state update,
     the covariance step, the next step's products, the law's QP rebuilds)."""
     clock = time.perf_counter
+    switches0 = thread_switches()[1]
+    c0 = time.thread_time()
     t0 = clock()
     errors = ssm.errors(y)
     t1 = clock()
@@ -87,6 +95,8 @@ def _sample(ssm, est, j_ad, index, switcher, law, y, reference, u, k, timer, ada
     t3 = clock()
     u_new, info = law.compute(k, dec.active, ssm, y, reference, u)
     t4 = clock()
+    c4 = time.thread_time()
+    preempted = thread_switches()[1] > switches0
     # the move is out: bookkeeping for the next sample
     ssm.update(u_new, y)
     t5 = clock()
@@ -105,16 +115,18 @@ def _sample(ssm, est, j_ad, index, switcher, law, y, reference, u, k, timer, ada
     timer.add("rebuild", t6, t7)
     timer.add("after_move", t4, t7)
     timer.add("total", t0, t4)
+    timer.add("cpu", c0, c4)
+    timer.parts.setdefault("preempted", []).append(float(preempted))
     return u_new, dec.active, info
 
 
 def _case(name: str, timer: _Timer, **extra) -> dict:
     from services.bench._common import latency_case
 
-    parts = {f"{p}_median_ms": float(np.median(v)) for p, v in timer.parts.items()
-             if p != "total"}
-    parts.update({f"{p}_p99_ms": float(np.percentile(v, 99)) for p, v in timer.parts.items()
-                  if p != "total"})
+    times = {p: v for p, v in timer.parts.items() if p not in ("total", "preempted")}
+    parts = {f"{p}_median_ms": float(np.median(v)) for p, v in times.items()}
+    parts.update({f"{p}_p99_ms": float(np.percentile(v, 99)) for p, v in times.items()})
+    parts["preempted_samples"] = int(sum(timer.parts.get("preempted", ())))
     return latency_case(name, timer.parts["total"], unit="ms", **parts, **extra)
 
 
