@@ -16,9 +16,27 @@ The samples run under the controller node's process settings, made once after se
 (:func:`services.realtime_process.settle_for_samples`: the set-up frozen out of the
 collector, BLAS on the calling thread), so they are timed as the node runs them.
 
-Measured (shared 2-core AMD EPYC, load 1.3-1.5, three runs; more in
-``docs/realtime.md``): TE total median 0.105-0.190 ms, p99 0.27-0.36 ms; two-phase
-0.126-0.192 / 0.29-0.37 ms; synthetic n = 40 (load ~3) 0.19-0.26 / 1.0-4.8 ms.
+Measured (shared 2-core AMD EPYC; more in ``docs/realtime.md``), total median / p99
+in ms, wall and CPU time of the critical path, samples preempted of 600::
+
+    case              load      wall                    CPU                   preempted
+    TE                1.3-1.5   0.105-0.190 / 0.27-0.36  -                     -
+    TE [a]            2.4-2.9   0.099-0.106 / 0.22-0.26  0.100-0.107 / same    1-16 of 2950
+    TE                6.4-7.0   0.156-0.165 / 0.41-4.6   0.159-0.168 / 0.36-0.51  8-32
+    two-phase         1.3-1.5   0.126-0.192 / 0.29-0.37  -                     -
+    two-phase         6.4-7.0   0.148-0.351 / 4.3-8.5    0.150-0.354 / 0.39-0.65  11-56
+    synthetic n = 40  ~3        0.19-0.26 / 1.0-4.8      -                     -
+    synthetic n = 40  6.4-7.0   0.268-0.321 / 4.7-4.8    0.272-0.324 / 0.70-0.83  24-59
+
+    [a] the critical path timed part by part in one process, 2,950 samples, the
+        collector frozen, BLAS on one thread, the plan's prediction still in the sample
+
+On a loaded machine the wall p99 is the scheduler's (4-8 ms slices) while the CPU p99
+stays below 1 ms; at load ~2.5 the CPU p99 is the wall p99 and its samples are slower
+in every part alike (errors, adaptation, MPC, each about twice its median), clustered
+in time: the machine's other work, not a path of the code. QP iterations do not make
+the tail (TE: 1-32 iterations, 63 of 3,000 samples with 10 or more, their median
+0.139 ms against 0.133 ms).
 
 Cases
     ``two-phase``: the chapter-6 reactor study in closed loop with the nonlinear plant
