@@ -29,6 +29,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from controller.finite_kernel import all_finite
 from controller.interfaces import ControlDecision
 from controller.mpc.filters import FirstOrderFilter
 from controller.mpc.formulation import DeltaUFormulation, FormulationCache
@@ -328,7 +329,7 @@ class MPCController:
         if R.shape[0] < s.P:
             R = np.vstack([R, np.repeat(R[-1:], s.P - R.shape[0], axis=0)])
         R = R[:s.P]
-        if not np.isfinite(R).all():
+        if not all_finite(R):
             return None
         return R
 
@@ -372,7 +373,7 @@ class MPCController:
         try:
             s = self.settings
             y = np.asarray(y, dtype=float).reshape(-1)
-            if y.size != s.ny or not np.isfinite(y).all():
+            if y.size != s.ny or not all_finite(y):
                 self.counters["invalid_measurement"] += 1
                 if self.filter.state is not None:
                     # Keep the model state in step with time, on the last good value.

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller.finite_kernel import all_finite
 from controller.mpc.formulation import QPVectors
 from controller.mpc.vector_kernel import stacked_bounds
 
@@ -114,7 +115,7 @@ class QPSolver(ABC):
             return QPResult("error", None, 0, (time.perf_counter() - t0) * 1e3, float("nan"),
                             self.name, f"{type(exc).__name__}: {exc}")
         ms = (time.perf_counter() - t0) * 1e3
-        if x is not None and not np.isfinite(x).all():
+        if x is not None and not all_finite(x):
             status, x = "nan", None
         if status != "solved":
             x = None if status == "nan" else x
