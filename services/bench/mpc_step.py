@@ -23,8 +23,9 @@ in ms, wall and CPU time of the critical path, samples preempted of 600::
     TE                1.3-1.5   0.105-0.190 / 0.27-0.36  -                     -
     TE [a]            2.4-2.9   0.099-0.106 / 0.22-0.26  0.100-0.107 / same    1-16 of 2950
     TE                6.4-7.0   0.156-0.165 / 0.41-4.6   0.159-0.168 / 0.36-0.51  8-32
-    TE [b]            2.3-4.9   0.088-0.154 / 0.185-0.226 0.090-0.156 / 0.185-0.229  0-6
-    two-phase [b]     2.3-4.9   0.102-0.131 / 0.302-0.355 0.104-0.133 / 0.306-0.341  0-4
+    TE [b]            2.3-4.9   0.088-0.127 / 0.185-0.226 0.090-0.129 / 0.185-0.229  0-6
+    two-phase [b]     2.3-4.9   0.102-0.151 / 0.302-0.355 0.104-0.153 / 0.305-0.416  0-22
+                                (and one p99 of 4.3 ms with 22 samples preempted)
     synthetic n = 40 [b] 2.3-4.9 0.148-0.248 / 0.430-0.575 0.150-0.251 / 0.417-0.581 0-19
     two-phase         1.3-1.5   0.126-0.192 / 0.29-0.37  -                     -
     two-phase         6.4-7.0   0.148-0.351 / 4.3-8.5    0.150-0.354 / 0.39-0.65  11-56
@@ -34,7 +35,7 @@ in ms, wall and CPU time of the critical path, samples preempted of 600::
     [a] the critical path timed part by part in one process, 2,950 samples, the
         collector frozen, BLAS on one thread, the plan's prediction still in the sample
     [b] with the finiteness checks compiled (controller.finite_kernel) and the plan's
-        prediction off the sample; five of six runs (one preempted run left out)
+        prediction off the sample; five of six runs (one run preempted throughout left out)
 
 On a loaded machine the wall p99 is the scheduler's (4-8 ms slices) while the CPU p99
 stays below 1 ms; at load ~2.5 the CPU p99 is the wall p99 and its samples are slower
