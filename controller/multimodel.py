@@ -49,6 +49,7 @@ import numpy as np
 import scipy.linalg
 
 from controller.adaptation import AdaptiveKind, NLSSettings, NormalizedLeastSquares
+from controller.finite_kernel import all_finite
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.state_shared import StateSharedModel
 from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
@@ -437,7 +438,7 @@ class MultiModelController:
         m = self.ssm.m
         ny = getattr(self.ssm, "p", m)  # outputs (= inputs for the seed's square models)
         y = np.asarray(y, dtype=float).reshape(-1)
-        valid = y.shape == (ny,) and bool(np.isfinite(y).all())
+        valid = y.shape == (ny,) and all_finite(y)
         if not valid:
             self.n_invalid += 1
             alarm = (f"invalid measurement at sample {k}: sample skipped, input held, "
@@ -451,7 +452,7 @@ class MultiModelController:
                     self._prepared = False
             return self._decision(self.u_last, "invalid_measurement", True, [alarm], t0)
         ref = np.atleast_2d(np.asarray(reference, dtype=float))
-        if ref.shape[1] != ny or not np.isfinite(ref).all():
+        if ref.shape[1] != ny or not all_finite(ref):
             return self._decision(self.u_last, "invalid_reference", True,
                                   [f"invalid reference at sample {k}: input held"], t0)
         if not self.initialized:
@@ -507,7 +508,7 @@ class MultiModelController:
             status = str(info.get("status", "solved"))
             fallback = bool(info.get("fallback", False))
             alarms.extend(info.get("alarms", ()))
-            if u.shape != (m,) or not np.isfinite(u).all():
+            if u.shape != (m,) or not all_finite(u):
                 raise ValueError(f"control law returned an invalid move {u!r}")
         except Exception as exc:
             self.n_law_failures += 1

@@ -74,6 +74,7 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike
 
+from controller.finite_kernel import all_finite
 from controller.linear.mfd import LeftMFD, left_mfd
 from controller.packing import pack_array, unpack_array
 from controller.shared_basis import (
@@ -581,7 +582,7 @@ class StateSharedModel:
         j = self._index(j)
         n, m, q = self.n_deg, self.m, self.p
         p = np.asarray(p, dtype=float).reshape(-1)
-        if p.shape != (self.n_params + q,) or not np.isfinite(p).all():
+        if p.shape != (self.n_params + q,) or not all_finite(p):
             theta, bias = self.theta_from_params(p)  # raises naming the field
             self.set_theta(j, theta, bias)
             return

@@ -1,4 +1,4 @@
-"""A short description of the machine a benchmark ran on."""
+"""A short description of the machine a benchmark ran on, and its load."""
 
 from __future__ import annotations
 
@@ -48,3 +48,13 @@ def cpu_idle_settings(root: str = "/sys") -> dict:
     return {"governor": read("devices/system/cpu/cpuidle/current_governor"),
             "driver": read("devices/system/cpu/cpuidle/current_driver"),
             "guest_halt_poll_ns": int(poll) if poll is not None and poll.isdigit() else None}
+
+
+def load_average() -> list[float] | None:
+    """The 1-, 5- and 15-minute load averages (runnable tasks; on this 2-core machine
+    shared with other work a benchmark's tail follows them), or None where the
+    platform has none."""
+    try:
+        return [round(v, 2) for v in os.getloadavg()]
+    except (AttributeError, OSError):
+        return None

@@ -11,6 +11,9 @@ def test_bench_qp_json_shape(capsys):
     assert main(["bench", "qp", "--json", "--samples", "30", "--repeat", "1"]) == 0
     doc = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert doc["bench"] == "qp" and doc["machine"]
+    # the machine's load before and after, beside the numbers it shaped
+    for when in ("before", "after"):
+        assert len(doc["load"][when]) == 3 and min(doc["load"][when]) >= 0
     names = [c["case"] for c in doc["cases"]]
     assert names[:3] == ["daqp", "daqp cold", "proxsuite"]
     for c in doc["cases"]:
@@ -26,8 +29,10 @@ def test_bench_mpc_step_two_phase_case_shape():
     c = two_phase_case(samples=150, adapt=True)
     assert c["case"] == "two-phase" and c["unit"] == "ms" and c["n"] == 300
     assert "fallbacks" in c  # counted; its value depends on machine load
-    for part in ("errors", "adapt", "switch", "mpc", "update"):
-        assert f"{part}_median_ms" in c
+    for part in ("errors", "adapt", "switch", "mpc", "update", "cpu"):
+        assert f"{part}_median_ms" in c and f"{part}_p99_ms" in c
+    # the samples the thread was switched out of, to read a wall tail by
+    assert isinstance(c["preempted_samples"], int) and 0 <= c["preempted_samples"] <= c["n"]
 
 
 def test_bench_mpc_step_two_phase_targets_case_shape():

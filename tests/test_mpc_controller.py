@@ -294,3 +294,23 @@ def test_set_input_target_rejects_bad_values_and_keeps_the_target(bad):
     with pytest.raises(ValueError, match="u_target"):
         ctrl.set_input_target(bad)
     np.testing.assert_array_equal(ctrl.u_target, [0.5, 0.5])
+
+
+def test_predicted_outputs_of_the_plan_are_what_a_matched_plant_does_under_it():
+    """predicted() (made on request, not in the sample) is the plan's output trajectory:
+    a plant equal to the model, given the plan's moves and then held, follows it."""
+    ctrl, plant = make()
+    assert ctrl.predicted() is None  # no optimal solve yet
+    run(ctrl, plant, 3, np.array([0.8, -0.5]))
+    pred = ctrl.predicted()
+    s = ctrl.settings
+    assert pred.shape == (s.P, s.ny)
+    u, ys = ctrl.u.copy(), [plant.y()]  # run() applied this sample's move: y(k+1)
+    for j in range(1, s.P):
+        u = u + (ctrl.plan[j] if j < s.M else 0.0)
+        plant.apply(u)
+        ys.append(plant.y())
+    np.testing.assert_allclose(np.array(ys), pred, atol=1e-9)
+    # a restored controller has no plan basis: nothing is predicted from a stale one
+    ctrl.restore(ctrl.checkpoint())
+    assert ctrl.predicted() is None

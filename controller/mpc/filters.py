@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from controller.finite_kernel import all_finite
+
 __all__ = ["FirstOrderFilter"]
 
 
@@ -33,7 +35,7 @@ class FirstOrderFilter:
     def update(self, y) -> np.ndarray:
         """Filter one sample ``y`` (shape (ny,)) and return ``y_f(k)``."""
         y = np.asarray(y, dtype=float)
-        if not np.isfinite(y).all():
+        if not all_finite(y):
             if self.state is None:
                 return y.copy()
             return self.state.copy()

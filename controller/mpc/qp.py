@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller.finite_kernel import all_finite
 from controller.mpc.formulation import QPVectors
 from controller.mpc.vector_kernel import stacked_bounds
 
@@ -101,8 +102,10 @@ class QPSolver(ABC):
         """Solve with the vectors ``v``; ``warm`` overrides :attr:`warm_start` once."""
         warm = self.warm_start if warm is None else warm
         t0 = time.perf_counter()
-        clean, upper, lower = stacked_bounds(*(np.ascontiguousarray(a, dtype=float) for a in (
-            v.f, v.lb, v.ub, v.bl, v.bu)))  # the check and [ub; bu], [lb; bl] in one call
+        asc = np.ascontiguousarray  # no copy of the kernels' own vectors
+        clean, upper, lower = stacked_bounds(  # the check and [ub; bu], [lb; bl] in one call
+            asc(v.f, dtype=float), asc(v.lb, dtype=float), asc(v.ub, dtype=float),
+            asc(v.bl, dtype=float), asc(v.bu, dtype=float))
         if not clean:
             return QPResult("nan", None, 0, (time.perf_counter() - t0) * 1e3, float("nan"),
                             self.name, "non-finite QP data")
@@ -112,7 +115,7 @@ class QPSolver(ABC):
             return QPResult("error", None, 0, (time.perf_counter() - t0) * 1e3, float("nan"),
                             self.name, f"{type(exc).__name__}: {exc}")
         ms = (time.perf_counter() - t0) * 1e3
-        if x is not None and not np.isfinite(x).all():
+        if x is not None and not all_finite(x):
             status, x = "nan", None
         if status != "solved":
             x = None if status == "nan" else x

@@ -9,11 +9,40 @@ DAQP) on the active model. After the move (``after_move``, as
 update (eq. 3.10, ``update``), the covariance step and the next step's products
 (``covariance``) and the adaptive model's QP rebuild when its Θ moved
 (``rebuild``). Each case reports the total (median, p99, max) and the medians/p99
-of the parts.
+of the parts, ``cpu_median_ms``/``cpu_p99_ms`` (the thread's CPU time over the critical
+path: a wall tail with the usual CPU time was the machine's, not the sample's) and
+``preempted_samples`` (samples during which the thread was switched out involuntarily).
+The samples run under the controller node's process settings, made once after set-up
+(:func:`services.realtime_process.settle_for_samples`: the set-up frozen out of the
+collector, BLAS on the calling thread), so they are timed as the node runs them.
 
-Measured (shared 2-core AMD EPYC, load 1.3-1.5, three runs; more in
-``docs/realtime.md``): TE total median 0.105-0.190 ms, p99 0.27-0.36 ms; two-phase
-0.126-0.192 / 0.29-0.37 ms; synthetic n = 40 (load ~3) 0.19-0.26 / 1.0-4.8 ms.
+Measured (shared 2-core AMD EPYC; more in ``docs/realtime.md``), total median / p99
+in ms, wall and CPU time of the critical path, samples preempted of 600::
+
+    case              load      wall                    CPU                   preempted
+    TE                1.3-1.5   0.105-0.190 / 0.27-0.36  -                     -
+    TE [a]            2.4-2.9   0.099-0.106 / 0.22-0.26  0.100-0.107 / same    1-16 of 2950
+    TE                6.4-7.0   0.156-0.165 / 0.41-4.6   0.159-0.168 / 0.36-0.51  8-32
+    TE [b]            2.3-4.9   0.088-0.127 / 0.185-0.226 0.090-0.129 / 0.185-0.229  0-6
+    two-phase [b]     2.3-4.9   0.102-0.151 / 0.302-0.355 0.104-0.153 / 0.305-0.416  0-22
+                                (and one p99 of 4.3 ms with 22 samples preempted)
+    synthetic n = 40 [b] 2.3-4.9 0.148-0.248 / 0.430-0.575 0.150-0.251 / 0.417-0.581 0-19
+    two-phase         1.3-1.5   0.126-0.192 / 0.29-0.37  -                     -
+    two-phase         6.4-7.0   0.148-0.351 / 4.3-8.5    0.150-0.354 / 0.39-0.65  11-56
+    synthetic n = 40  ~3        0.19-0.26 / 1.0-4.8      -                     -
+    synthetic n = 40  6.4-7.0   0.268-0.321 / 4.7-4.8    0.272-0.324 / 0.70-0.83  24-59
+
+    [a] the critical path timed part by part in one process, 2,950 samples, the
+        collector frozen, BLAS on one thread, the plan's prediction still in the sample
+    [b] with the finiteness checks compiled (controller.finite_kernel) and the plan's
+        prediction off the sample; five of six runs (one run preempted throughout left out)
+
+On a loaded machine the wall p99 is the scheduler's (4-8 ms slices) while the CPU p99
+stays below 1 ms; at load ~2.5 the CPU p99 is the wall p99 and its samples are slower
+in every part alike (errors, adaptation, MPC, each about twice its median), clustered
+in time: the machine's other work, not a path of the code. QP iterations do not make
+the tail (TE: 1-32 iterations, 63 of 3,000 samples with 10 or more, their median
+0.139 ms against 0.133 ms).
 
 Cases
     ``two-phase``: the chapter-6 reactor study in closed loop with the nonlinear plant
@@ -42,6 +71,9 @@ from __future__ import annotations
 import time
 
 import numpy as np
+
+from services.realtime_process import settle_for_samples
+from services.timing import thread_switches
 
 NAME = "mpc-step"
 DESCRIPTION = "state-shared update + adapt + switch + MPC QP per sample (two-phase, TE size), ms"
@@ -72,6 +104,8 @@ def _sample(ssm, est, j_ad, index, switcher, law, y, reference, u, k, timer, ada
     MPC); ``after_move`` is the bookkeeping after the move is out (shared-state update,
     the covariance step, the next step's products, the law's QP rebuilds)."""
     clock = time.perf_counter
+    switches0 = thread_switches()[1]
+    c0 = time.thread_time()
     t0 = clock()
     errors = ssm.errors(y)
     t1 = clock()
@@ -85,6 +119,8 @@ def _sample(ssm, est, j_ad, index, switcher, law, y, reference, u, k, timer, ada
     t3 = clock()
     u_new, info = law.compute(k, dec.active, ssm, y, reference, u)
     t4 = clock()
+    c4 = time.thread_time()
+    preempted = thread_switches()[1] > switches0
     # the move is out: bookkeeping for the next sample
     ssm.update(u_new, y)
     t5 = clock()
@@ -103,16 +139,18 @@ def _sample(ssm, est, j_ad, index, switcher, law, y, reference, u, k, timer, ada
     timer.add("rebuild", t6, t7)
     timer.add("after_move", t4, t7)
     timer.add("total", t0, t4)
+    timer.add("cpu", c0, c4)
+    timer.parts.setdefault("preempted", []).append(float(preempted))
     return u_new, dec.active, info
 
 
 def _case(name: str, timer: _Timer, **extra) -> dict:
     from services.bench._common import latency_case
 
-    parts = {f"{p}_median_ms": float(np.median(v)) for p, v in timer.parts.items()
-             if p != "total"}
-    parts.update({f"{p}_p99_ms": float(np.percentile(v, 99)) for p, v in timer.parts.items()
-                  if p != "total"})
+    times = {p: v for p, v in timer.parts.items() if p not in ("total", "preempted")}
+    parts = {f"{p}_median_ms": float(np.median(v)) for p, v in times.items()}
+    parts.update({f"{p}_p99_ms": float(np.percentile(v, 99)) for p, v in times.items()})
+    parts["preempted_samples"] = int(sum(timer.parts.get("preempted", ())))
     return latency_case(name, timer.parts["total"], unit="ms", **parts, **extra)
 
 
@@ -161,6 +199,7 @@ def two_phase_case(samples: int, adapt: bool = True, targets: bool = False) -> d
     ssm.initialize(u, y1)
     law.reset(u, y1)
     est.prepare(ssm.regressor())
+    settle_for_samples()  # as a node does once set up
     timer = _Timer()
     fallbacks = relaxed = 0
     actives = set()
@@ -250,6 +289,7 @@ def te_case(samples: int, seed: int = 0, adapt: bool = True, synthetic: bool = F
     est.prepare(ssm.regressor())
     d = np.zeros(m)
     sp = y.copy()
+    settle_for_samples()  # as a node does once set up
     timer = _Timer()
     fallbacks = 0
     warm = 50

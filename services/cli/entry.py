@@ -59,10 +59,12 @@ def _add_bench(sub) -> None:
 
 def _run_bench(args) -> int:
     from services.bench._common import bench_document
+    from services.machine import load_average
 
     mod = args.bench_module
+    before = load_average()
     cases = mod.run(args)
-    doc = bench_document(mod.NAME, cases)
+    doc = bench_document(mod.NAME, cases, load={"before": before, "after": load_average()})
     if not args.json:
         print(f"bench {doc['bench']} on {doc['machine']}")
         for c in doc["cases"]:

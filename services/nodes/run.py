@@ -203,31 +203,20 @@ def register(sub) -> None:
 
 
 def _realtime_tuning(rt_priority: int | None = None) -> None:
-    """Fewer, shorter pauses in a node's sample loop.
+    """Fewer, shorter pauses in a node's sample loop, once set-up is done.
 
-    The objects made at start-up (modules, models, JIT code) are moved out of the
-    collector's way (``gc.freeze``) and young-generation collections become rarer;
-    the GIL is handed between the Zenoh callback threads and the loop more often
-    than the default 5 ms. BLAS runs on the calling thread only: the loop's matrices
-    are small (TE: 213 parameters at most), and OpenBLAS's worker threads spin-wait
-    between calls, which at 10,000x kept one of two vCPUs busy, away from the plant
-    and Zenoh. With ``rt_priority`` every thread of the process
-    (including Zenoh's) runs under ``SCHED_FIFO`` (Linux, needs CAP_SYS_NICE), as a
-    control loop on a shared machine should.
+    The process settings of a sample loop (:func:`services.realtime_process.
+    settle_for_samples`: the set-up's objects frozen out of the collector's way, rarer
+    young collections, BLAS on the calling thread, a 0.5 ms interpreter switch
+    interval). With ``rt_priority`` every thread of the process (including Zenoh's)
+    runs under ``SCHED_FIFO`` (Linux, needs CAP_SYS_NICE), as a control loop on a
+    shared machine should.
     """
-    import gc
     import os
 
-    from threadpoolctl import threadpool_limits
+    from services.realtime_process import settle_for_samples
 
-    from services.timing import GC_PAUSES
-
-    threadpool_limits(limits=1, user_api="blas")
-    GC_PAUSES.install()
-    gc.collect()
-    gc.freeze()
-    gc.set_threshold(50_000, 50, 100)
-    sys.setswitchinterval(0.0005)
+    settle_for_samples()
     if rt_priority is not None:
         if not 1 <= rt_priority <= 99:
             raise CLIError(f"rt_priority: must be 1..99, got {rt_priority}")
