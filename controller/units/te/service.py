@@ -61,6 +61,11 @@ class HeldPlan:
     def grade_at(self, t):
         return self.plan.grade_at(self.t_h)
 
+    def hours_since_change(self, t) -> float:
+        """As the plan had it at the hold (the references stop there, so does the
+        settling the economics wait for)."""
+        return self.plan.hours_since_change(self.t_h)
+
 
 class TEServiceController:
     """The TE supervisory controller behind the service's MV vector (module docstring).
