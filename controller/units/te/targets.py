@@ -64,6 +64,9 @@ from controller.targets import TargetProblem, TargetResult
 
 __all__ = ["CoreTargetSettings", "CoreTargets", "model_steady_state"]
 
+#: Fields of the target problem that stand from sample to sample (CoreTargets._check).
+_STANDING_FIELDS = ("q_u", "q_y", "y_min", "y_max", "y_rank", "y_scale")
+
 
 @dataclass(frozen=True)
 class CoreTargetSettings:
@@ -194,17 +197,25 @@ class CoreTargets:
         self.offset: np.ndarray | None = None
         #: the handles' departure from the plan through the plant's response lag (5,)
         self.du_lagged = np.zeros(5)
+        # the standing fields at the last full check of the solver's numbers (_check)
+        self._checked: tuple | None = None
 
     def steady_state(self, ssm, j: int):
         """(G, a) of model j, cached while its parameters stand (adaptive models:
         refreshed at most every ``refresh_samples`` samples); None if it has none."""
-        theta = ssm.model(j).theta
         cached = self._steady.get(j)
         if cached is not None:
             th, made, ss = cached
-            if th is theta or (ssm.kinds[j] != "fixed"
-                               and self._n - made < self.settings.refresh_samples):
+            # inside the refresh interval an adaptive model's steady state stands: no need
+            # to read its parameters (ssm.model builds them after every adaptation)
+            if (self._n - made < self.settings.refresh_samples
+                    and ssm.kinds[j] != "fixed"):
                 return ss
+            theta = ssm.model(j).theta
+            if th is theta:
+                return ss
+        else:
+            theta = ssm.model(j).theta
         ss = model_steady_state(ssm, j)
         self._steady[j] = (theta, self._n, ss)
         return ss
@@ -218,8 +229,8 @@ class CoreTargets:
         are skipped (``d`` holds)."""
         self._n += 1
         ss = self.steady_state(ssm, j)
-        vals = (y, u_applied, y_plan_now, u_plan_now)
-        if ss is None or not all(np.isfinite(v).all() for v in vals):
+        if ss is None or not np.isfinite(np.concatenate((y, u_applied, y_plan_now,
+                                                         u_plan_now))).all():
             return
         du = np.asarray(u_applied, dtype=float) - u_plan_now
         if self.offset is None:
@@ -287,12 +298,30 @@ class CoreTargets:
         if not self.q_y.any():
             y_pp = np.asarray(y_plan, dtype=float) + fields["bias"]
             if np.all(y_pp >= self.y_min) and np.all(y_pp <= self.y_max):
-                self._solver.check(**fields)  # the numbers a QP would refuse
+                self._check(fields)  # the numbers a QP would refuse
                 self.last = TargetResult("optimal", fields["u_ref"].copy(), y_pp, (), 0.0, 0)
                 return self.last
         res = self._solver.solve(**fields)
         self.last = None if res.status == "failed" else res
         return self.last
+
+    def _check(self, fields: dict) -> None:
+        """:meth:`TargetSolver.check` of the sample's fields (ValueError on numbers a QP
+        would refuse). In full when the fields that stand from sample to sample (weights,
+        scales, CV limits and ranks) are other objects than at the last full check, else
+        what the solver checks of the fields that change every sample: finite and
+        ``u_min <= u_max`` (the plan's point outside that is refused in full)."""
+        standing = tuple(fields[k] for k in _STANDING_FIELDS)
+        last = self._checked
+        if last is None or any(a is not b for a, b in zip(standing, last, strict=True)):
+            self._solver.check(**fields)
+            self._checked = standing
+            return
+        lo, hi = fields["u_min"], fields["u_max"]
+        moving = np.concatenate((fields["gain"].ravel(), fields["u0"], fields["y0"],
+                                 fields["bias"], lo, hi))
+        if not (np.isfinite(moving).all() and (lo <= hi).all()):
+            self._solver.check(**fields)  # raises, naming the field
 
     def checkpoint(self) -> dict:
         """What a restart needs to go on (JSON-serialisable)."""
