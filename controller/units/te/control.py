@@ -919,6 +919,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
         default the original seed (:func:`plant_seed_for` makes one per noise seed).
     """
     from plant_sim.tennessee_eastman import TESimulator
+    from plant_sim.tennessee_eastman.simulator import cost_from_rows
 
     # offline: simulated time, no wall-clock budget (see make_mpc_core)
     options.setdefault("realtime", False)
@@ -937,7 +938,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     X = np.empty((n, 41))
     U = np.empty((n, 12))
     S = np.empty((n, len(spec.loops)))
-    cost = np.empty(n)
+    flow = np.empty(n)
     act = np.empty(n, dtype=int)
     ms = np.empty(n)
     slack = np.full(n, np.nan)
@@ -963,7 +964,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
         sim.set_xmv(xmv)
         reg.set_setpoints(dec.extra["setpoints"])
         T[k], X[k], U[k], S[k] = t, xmeas, xmv, dec.extra["setpoints"]
-        cost[k] = sim.cost()
+        flow[k] = sim.product_flow_lbmol_h  # priced with the XMEAS after the run
         act[k], ms[k] = dec.active_model, dec.solve_ms
         if dec.extra.get("constraint_slack") is not None:
             slack[k] = dec.extra["constraint_slack"]
@@ -982,6 +983,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
             break
     m = k + 1
     R = plan.xmeas_ref(T[:m])  # the references of every sample in one evaluation
+    cost = cost_from_rows(X[:m], flow[:m])  # sim.cost() of every sample, bit for bit
     return TERun(strategy, T[:m], X[:m], U[:m], S[:m], R[:m], cost[:m], act[:m], ms[:m],
                  sim.shutdown, names, tuple(alarms), fallbacks, time.perf_counter() - w0,
                  {"sample_h": spec.sample_h, "noise": noise, "input_snr": input_snr,
