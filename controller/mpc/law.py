@@ -240,6 +240,7 @@ class MPCLaw:
         self.settings = settings
         self.source = SharedStateSource(refresh_tol, min_refresh_samples)
         self.mpc = MPCController(settings, self.source, u0=np.zeros(settings.nu))
+        self.mpc.report_prediction = False  # compute() passes no prediction on
 
     def prepare(self, ssm) -> None:
         """Build every model's QP ahead of time (a switch then costs no build)."""
