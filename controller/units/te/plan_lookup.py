@@ -56,6 +56,7 @@ class SampleReferences:
         self._tau = np.concatenate([np.full(t.start.shape[1], float(t.tau))
                                     for t in (xm, xv, df)])
         self._positive = self._tau > 0
+        self._all_positive = bool(self._positive.all())
         self._tau_div = np.where(self._positive, self._tau, 1.0)
         self._offsets = float(sample_h) * np.arange(self.horizon + 1)
 
@@ -83,7 +84,9 @@ class SampleReferences:
         tt = t + self._offsets
         i = np.searchsorted(self._times, tt, side="right") - 1
         dt = (tt - self._times[i])[:, None]
-        a = np.where(self._positive, np.exp(-dt / self._tau_div), 0.0)
+        a = np.exp(-dt / self._tau_div)
+        if not self._all_positive:  # a step (tau = 0): the target at once
+            a = np.where(self._positive, a, 0.0)
         target = self._target[i]
         r = target + (self._start[i] - target) * a
         nx = self.N_XMEAS

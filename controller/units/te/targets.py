@@ -199,6 +199,7 @@ class CoreTargets:
         self.du_lagged = np.zeros(5)
         # the standing fields at the last full check of the solver's numbers (_check)
         self._checked: tuple | None = None
+        self._gains: tuple | None = None  # (dt_h, settings, lag gain, offset gain)
 
     def steady_state(self, ssm, j: int):
         """(G, a) of model j, cached while its parameters stand (adaptive models:
@@ -239,11 +240,20 @@ class CoreTargets:
         # the plant answers a handle's move from the plan with a lag: the offset compares
         # the measurement with the lagged steady-state answer, else it would count the
         # part not yet arrived as a disturbance (a slow oscillation of the targets)
-        self.du_lagged += (1.0 - math.exp(-float(dt_h) / self.settings.response_tau_h)) \
-            * (du - self.du_lagged)
+        lag, alpha = self._filter_gains(float(dt_h))
+        self.du_lagged += lag * (du - self.du_lagged)
         e = np.asarray(y, dtype=float) - y_plan_now - ss[0] @ self.du_lagged
-        alpha = 1.0 - math.exp(-float(dt_h) / self.settings.offset_tau_h)
         self.offset += alpha * (e - self.offset)
+
+    def _filter_gains(self, dt_h: float) -> tuple[float, float]:
+        """``1 - exp(-dt / tau)`` of the response lag and of the offset filter for a
+        sample of ``dt_h`` (h), kept for the last ``dt_h`` and settings (the same every
+        sample)."""
+        s, cached = self.settings, self._gains
+        if cached is None or cached[0] != dt_h or cached[1] is not s:
+            cached = self._gains = (dt_h, s, 1.0 - math.exp(-dt_h / s.response_tau_h),
+                                    1.0 - math.exp(-dt_h / s.offset_tau_h))
+        return cached[2], cached[3]
 
     def _fields(self, ssm, j: int, u_plan, y_plan) -> dict | None:
         """The fields of :meth:`problem` (those of :class:`TargetProblem` but the
