@@ -311,6 +311,9 @@ class RegulatoryLayer:
         arr = np.asarray(values, dtype=float).reshape(-1)
         if arr.shape[0] != len(self.loops):
             raise PlantInputError(f"setpoints: expected {len(self.loops)}, got {arr.shape[0]}")
+        if np.isfinite(arr).all():  # every set point given (the supervisory sample's case)
+            self._sp[:] = arr
+            return
         keep = np.zeros(arr.shape[0], dtype=bool)
         for j, (lp, v) in enumerate(zip(self.loops, arr, strict=True)):
             if math.isnan(v) and j in self.cascaded:

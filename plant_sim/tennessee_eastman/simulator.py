@@ -27,7 +27,7 @@ from plant_sim.tennessee_eastman.modes import parse_mode, start_state
 from plant_sim.tennessee_eastman.random import ORIGINAL_SEED
 
 __all__ = ["TESimulator", "Shutdown", "SimSettings", "ROW_COLUMNS", "NCOL", "euler_run",
-           "cost_from_measurements", "DEFAULT_DT_S"]
+           "cost_from_measurements", "cost_from_rows", "DEFAULT_DT_S"]
 
 DEFAULT_DT_S = 1.8
 #: Columns of a recorded row (the layout of the reference CSV files).
@@ -210,6 +210,41 @@ def cost_from_measurements(xmeas, product_flow_lbmol_h: float) -> float:
     return float(purge + product + 0.0536 * x[19] + 0.0318 * x[18])
 
 
+def cost_from_rows(xmeas_rows, product_flows_lbmol_h) -> np.ndarray:
+    """:func:`cost_from_measurements` of many samples at once, $/h.
+
+    The same operations in the same order, element by element, so each value is bit
+    for bit that of :func:`cost_from_measurements` on its row (a closed loop records
+    the rows and flows and prices them after the run).
+
+    Parameters
+    ----------
+    xmeas_rows : array_like, shape (K, 41)
+        Measurements, one row per sample.
+    product_flows_lbmol_h : array_like, shape (K,)
+        Stripper product flow (stream 11) of each sample, lb-mol/h.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+    """
+    x = np.asarray(xmeas_rows, dtype=float).reshape(-1, 41)
+    flow = np.asarray(product_flows_lbmol_h, dtype=float).reshape(-1)
+    if flow.shape[0] != x.shape[0]:
+        raise PlantInputError(f"product_flows_lbmol_h: expected {x.shape[0]} values, got "
+                              f"{flow.shape[0]}")
+    purge_price = (2.206, 0.0, 6.177, 22.06, 14.56, 17.89, 30.44, 22.94)  # $/kmol, A..H
+    purge_sum = np.zeros(x.shape[0])  # 0 + first term, as sum() starts
+    for i, p in enumerate(purge_price):
+        purge_sum = purge_sum + p * x[:, 28 + i] / 100.0
+    product_sum = np.zeros(x.shape[0])
+    for i, p in enumerate(purge_price[3:6]):
+        product_sum = product_sum + p * x[:, 36 + i] / 100.0
+    purge = 44.79 * x[:, 9] * purge_sum
+    product = flow * 0.454 * product_sum
+    return purge + product + 0.0536 * x[:, 19] + 0.0318 * x[:, 18]
+
+
 class TESimulator:
     """One Tennessee Eastman plant integrated by Euler as the original driver does.
 
@@ -390,6 +425,12 @@ class TESimulator:
                               self._idv_off, sched_t, sched_v, self._mem, self._work,
                               self._xmeas, self._yp, rows)
         return rows[:n_rows]
+
+    @property
+    def product_flow_lbmol_h(self) -> float:
+        """Stripper product flow (stream 11) of the last evaluation, lb-mol/h (what
+        :meth:`cost` prices; :func:`cost_from_rows` takes it per sample)."""
+        return float(self._mem[M.M_FTM13])
 
     def cost(self) -> float:
         """Operating cost ($/h) from the current measurements (Downs & Vogel)."""

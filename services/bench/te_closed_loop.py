@@ -13,6 +13,33 @@ original plant at 1.8 s, supervisory sample 36 s (``controller.units.te.control`
 Runs do not stop at an interlock trip (the plant freezes as the original does), so
 every run covers the same process time; the first trip, if any, is reported with
 the case (``shutdown_h``). Model building and compilation happen before timing.
+
+Measured (AMD EPYC, 2 vCPU shared with other work; ``--runs 2``, the code before and
+after the closed loop's glue cuts run alternately, three pairs per set; rate: slowest
+and best run of each bench over the set, step: the benches' medians):
+
+======================  ===========  ============  =============  =============
+set (load avg)          code         ssmpc ph/s    ssmpc step ms  fixed / pi
+                                                   (median)       ph/s (best)
+======================  ===========  ============  =============  =============
+quieter (2.4-3.5)       before       10.7-13.5     0.36-0.40      23.0 / 77
+                        after        8.2-16.1      0.28-0.37      25.5 / 112
+busier (4.3-6.7)        before       3.9-12.6      0.36-0.66      16.8 / 58
+                        after        6.4-10.6      0.31-0.47      27.9 / 112
+======================  ===========  ============  =============  =============
+
+On 4 x 2 alternated 48 h runs in one process each (load 4.4-6.8) the CPU time gave
+11.5 -> 12.6 process-h/s (median; best 12.7 -> 16.8). Where an ssmpc sample goes
+(method timers, share of the sample's wall time, both codes, load 6-9): the core's
+step (adaptation, index, switching; the MPC law and its QP 14-16 %) 32-37 %; the core's
+bookkeeping after the move (shared state, the covariance step and its floor check
+12-15 %, the estimators' preparation, the law's refresh ahead 3 %) 25-28 %; the
+steady-state targets 15-16 % before, 12-14 % after; the plan's references 6-7 % ->
+5 %; the rest of the TE step 4-5 %; the loop's recording 7-8 % -> 5-6 %; the plant
+and its inner PI loops (20 compiled Euler steps) 6-7 %. At 40 process-h/s a sample
+has 0.25 ms; the core alone (step and bookkeeping, ~60 % of ~0.65 ms on a quiet
+machine) takes about 0.4 ms, so that rate needs the core's per-sample Python
+compiled, not more trimming of the cascade around it.
 """
 
 from __future__ import annotations

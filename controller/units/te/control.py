@@ -131,6 +131,7 @@ from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
 from controller.units.te.pi_baseline import PI_BASELINE_LOOPS, PRODUCTION_LOOP, VelocityPI
+from controller.units.te.plan_lookup import SampleReferences
 from controller.units.te.spec import ALARM_LIMITS, SAMPLE_H, TEControlSpec, alarm_crossings
 from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
 
@@ -256,6 +257,7 @@ class TEController:
         # the plan's references of the next sample, evaluated after the move
         # (finish_sample): (t, plan, refs) or None
         self._refs_ahead: tuple | None = None
+        self._lookup: SampleReferences | None = None  # the plan's references per sample
         #: XMEAS numbers of outer loops held by the operator (hold_outer_loops)
         self.outer_held: frozenset[int] = frozenset()
 
@@ -304,6 +306,11 @@ class TEController:
         ((horizon + 1, 41); one row for the PI strategy), valve references at ``t`` and
         at the horizon's end ((2, 12)) and the D share of the D+E feed at ``t``."""
         n_ahead = self.horizon if self.strategy not in ("pi", "plan") else 0
+        lookup = self._lookup
+        if lookup is None or lookup.plan is not self.plan or lookup.horizon != n_ahead:
+            lookup = self._lookup = SampleReferences.for_plan(self.plan, self.sample_h, n_ahead)
+        if lookup is not None:  # the three paths in one evaluation, the same values
+            return lookup(t)
         ym_all = self.plan.xmeas_ref(t + self.sample_h * np.arange(n_ahead + 1))
         xv_all = self.plan.xmv_ref(np.array([t, t + n_ahead * self.sample_h]))
         return ym_all, xv_all, self.plan.d_fraction_ref(t)
@@ -919,6 +926,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
         default the original seed (:func:`plant_seed_for` makes one per noise seed).
     """
     from plant_sim.tennessee_eastman import TESimulator
+    from plant_sim.tennessee_eastman.simulator import cost_from_rows
 
     # offline: simulated time, no wall-clock budget (see make_mpc_core)
     options.setdefault("realtime", False)
@@ -937,8 +945,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     X = np.empty((n, 41))
     U = np.empty((n, 12))
     S = np.empty((n, len(spec.loops)))
-    R = np.empty((n, 41))
-    cost = np.empty(n)
+    flow = np.empty(n)
     act = np.empty(n, dtype=int)
     ms = np.empty(n)
     slack = np.full(n, np.nan)
@@ -964,8 +971,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
         sim.set_xmv(xmv)
         reg.set_setpoints(dec.extra["setpoints"])
         T[k], X[k], U[k], S[k] = t, xmeas, xmv, dec.extra["setpoints"]
-        R[k] = plan.xmeas_ref(t)
-        cost[k] = sim.cost()
+        flow[k] = sim.product_flow_lbmol_h  # priced with the XMEAS after the run
         act[k], ms[k] = dec.active_model, dec.solve_ms
         if dec.extra.get("constraint_slack") is not None:
             slack[k] = dec.extra["constraint_slack"]
@@ -983,6 +989,8 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
         if stop_on_trip and sim.shutdown is not None:
             break
     m = k + 1
+    R = plan.xmeas_ref(T[:m])  # the references of every sample in one evaluation
+    cost = cost_from_rows(X[:m], flow[:m])  # sim.cost() of every sample, bit for bit
     return TERun(strategy, T[:m], X[:m], U[:m], S[:m], R[:m], cost[:m], act[:m], ms[:m],
                  sim.shutdown, names, tuple(alarms), fallbacks, time.perf_counter() - w0,
                  {"sample_h": spec.sample_h, "noise": noise, "input_snr": input_snr,

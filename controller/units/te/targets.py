@@ -83,6 +83,9 @@ from controller.targets import TargetProblem, TargetResult
 
 __all__ = ["CoreTargetSettings", "CoreTargets", "model_steady_state"]
 
+#: Fields of the target problem that stand from sample to sample (CoreTargets._check).
+_STANDING_FIELDS = ("q_u", "q_y", "y_min", "y_max", "y_rank", "y_scale")
+
 
 @dataclass(frozen=True)
 class CoreTargetSettings:
@@ -278,17 +281,26 @@ class CoreTargets:
         self._econ_cost: np.ndarray | None = None  # the last gradient the economics used
         self._dt_h = 0.0
         self._applied_p = math.nan  # P_r* the plant has, kPa (observe)
+        # the standing fields at the last full check of the solver's numbers (_check)
+        self._checked: tuple | None = None
+        self._gains: tuple | None = None  # (dt_h, settings, lag gain, offset gain)
 
     def steady_state(self, ssm, j: int):
         """(G, a) of model j, cached while its parameters stand (adaptive models:
         refreshed at most every ``refresh_samples`` samples); None if it has none."""
-        theta = ssm.model(j).theta
         cached = self._steady.get(j)
         if cached is not None:
             th, made, ss = cached
-            if th is theta or (ssm.kinds[j] != "fixed"
-                               and self._n - made < self.settings.refresh_samples):
+            # inside the refresh interval an adaptive model's steady state stands: no need
+            # to read its parameters (ssm.model builds them after every adaptation)
+            if (self._n - made < self.settings.refresh_samples
+                    and ssm.kinds[j] != "fixed"):
                 return ss
+            theta = ssm.model(j).theta
+            if th is theta:
+                return ss
+        else:
+            theta = ssm.model(j).theta
         ss = model_steady_state(ssm, j)
         self._steady[j] = (theta, self._n, ss)
         return ss
@@ -304,8 +316,8 @@ class CoreTargets:
         self._dt_h = float(dt_h) if math.isfinite(dt_h) and dt_h > 0 else 0.0
         self._applied_p = float(np.asarray(u_applied, dtype=float).reshape(-1)[_P])
         ss = self.steady_state(ssm, j)
-        vals = (y, u_applied, y_plan_now, u_plan_now)
-        if ss is None or not all(np.isfinite(v).all() for v in vals):
+        if ss is None or not np.isfinite(np.concatenate((y, u_applied, y_plan_now,
+                                                         u_plan_now))).all():
             return
         du = np.asarray(u_applied, dtype=float) - u_plan_now
         if self.offset is None:
@@ -314,11 +326,20 @@ class CoreTargets:
         # the plant answers a handle's move from the plan with a lag: the offset compares
         # the measurement with the lagged steady-state answer, else it would count the
         # part not yet arrived as a disturbance (a slow oscillation of the targets)
-        self.du_lagged += (1.0 - math.exp(-float(dt_h) / self.settings.response_tau_h)) \
-            * (du - self.du_lagged)
+        lag, alpha = self._filter_gains(float(dt_h))
+        self.du_lagged += lag * (du - self.du_lagged)
         e = np.asarray(y, dtype=float) - y_plan_now - ss[0] @ self.du_lagged
-        alpha = 1.0 - math.exp(-float(dt_h) / self.settings.offset_tau_h)
         self.offset += alpha * (e - self.offset)
+
+    def _filter_gains(self, dt_h: float) -> tuple[float, float]:
+        """``1 - exp(-dt / tau)`` of the response lag and of the offset filter for a
+        sample of ``dt_h`` (h), kept for the last ``dt_h`` and settings (the same every
+        sample)."""
+        s, cached = self.settings, self._gains
+        if cached is None or cached[0] != dt_h or cached[1] is not s:
+            cached = self._gains = (dt_h, s, 1.0 - math.exp(-dt_h / s.response_tau_h),
+                                    1.0 - math.exp(-dt_h / s.offset_tau_h))
+        return cached[2], cached[3]
 
     def _fields(self, ssm, j: int, u_plan, y_plan) -> dict | None:
         """The fields of :meth:`problem` (those of :class:`TargetProblem` but the
@@ -418,12 +439,30 @@ class CoreTargets:
         if not self.q_y.any() and not _cheaper_within(fields):
             y_pp = np.asarray(y_plan, dtype=float) + fields["bias"]
             if np.all(y_pp >= self.y_min) and np.all(y_pp <= self.y_max):
-                self._solver.check(**fields)  # the numbers a QP would refuse
+                self._check(fields)  # the numbers a QP would refuse
                 self.last = TargetResult("optimal", fields["u_ref"].copy(), y_pp, (), 0.0, 0)
                 return self.last
         res = self._solver.solve(**fields)
         self.last = None if res.status == "failed" else res
         return self.last
+
+    def _check(self, fields: dict) -> None:
+        """:meth:`TargetSolver.check` of the sample's fields (ValueError on numbers a QP
+        would refuse). In full when the fields that stand from sample to sample (weights,
+        scales, CV limits and ranks) are other objects than at the last full check, else
+        what the solver checks of the fields that change every sample: finite and
+        ``u_min <= u_max`` (the plan's point outside that is refused in full)."""
+        standing = tuple(fields[k] for k in _STANDING_FIELDS)
+        last = self._checked
+        if last is None or any(a is not b for a, b in zip(standing, last, strict=True)):
+            self._solver.check(**fields)
+            self._checked = standing
+            return
+        lo, hi = fields["u_min"], fields["u_max"]
+        moving = np.concatenate((fields["gain"].ravel(), fields["u0"], fields["y0"],
+                                 fields["bias"], lo, hi))
+        if not (np.isfinite(moving).all() and (lo <= hi).all()):
+            self._solver.check(**fields)  # raises, naming the field
 
     def checkpoint(self) -> dict:
         """What a restart needs to go on (JSON-serialisable)."""
