@@ -22,11 +22,18 @@ and best run of each bench over the set, step: the benches' medians):
 set (load avg)          code         ssmpc ph/s    ssmpc step ms  fixed / pi
                                                    (median)       ph/s (best)
 ======================  ===========  ============  =============  =============
-quieter (2.4-3.5)       before       10.7-13.5     0.36-0.40      23.0 / 77
+quiet (1.3-3.1)         before       9.6-14.8      0.32-0.35      24.9 / 87
+                        after        11.5-18.1     0.27-0.28      30.8 / 124
+2.4-3.5                 before       10.7-13.5     0.36-0.40      23.0 / 77
                         after        8.2-16.1      0.28-0.37      25.5 / 112
-busier (4.3-6.7)        before       3.9-12.6      0.36-0.66      16.8 / 58
+3.1-5.1                 before       6.4-14.9      0.32-0.51      21.0 / 81
+                        after        8.7-17.1      0.27-0.34      29.4 / 125
+4.3-6.7                 before       3.9-12.6      0.36-0.66      16.8 / 58
                         after        6.4-10.6      0.31-0.47      27.9 / 112
 ======================  ===========  ============  =============  =============
+
+In the quiet set every pair's ssmpc rate rose, by 18-22 % (best runs 13.8 / 14.8 /
+9.8 -> 16.7 / 18.1 / 11.6 process-h/s).
 
 On 4 x 2 alternated 48 h runs in one process each (load 4.4-6.8) the CPU time gave
 11.5 -> 12.6 process-h/s (median; best 12.7 -> 16.8). Where an ssmpc sample goes
@@ -37,8 +44,8 @@ bookkeeping after the move (shared state, the covariance step and its floor chec
 steady-state targets 15-16 % before, 12-14 % after; the plan's references 6-7 % ->
 5 %; the rest of the TE step 4-5 %; the loop's recording 7-8 % -> 5-6 %; the plant
 and its inner PI loops (20 compiled Euler steps) 6-7 %. At 40 process-h/s a sample
-has 0.25 ms; the core alone (step and bookkeeping, ~60 % of ~0.65 ms on a quiet
-machine) takes about 0.4 ms, so that rate needs the core's per-sample Python
+has 0.25 ms; the core alone (step and bookkeeping, ~60 % of ~0.55-0.65 ms on a
+quiet machine) takes about 0.4 ms, so that rate needs the core's per-sample Python
 compiled, not more trimming of the cascade around it.
 """
 
