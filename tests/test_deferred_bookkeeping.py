@@ -64,7 +64,9 @@ def _te_moves(finish: bool, n: int = 160):
     from plant_sim.tennessee_eastman import TESimulator
     from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
 
-    ctl, spec = make_te_controller("ssmpc", TransitionPlan("mode0", (Leg(0.2, "mode2"),)))
+    ctl, spec = make_te_controller("ssmpc", TransitionPlan("mode0", (Leg(0.2, "mode2"),)),
+                                   realtime=False)  # no wall-clock budget: a loaded machine
+    # would take the fallback move and the moves would differ by timing, not by design
     sim = TESimulator()
     reg = RegulatoryLayer(sim, loops=spec.loops)
     law = ctl.core.law
@@ -157,7 +159,7 @@ def test_te_step_reads_no_covariance_when_the_bookkeeping_ran():
     from plant_sim.tennessee_eastman import TESimulator
     from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
 
-    ctl, spec = make_te_controller("ssmpc", TransitionPlan("mode0"))
+    ctl, spec = make_te_controller("ssmpc", TransitionPlan("mode0"), realtime=False)
     sim = TESimulator()
     reg = RegulatoryLayer(sim, loops=spec.loops)
     core = ctl.core
@@ -185,7 +187,7 @@ def test_te_plan_references_are_evaluated_after_the_move_on_the_sample_grid():
     from plant_sim.tennessee_eastman import TESimulator
 
     plan = TransitionPlan("mode0", (Leg(0.05, "mode2"),))
-    ctl, _ = make_te_controller("ssmpc", plan)
+    ctl, _ = make_te_controller("ssmpc", plan, realtime=False)
     y = TESimulator().xmeas
     seen = []
     original = ctl._plan_refs
