@@ -142,7 +142,8 @@ A_FEED_LOOP = next(lp for lp in PI_BASELINE_LOOPS if lp.cv == 23)
 
 __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec",
            "TEController", "make_te_controller", "make_mpc_core", "TEMPCOptions", "TERun",
-           "run_te", "plant_seed_for", "RatioSettings", "TR_LIMITS", "PR_LIMITS",
+           "run_te", "plant_seed_for", "RatioSettings", "TransitionGuards", "TR_LIMITS",
+           "PR_LIMITS",
            "PRESSURE_LOOP", "ALARM_LIMITS"]
 
 STRATEGIES = ("fixed", "ssmpc", "pi", "decentralized", "plan")
@@ -195,6 +196,54 @@ class RatioSettings:
                              f"{self.s_min}, {self.s_max}")
 
 
+@dataclass(frozen=True)
+class TransitionGuards:
+    """Limits that keep a grade change to what the plant can follow (all strategies).
+
+    Parameters
+    ----------
+    e_feed_margin : float
+        The E feed valve XMV(2) the ratio writes stays at most this far (% of range)
+        above the plan's E valve. The ratio sets the E feed from the measured D feed,
+        and where the reactor-level loop drives the D valve toward 100 % (leaving
+        mode 3) the E feed rose with it past what the A and C in the reactor could
+        react: E gathered in the recycle gas and the reactor pressure reached the
+        interlock (3 -> 0 with every strategy).
+    hold_start_kpa, hold_full_kpa : float
+        The plan hold: while a leg is under way the plan's clock runs at
+        ``1 - f`` of real time, ``f`` rising linearly from 0 at ``hold_start_kpa``
+        to 1 (the plan stopped) at ``hold_full_kpa`` of reactor pressure (XMEAS 7):
+        the references and feedforwards wait while the pressure is near the
+        interlock instead of driving it further (a reference governor). The held
+        time delays the rest of the plan; a new plan (:meth:`TEController.retarget`)
+        starts without it.
+    """
+
+    e_feed_margin: float = 5.0
+    hold_start_kpa: float = 2880.0
+    hold_full_kpa: float = 2930.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.e_feed_margin) and 0.0 <= self.e_feed_margin <= 100.0):
+            raise ValueError(f"e_feed_margin: must be in [0, 100] %, got "
+                             f"{self.e_feed_margin!r}")
+        for name in ("hold_start_kpa", "hold_full_kpa"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 2000.0 < v <= 3000.0):
+                raise ValueError(f"{name}: must be in (2000, 3000] kPa, got {v!r}")
+        if not self.hold_start_kpa < self.hold_full_kpa:
+            raise ValueError(f"hold_start_kpa/hold_full_kpa: need start < full, got "
+                             f"{self.hold_start_kpa}, {self.hold_full_kpa}")
+
+    def hold_fraction(self, pressure_kpa: float) -> float:
+        """The share of the plan's clock held at this reactor pressure, in [0, 1]
+        (0 for a pressure that is not finite: no measurement, no hold)."""
+        if not math.isfinite(pressure_kpa):
+            return 0.0
+        f = (pressure_kpa - self.hold_start_kpa) / (self.hold_full_kpa - self.hold_start_kpa)
+        return min(max(f, 0.0), 1.0)
+
+
 class TEController:
     """Supervisory TE controller (:class:`controller.interfaces.SampleController`).
 
@@ -223,12 +272,14 @@ class TEController:
         along the plan) trim the A+C-feed input target (:data:`PRODUCTION_LOOP`,
         the PI baseline has the same loop). Under IDV(6) it keeps the production,
         as the seed's MPC did by raising the A+C feed.
+    guards : TransitionGuards, optional
+        The E-feed limit and the plan hold (default :class:`TransitionGuards`).
     """
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
                  sample_h: float = SAMPLE_H, horizon: int = 10,
                  outer_a_loop: bool = True, production_loop: bool = True,
-                 targets=None) -> None:
+                 targets=None, guards: TransitionGuards | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -238,6 +289,9 @@ class TEController:
         self.sample_h = float(sample_h)
         self.horizon = int(horizon)
         self.outer_a_loop = bool(outer_a_loop)
+        self.guards = guards or TransitionGuards()
+        #: h the plan's clock is behind real time (the plan hold, TransitionGuards)
+        self.plan_lag_h = 0.0
         #: steady-state targets of the MPC core (:class:`controller.units.te.targets.CoreTargets`)
         self.targets = targets
         self.s: float | None = None
@@ -259,8 +313,10 @@ class TEController:
         self.outer_held: frozenset[int] = frozenset()
 
     def retarget(self, plan: TransitionPlan) -> None:
-        """Follow a new plan from now on (times are absolute, h)."""
+        """Follow a new plan from now on (times are absolute, h; the plan hold of the
+        previous plan is dropped)."""
         self.plan = plan
+        self.plan_lag_h = 0.0
 
     # -- operator hooks (controller.units.te.operator) ------------------------------------
     #: The outer loops by their CV (XMEAS number): production (17), A in feed (23),
@@ -301,7 +357,9 @@ class TEController:
     def _plan_refs(self, t: float) -> tuple[np.ndarray, np.ndarray, float]:
         """The plan at one sample: XMEAS references at ``t`` and over the horizon
         ((horizon + 1, 41); one row for the PI strategy), valve references at ``t`` and
-        at the horizon's end ((2, 12)) and the D share of the D+E feed at ``t``."""
+        at the horizon's end ((2, 12)) and the D share of the D+E feed at ``t``; ``t``
+        on the plan's clock (:attr:`plan_lag_h` behind real time)."""
+        t = t - self.plan_lag_h
         n_ahead = self.horizon if self.strategy not in ("pi", "plan") else 0
         ym_all = self.plan.xmeas_ref(t + self.sample_h * np.arange(n_ahead + 1))
         xv_all = self.plan.xmv_ref(np.array([t, t + n_ahead * self.sample_h]))
@@ -339,6 +397,18 @@ class TEController:
             self.a_trim = min(max(self.a_trim, -A_TRIM_MAX), A_TRIM_MAX)
             self.e_a_prev = e
         return self.a_trim
+
+    def _hold_step(self, t_ref: float, xmeas: np.ndarray, alarms: list) -> None:
+        """The plan hold (:class:`TransitionGuards`): while a leg is under way, the
+        plan's clock of the next sample falls behind by the held share of this one."""
+        legs = self.plan.legs
+        if not legs or t_ref - self.plan_lag_h < legs[0].t_h:
+            return
+        f = self.guards.hold_fraction(float(xmeas[6]))
+        if f > 0.0:
+            self.plan_lag_h += f * self.sample_h
+            alarms.append(f"reactor pressure {xmeas[6]:.0f} kPa: grade plan held "
+                          f"{100 * f:.0f} % (behind by {self.plan_lag_h:.2f} h)")
 
     def _override_step(self, xmeas: np.ndarray) -> float:
         """High-pressure override: integral cut of the A+C feed (XMV 4) above
@@ -420,7 +490,8 @@ class TEController:
         # the sample grid (see _grid_time); usually evaluated after the previous move
         t_ref = self._grid_time(t)
         ahead, self._refs_ahead = self._refs_ahead, None
-        if ahead is not None and ahead[0] == t_ref and ahead[1] is self.plan:
+        if (ahead is not None and ahead[0] == t_ref and ahead[1] is self.plan
+                and ahead[3] == self.plan_lag_h):
             ym_all, xv_all, ff = ahead[2]
         else:
             ym_all, xv_all, ff = self._plan_refs(t_ref)
@@ -429,7 +500,8 @@ class TEController:
         s = self._ratio_step(ff, ym, xmeas)
         u = np.full(12, np.nan)
         d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
-        u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0)
+        u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0,
+                   max(xv[1] + self.guards.e_feed_margin, 0.0))
         u[4], u[8], u[11] = xv[4], xv[8], xv[11]
         ff = self._core_ff(xv, ym)
         info: dict[str, Any] = {}
@@ -472,6 +544,7 @@ class TEController:
             if cut >= 0.05:
                 alarms.append(f"reactor pressure {xmeas[6]:.0f} kPa: high-pressure override "
                               f"cuts the A+C feed by {cut:.1f} % (interlock 3000 kPa)")
+        self._hold_step(t_ref, xmeas, alarms)
         setpoints = np.array([core_u[3], ym[7], ym[11], ym[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
         extra.update(info)
@@ -489,7 +562,7 @@ class TEController:
             finish()
         if self._t_last is not None and self._refs_ahead is None:
             t_next = self._t_last + self.sample_h
-            self._refs_ahead = (t_next, self.plan, self._plan_refs(t_next))
+            self._refs_ahead = (t_next, self.plan, self._plan_refs(t_next), self.plan_lag_h)
 
     def take_over(self) -> None:
         """Before the first sample after a take-over of a running plant (a restart from a
@@ -517,7 +590,7 @@ class TEController:
                 "core": None if self.core is None else self.core.checkpoint(),
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
-                "t_last": self._t_last}
+                "t_last": self._t_last, "plan_lag_h": self.plan_lag_h}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
@@ -530,6 +603,7 @@ class TEController:
         self._t_last = None if t_last is None else float(t_last)
         self._refs_ahead = None
         self.override = float(state.get("override", 0.0))
+        self.plan_lag_h = float(state.get("plan_lag_h", 0.0))
         self.a_trim = float(state.get("a_trim", 0.0))
         self.e_a_prev = state.get("e_a_prev")
         self.p_trim = float(state.get("p_trim", 0.0))
@@ -758,7 +832,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        ratio: RatioSettings | None = None,
                        mpc: TEMPCOptions | None = None,
                        outer_a_loop: bool = True, production_loop: bool = True,
-                       realtime: bool = True) -> tuple[TEController, TEControlSpec]:
+                       realtime: bool = True, guards: TransitionGuards | None = None,
+                       ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
     Parameters
@@ -779,6 +854,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
     realtime : bool
         Keep the MPC's wall-clock budget (:func:`make_mpc_core`); False for offline
         runs, whose moves must not depend on the machine's load.
+    guards : TransitionGuards, optional
+        The E-feed limit and the plan hold (not for "decentralized").
 
     Returns
     -------
@@ -809,7 +886,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         targets = core_targets(strategy, mpc or TEMPCOptions())
     ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon,
                        outer_a_loop, production_loop,
-                       targets=targets if strategy in ("fixed", "ssmpc") else None)
+                       targets=targets if strategy in ("fixed", "ssmpc") else None,
+                       guards=guards)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 
