@@ -18,6 +18,7 @@ INTERLOCK_KPA = 3000.0
 @pytest.mark.parametrize("kw, field", [({"e_feed_margin": -1.0}, "e_feed_margin"),
                                        ({"e_feed_margin": float("nan")}, "e_feed_margin"),
                                        ({"hold_full_kpa": 3100.0}, "hold_full_kpa"),
+                                       ({"purge_track_kpa": -1.0}, "purge_track_kpa"),
                                        ({"hold_start_kpa": 2950.0, "hold_full_kpa": 2900.0},
                                         "hold_start_kpa/hold_full_kpa")])
 def test_bad_guards_name_their_field(kw, field):
@@ -102,6 +103,21 @@ def test_the_e_feed_stays_within_its_margin_above_the_plan_when_the_d_feed_runs_
     assert u[100.0] > 1.8 * e_plan
 
 
+@pytest.mark.parametrize("strategy", ["plan", "ssmpc"])
+def test_the_pressure_set_point_tracks_a_pressure_below_it(strategy):
+    # mode 2's P_r* is 2800 kPa: with the pressure at 2700 the purge loop gets 2710, at
+    # 2795 the plan's own set point; the MPC goes on from the set point applied
+    for p, want in ((2700.0, 2710.0), (2795.0, 2800.0), (2400.0, 2500.0)):
+        ctl, _ = make_te_controller(strategy, TransitionPlan("mode2"))
+        dec = ctl.step(0, 0.0, _xmeas(2, p), None)
+        assert dec.extra["setpoints"][4] == pytest.approx(want, abs=0.5)
+        if strategy == "ssmpc":
+            assert ctl.core.u_last[2] == pytest.approx(dec.extra["setpoints"][4])
+    off, _ = make_te_controller("plan", TransitionPlan("mode2"),
+                                guards=TransitionGuards(purge_track_kpa=1000.0))
+    assert off.step(0, 0.0, _xmeas(2, 2700.0), None).extra["setpoints"][4] == 2800.0
+
+
 def test_the_recycle_valve_closes_more_slowly_than_it_opens():
     # leaving mode 3 XMV(5) closes from 77.6 %; entering mode 3 it opens toward it
     t = 1.0 + 3.0
@@ -117,17 +133,20 @@ def test_the_recycle_valve_closes_more_slowly_than_it_opens():
 
 
 # -- the reduced no-trip matrix --------------------------------------------------------------
-#: (strategy, start mode, leg mode, hours): before the guards these tripped on reactor
-#: pressure (noise on, seed 1) at 3.8 h (ssmpc 3 -> 0), 2.9 h (3 -> 1), 2.6 h (3 -> 2) and
-#: 4.1 h (plan 3 -> 0); each runs a little past that.
-NO_TRIP = [("ssmpc", 3, 0, 5.0), ("ssmpc", 3, 1, 4.0), ("ssmpc", 3, 2, 4.0),
-           ("plan", 3, 0, 5.0)]
+#: (strategy, start mode, leg mode, IDV, hours): before the guards these tripped on
+#: reactor pressure (noise on, seed 1) at 3.8 h (ssmpc 3 -> 0), 2.9 h (3 -> 1), 2.6 h
+#: (3 -> 2), 3.1 h (1 -> 3), 6.5 h (IDV(7) from 2 h at mode 2) and 4.1 h (plan 3 -> 0);
+#: each runs a little past that.
+NO_TRIP = [("ssmpc", 3, 0, 0, 5.0), ("ssmpc", 3, 1, 0, 4.0), ("ssmpc", 3, 2, 0, 4.0),
+           ("ssmpc", 1, 3, 0, 4.0), ("ssmpc", 2, 2, 7, 7.0), ("plan", 3, 0, 0, 5.0)]
 
 
-@pytest.mark.parametrize("strategy, start, to, hours", NO_TRIP,
-                         ids=[f"{s}-{a}-{b}" for s, a, b, _ in NO_TRIP])
-def test_no_trip_leaving_mode_3(strategy, start, to, hours):
-    plan = TransitionPlan(f"mode{start}", (Leg(1.0, f"mode{to}"),))
-    r = run_te(strategy, plan, hours, noise=True, seed=1, plant_seed=plant_seed_for(1))
+@pytest.mark.parametrize("strategy, start, to, idv, hours", NO_TRIP,
+                         ids=[f"{s}-{a}-{b}-idv{i}" for s, a, b, i, _ in NO_TRIP])
+def test_no_trip(strategy, start, to, idv, hours):
+    plan = TransitionPlan(f"mode{start}", (Leg(1.0, f"mode{to}"),) if to != start else ())
+    r = run_te(strategy, plan, hours, noise=True, seed=1, plant_seed=plant_seed_for(1),
+               idv={idv: 2.0} if idv else None)
     assert r.shutdown is None, r.shutdown
     assert r.xmeas[:, 6].max() < INTERLOCK_KPA - 50.0
+

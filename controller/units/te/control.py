@@ -25,6 +25,10 @@ Layers (seed Fig. 7.2)
          input targets follow the grade plan (:class:`TEMPCOptions`), trimmed by an
          outer production loop (XMEAS 17 -> A+C feed);
        - a high-pressure override cuts the A+C feed above 2900 kPa (all strategies);
+       - the transition guards (:class:`TransitionGuards`, all strategies but
+         "decentralized"): the E feed at most 5 % above the plan's, the plan held
+         while the reactor pressure is near the interlock, P_r* at most 10 kPa above
+         the measured pressure;
        - MPC strategies: the input targets and CV references pass through the
          steady-state targets of the active model
          (:mod:`controller.units.te.targets`): the plan's values as they stand while
@@ -217,16 +221,28 @@ class TransitionGuards:
         interlock instead of driving it further (a reference governor). The held
         time delays the rest of the plan; a new plan (:meth:`TEController.retarget`)
         starts without it.
+    purge_track_kpa : float
+        The pressure loop's set point P_r* is kept at most this far above the
+        measured reactor pressure (set-point tracking; the MPC and the PI core are
+        told the P_r* applied). Without it a pressure that fell below P_r* (the
+        condenser opening on 1 -> 3, IDV(7)'s lost C header pressure at mode 2) shut
+        the purge (Ti 0.5 h) for most of an hour; the gas the purge should have
+        taken gathered, the pressure then rose by 200 kPa in half an hour, and the
+        purge reopened too late.
     """
 
     e_feed_margin: float = 5.0
     hold_start_kpa: float = 2880.0
     hold_full_kpa: float = 2930.0
+    purge_track_kpa: float = 10.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.e_feed_margin) and 0.0 <= self.e_feed_margin <= 100.0):
             raise ValueError(f"e_feed_margin: must be in [0, 100] %, got "
                              f"{self.e_feed_margin!r}")
+        if not (math.isfinite(self.purge_track_kpa) and self.purge_track_kpa >= 0.0):
+            raise ValueError(f"purge_track_kpa: must be finite and >= 0 kPa, got "
+                             f"{self.purge_track_kpa!r}")
         for name in ("hold_start_kpa", "hold_full_kpa"):
             v = getattr(self, name)
             if not (math.isfinite(v) and 2000.0 < v <= 3000.0):
@@ -273,7 +289,8 @@ class TEController:
         the PI baseline has the same loop). Under IDV(6) it keeps the production,
         as the seed's MPC did by raising the A+C feed.
     guards : TransitionGuards, optional
-        The E-feed limit and the plan hold (default :class:`TransitionGuards`).
+        The E-feed limit, the plan hold and the pressure set point's tracking
+        (default :class:`TransitionGuards`).
     """
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
@@ -410,6 +427,21 @@ class TEController:
             alarms.append(f"reactor pressure {xmeas[6]:.0f} kPa: grade plan held "
                           f"{100 * f:.0f} % (behind by {self.plan_lag_h:.2f} h)")
 
+    def _track_pressure_setpoint(self, core_u, xmeas: np.ndarray):
+        """P_r* at most :attr:`TransitionGuards.purge_track_kpa` above the measured
+        reactor pressure (not below :data:`PR_LIMITS`); a core that computed more is
+        told what was applied."""
+        p = float(xmeas[6])
+        cap = max(p + self.guards.purge_track_kpa, PR_LIMITS[0])
+        if not (math.isfinite(p) and core_u[2] > cap):
+            return core_u
+        core_u = np.array(core_u, dtype=float)
+        core_u[2] = cap
+        applied = getattr(self.core, "applied", None)
+        if callable(applied):
+            applied(core_u)
+        return core_u
+
     def _override_step(self, xmeas: np.ndarray) -> float:
         """High-pressure override: integral cut of the A+C feed (XMV 4) above
         :data:`OVERRIDE_PRESSURE`, released below it (never negative)."""
@@ -535,6 +567,7 @@ class TEController:
                 if key in dec.extra:
                     info[key] = dec.extra[key]
             info.update((key, dec.extra[key]) for key in QP_WORK_KEYS if key in dec.extra)
+        core_u = self._track_pressure_setpoint(core_u, xmeas)
         for j, xmv in enumerate(CORE_XMVS):
             if xmv is not None:
                 u[xmv - 1] = core_u[j]
