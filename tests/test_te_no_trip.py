@@ -16,6 +16,7 @@ INTERLOCK_KPA = 3000.0
 
 
 @pytest.mark.parametrize("kw, field", [({"e_feed_margin": -1.0}, "e_feed_margin"),
+                                       ({"e_feed_margin_held": 101.0}, "e_feed_margin_held"),
                                        ({"e_feed_margin": float("nan")}, "e_feed_margin"),
                                        ({"hold_full_kpa": 3100.0}, "hold_full_kpa"),
                                        ({"purge_track_kpa": -1.0}, "purge_track_kpa"),
@@ -101,6 +102,10 @@ def test_the_e_feed_stays_within_its_margin_above_the_plan_when_the_d_feed_runs_
     assert u[0.0] == pytest.approx(e_plan)
     assert u[5.0] == pytest.approx(e_plan + 5.0)
     assert u[100.0] > 1.8 * e_plan
+    # at a pressure that holds the plan the default margin is the held one, 0 %
+    held, _ = make_te_controller("plan", TransitionPlan("mode3"))
+    x[6] = 2960.0
+    assert float(held.step(0, 0.0, x, None).u[1]) == pytest.approx(e_plan)
 
 
 @pytest.mark.parametrize("strategy", ["plan", "ssmpc"])

@@ -37,9 +37,10 @@ Layers (seed Fig. 7.2)
          the least change of the pressure set point's target that meets them, the
          lowest-ranked limit relaxed and reported when none can. In the 0 -> 2
          transition, the 3 -> 0, 3 -> 1, 2 -> 1 legs and IDV 1, 6, 7, 8 (noise on,
-         seed 1) no limit binds at the steady state before a trip and the moves equal
-         those without this layer: the trips are excursions of 1-3 h, faster than a
-         steady-state layer.
+         seed 1, measured before the transition guards) no limit binds at the steady
+         state before a trip and the moves equal those without this layer: the trips
+         were excursions of 1-3 h, faster than a steady-state layer; the guards
+         below act on them.
 
 Switching
     The index compares the models on their output errors at low frequency on one
@@ -206,13 +207,20 @@ class TransitionGuards:
 
     Parameters
     ----------
-    e_feed_margin : float
-        The E feed valve XMV(2) the ratio writes stays at most this far (% of range)
-        above the plan's E valve. The ratio sets the E feed from the measured D feed,
-        and where the reactor-level loop drives the D valve toward 100 % (leaving
-        mode 3) the E feed rose with it past what the A and C in the reactor could
-        react: E gathered in the recycle gas and the reactor pressure reached the
-        interlock (3 -> 0 with every strategy).
+    e_feed_margin, e_feed_margin_held : float
+        The E feed valve XMV(2) the ratio writes stays at most ``e_feed_margin``
+        (% of range) above the plan's E valve, and at most ``e_feed_margin_held``
+        while the plan is held (in between in proportion to the hold ``f`` below).
+        The ratio sets the E feed from the measured D feed, and where the
+        reactor-level loop drives the D valve toward 100 % (leaving mode 3) the E
+        feed rose with it past what the A and C in the reactor could react: E
+        gathered in the recycle gas and the reactor pressure reached the interlock
+        (3 -> 0 with every strategy). Measured (ssmpc, noise on, seed 1, 24 h; h to
+        grade): margins 10/0 % (the defaults) 3 -> 2 17.4 h, peak 2918 kPa, 0 -> 2
+        10.5 h, 1 -> 2 15.8 h; 10/10 % 3 -> 2 peak 2993 kPa, never at grade; 15/0 %
+        3 -> 2 trips at 6.7 h, 0 -> 2 7.7 h; 5/5 % 0 -> 2 16.0 h, 1 -> 2 16.7 h (the
+        G loop drives the E valve ahead of the plan, to 100 %, and the margin
+        holds it back).
     hold_start_kpa, hold_full_kpa : float
         The plan hold: while a leg is under way the plan's clock runs at
         ``1 - f`` of real time, ``f`` rising linearly from 0 at ``hold_start_kpa``
@@ -231,15 +239,17 @@ class TransitionGuards:
         purge reopened too late.
     """
 
-    e_feed_margin: float = 5.0
+    e_feed_margin: float = 10.0
+    e_feed_margin_held: float = 0.0
     hold_start_kpa: float = 2880.0
     hold_full_kpa: float = 2930.0
     purge_track_kpa: float = 10.0
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.e_feed_margin) and 0.0 <= self.e_feed_margin <= 100.0):
-            raise ValueError(f"e_feed_margin: must be in [0, 100] %, got "
-                             f"{self.e_feed_margin!r}")
+        for name in ("e_feed_margin", "e_feed_margin_held"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0.0 <= v <= 100.0):
+                raise ValueError(f"{name}: must be in [0, 100] %, got {v!r}")
         if not (math.isfinite(self.purge_track_kpa) and self.purge_track_kpa >= 0.0):
             raise ValueError(f"purge_track_kpa: must be finite and >= 0 kPa, got "
                              f"{self.purge_track_kpa!r}")
@@ -415,6 +425,12 @@ class TEController:
             self.e_a_prev = e
         return self.a_trim
 
+    def _e_feed_margin(self, xmeas: np.ndarray) -> float:
+        """How far (%) the E valve may go above the plan's (:class:`TransitionGuards`)."""
+        g = self.guards
+        f = g.hold_fraction(float(xmeas[6]))
+        return g.e_feed_margin + f * (g.e_feed_margin_held - g.e_feed_margin)
+
     def _hold_step(self, t_ref: float, xmeas: np.ndarray, alarms: list) -> None:
         """The plan hold (:class:`TransitionGuards`): while a leg is under way, the
         plan's clock of the next sample falls behind by the held share of this one."""
@@ -533,7 +549,7 @@ class TEController:
         u = np.full(12, np.nan)
         d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
         u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0,
-                   max(xv[1] + self.guards.e_feed_margin, 0.0))
+                   max(xv[1] + self._e_feed_margin(xmeas), 0.0))
         u[4], u[8], u[11] = xv[4], xv[8], xv[11]
         ff = self._core_ff(xv, ym)
         info: dict[str, Any] = {}
@@ -714,11 +730,13 @@ class TEMPCOptions:
         transitions among modes 0-3 from 5 to 4 ("ssmpc": 6 to 4): 1 -> 2 and
         2 -> 1 no longer trip, 1 -> 3 does (3.4 h; the A-feed trim winds up while
         the plan opens the condenser), the three legs from mode 3 trip as with
-        every strategy. When the MPC moved XMV4 and T_r* freely the 2 -> 3 leg of
-        0 -> 2 -> 3 tripped on reactor pressure at 32-35 h in every weighting tried
-        (the D valve of the level loop saturates and the level collapses), and
-        with XMV3 free of the A loop IDV(1) tripped. The seed notes that T_r*
-        stayed in a narrow range in its 0 -> 2 -> 3 run.
+        every strategy (all measured before :class:`TransitionGuards`, which remove
+        the 1 -> 3 and mode-3 trips and IDV 7 at mode 2). When the MPC moved XMV4
+        and T_r* freely the 2 -> 3 leg of 0 -> 2 -> 3 tripped on reactor pressure
+        at 32-35 h in every weighting tried (the D valve of the level loop
+        saturates and the level collapses), and with XMV3 free of the A loop IDV(1)
+        tripped. The seed notes that T_r* stayed in a narrow range in its
+        0 -> 2 -> 3 run.
     steady_targets : bool
         Take the MPC's input targets and CV references from the steady-state targets
         of the active model (:mod:`controller.units.te.targets`: the plan's values
