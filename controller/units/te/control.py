@@ -57,12 +57,16 @@ Switching
     settled 24 h, modes     the mode's own model active in 100 % of samples
     0, 2, 3
     0 -> 3                  mode-3 model from 1.17-1.18 h on, for good
-    0 -> 2                  mode-2 model from 1.18-1.23 h on, for good
-    2 -> 0                  mode-0 model from 4.76-4.78 h on, for good
-    3 -> 0                  trips on reactor pressure at 3.8 h (the reaction dies
-                            with the coolant valve shut: a limit of the 3 -> 0
-                            grade plan, every strategy trips; not of the index)
+    0 -> 2                  mode-2 model from 1.16-1.20 h on, for good
+    2 -> 0                  mode-0 model from 4.60-4.66 h on, for good
+    3 -> 0                  the mode-3 model active in 100 % of the 24 h: the
+                            index never prefers the mode-0 model (no trip; at
+                            grade 10.5 h after the change, seed 1)
     ======================  ===================================================
+
+    (With the transition guards, :class:`TransitionGuards`. Before them 0 -> 2 took
+    the mode-2 model from 1.18-1.23 h, 2 -> 0 the mode-0 model from 4.76-4.78 h, and
+    3 -> 0 tripped on reactor pressure at 3.8 h with every strategy.)
 
     (Measured with the condenser XMV11 pinned to the plan, :class:`TEMPCOptions`
     ``target_weight``, and the plant's noise seeded per run with
