@@ -116,7 +116,7 @@ def test_plan_references_are_first_order_path_bit_for_bit():
     # the plan evaluates from a table built at its switches; the general path walks
     # every segment from t = 0: both must give the same floats
     plan = TransitionPlan("mode0", (Leg(1.0, "mode2"), Leg(2.5, "mode3"), Leg(9.0, "mode0")),
-                          tau_xmeas_h=0.7, tau_xmv_h=1.3)
+                          tau_xmeas_h=0.7, tau_xmv_h=1.3, tau_recycle_h=1.3)
     times = np.concatenate([[-1.0, 0.0, 1.0, 2.5, 9.0, 1.0 + 1e-12, 2.5 - 1e-12],
                             np.linspace(0.0, 30.0, 301)])
     g = [grade(n) for n in ("mode0", "mode2", "mode3", "mode0")]
@@ -132,6 +132,18 @@ def test_plan_references_are_first_order_path_bit_for_bit():
     for t in times:
         assert plan.d_fraction_ref(float(t)) == float(
             first_order_path(t, 0.0, np.array([g[0].d_fraction]), sw)[0])
+    # the recycle valve XMV(5) on its own time constant where a leg closes it: the
+    # general path with that column's tau per switch
+    slow = TransitionPlan("mode0", (Leg(1.0, "mode2"), Leg(2.5, "mode3"), Leg(9.0, "mode0")),
+                          tau_xmv_h=1.3, tau_recycle_h=7.0)
+    sw, prev = [], slow.xmv_ref(1.0)
+    for t_sw, gr in zip((1.0, 2.5, 9.0), g[1:]):
+        tau = np.full(12, 1.3)
+        at = slow.xmv_ref(t_sw - 1e-12) if t_sw > 1.0 else prev
+        tau[4] = 7.0 if gr.xmv[4] < at[4] else 1.3
+        sw.append((t_sw, gr.xmv, tau))
+    np.testing.assert_array_equal(slow.xmv_ref(times), first_order_path(times, 0.0,
+                                                                        g[0].xmv, sw))
     step = TransitionPlan("mode0", (Leg(1.0, "mode2"),), tau_xmeas_h=0.0)
     np.testing.assert_array_equal(step.xmeas_ref(np.array([0.5, 1.0, 3.0])),
                                   [g[0].xmeas, g[1].xmeas, g[1].xmeas])
@@ -143,9 +155,11 @@ def test_plan_references_closed_form():
     for t in (0.0, 0.9, 1.0, 3.0, 10.0):
         expect = g0 if t <= 1 else g2 + (g0 - g2) * math.exp(-(t - 1) / 2.0)
         assert plan.xmeas_ref(t)[39] == pytest.approx(expect, rel=1e-12)
-    # XMV(5), XMV(9) close toward Ricker's mode-2 values (1 %), level 75 -> 65 %
+    # XMV(5), XMV(9) close toward Ricker's mode-2 values (1 %), level 75 -> 65 %; the
+    # recycle valve XMV(5) on its closing time constant (default 10 h)
     x = plan.xmv_ref(1.0 + 3.0)
-    assert x[4] == pytest.approx(1.0 + (22.21 - 1.0) * math.exp(-1), rel=1e-3)
+    assert x[8] == pytest.approx(1.0 + (47.45 - 1.0) * math.exp(-1), rel=1e-3)
+    assert x[4] == pytest.approx(1.0 + (22.21 - 1.0) * math.exp(-0.3), rel=1e-3)
     assert plan.xmeas_ref(100.0)[7] == pytest.approx(65.0)
     assert plan.grade_at(0.5).name == "mode0" and plan.grade_at(1.5).name == "mode2"
 

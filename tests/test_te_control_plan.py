@@ -25,7 +25,10 @@ def test_plan_strategy_moves_the_five_handles_along_the_plan_alone():
     sp = dec.extra["setpoints"]                           # T_r*, levels, P_r*
     assert sp[0] == pytest.approx(120.4) and sp[4] == pytest.approx(2705.0)  # Table 7.3 mode 0
     # one time constant later: 63 % of the way (Table 7.3: T_r 120.4 -> 124.2 degC,
-    # P_r 2705 -> 2800 kPa), whatever the measurements say (no feedback core)
+    # P_r 2705 -> 2800 kPa), whatever the measurements say (no feedback core; a
+    # pressure below the set point would only cap P_r* 10 kPa above it)
+    xmeas = xmeas.copy()
+    xmeas[6] = 2790.0
     dec = ctl.step(300, 3.0, xmeas, None)
     sp = dec.extra["setpoints"]
     assert sp[0] == pytest.approx(124.2 - 3.8 * math.exp(-1.0), abs=1e-9)

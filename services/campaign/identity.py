@@ -3,7 +3,8 @@
 A run is (unit, case contents, strategy, seed, hours, noise) plus the settings of
 the code that runs it: for TE the supervisory sample, the plant's Euler step, the
 MPC tuning (:class:`controller.units.te.control.TEMPCOptions`), the ratio loop
-(:class:`~controller.units.te.control.RatioSettings`) and the grade references'
+(:class:`~controller.units.te.control.RatioSettings`), the transition guards
+(:class:`~controller.units.te.control.TransitionGuards`) and the grade references'
 time constants; for a unit plant its registry configuration
 (:class:`controller.units.config.UnitConfig`). :data:`RUN_FORMAT` names the run
 and metrics code; it changes when they change what a run produces. The identity is
@@ -29,11 +30,17 @@ RUN_FORMAT = "campaign-run-1"
 @lru_cache(maxsize=8)
 def _settings_json(unit: str) -> str:
     if unit == "te":
-        from controller.units.te.control import SAMPLE_H, RatioSettings, TEMPCOptions
+        from controller.units.te.control import (
+            SAMPLE_H,
+            RatioSettings,
+            TEMPCOptions,
+            TransitionGuards,
+        )
         from controller.units.te.grades import TAU_DEFAULT_H
 
         s = {"sample_h": SAMPLE_H, "plant_dt_s": 1.8, "mpc": asdict(TEMPCOptions()),
-             "ratio": asdict(RatioSettings()), "tau_h": dict(TAU_DEFAULT_H)}
+             "ratio": asdict(RatioSettings()), "tau_h": dict(TAU_DEFAULT_H),
+             "guards": asdict(TransitionGuards())}
     else:
         from services.registry import get_unit
 

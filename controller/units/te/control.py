@@ -25,6 +25,10 @@ Layers (seed Fig. 7.2)
          input targets follow the grade plan (:class:`TEMPCOptions`), trimmed by an
          outer production loop (XMEAS 17 -> A+C feed);
        - a high-pressure override cuts the A+C feed above 2900 kPa (all strategies);
+       - the transition guards (:class:`TransitionGuards`, all strategies but
+         "decentralized"): the E feed at most 5 % above the plan's, the plan held
+         while the reactor pressure is near the interlock, P_r* at most 10 kPa above
+         the measured pressure;
        - MPC strategies: the input targets and CV references pass through the
          steady-state targets of the active model
          (:mod:`controller.units.te.targets`): the plan's values as they stand while
@@ -33,9 +37,10 @@ Layers (seed Fig. 7.2)
          the least change of the pressure set point's target that meets them, the
          lowest-ranked limit relaxed and reported when none can. In the 0 -> 2
          transition, the 3 -> 0, 3 -> 1, 2 -> 1 legs and IDV 1, 6, 7, 8 (noise on,
-         seed 1) no limit binds at the steady state before a trip and the moves equal
-         those without this layer: the trips are excursions of 1-3 h, faster than a
-         steady-state layer.
+         seed 1, measured before the transition guards) no limit binds at the steady
+         state before a trip and the moves equal those without this layer: the trips
+         were excursions of 1-3 h, faster than a steady-state layer; the guards
+         below act on them.
 
 Switching
     The index compares the models on their output errors at low frequency on one
@@ -52,12 +57,16 @@ Switching
     settled 24 h, modes     the mode's own model active in 100 % of samples
     0, 2, 3
     0 -> 3                  mode-3 model from 1.17-1.18 h on, for good
-    0 -> 2                  mode-2 model from 1.18-1.23 h on, for good
-    2 -> 0                  mode-0 model from 4.76-4.78 h on, for good
-    3 -> 0                  trips on reactor pressure at 3.8 h (the reaction dies
-                            with the coolant valve shut: a limit of the 3 -> 0
-                            grade plan, every strategy trips; not of the index)
+    0 -> 2                  mode-2 model from 1.16-1.20 h on, for good
+    2 -> 0                  mode-0 model from 4.60-4.66 h on, for good
+    3 -> 0                  the mode-3 model active in 100 % of the 24 h: the
+                            index never prefers the mode-0 model (no trip; at
+                            grade 10.5 h after the change, seed 1)
     ======================  ===================================================
+
+    (With the transition guards, :class:`TransitionGuards`. Before them 0 -> 2 took
+    the mode-2 model from 1.18-1.23 h, 2 -> 0 the mode-0 model from 4.76-4.78 h, and
+    3 -> 0 tripped on reactor pressure at 3.8 h with every strategy.)
 
     (Measured with the condenser XMV11 pinned to the plan, :class:`TEMPCOptions`
     ``target_weight``, and the plant's noise seeded per run with
@@ -144,7 +153,8 @@ A_FEED_LOOP = next(lp for lp in PI_BASELINE_LOOPS if lp.cv == 23)
 
 __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec",
            "TEController", "make_te_controller", "make_mpc_core", "TEMPCOptions", "TERun",
-           "run_te", "plant_seed_for", "RatioSettings", "TR_LIMITS", "PR_LIMITS",
+           "run_te", "plant_seed_for", "RatioSettings", "TransitionGuards", "TR_LIMITS",
+           "PR_LIMITS",
            "PRESSURE_LOOP", "ALARM_LIMITS"]
 
 STRATEGIES = ("fixed", "ssmpc", "pi", "decentralized", "plan")
@@ -197,6 +207,75 @@ class RatioSettings:
                              f"{self.s_min}, {self.s_max}")
 
 
+@dataclass(frozen=True)
+class TransitionGuards:
+    """Limits that keep a grade change to what the plant can follow (all strategies).
+
+    Parameters
+    ----------
+    e_feed_margin, e_feed_margin_held : float
+        The E feed valve XMV(2) the ratio writes stays at most ``e_feed_margin``
+        (% of range) above the plan's E valve, and at most ``e_feed_margin_held``
+        while the plan is held (in between in proportion to the hold ``f`` below).
+        The ratio sets the E feed from the measured D feed, and where the
+        reactor-level loop drives the D valve toward 100 % (leaving mode 3) the E
+        feed rose with it past what the A and C in the reactor could react: E
+        gathered in the recycle gas and the reactor pressure reached the interlock
+        (3 -> 0 with every strategy). Measured (ssmpc, noise on, seed 1, 24 h; h to
+        grade): margins 10/0 % (the defaults) 3 -> 2 17.4 h, peak 2918 kPa, 0 -> 2
+        10.5 h, 1 -> 2 15.8 h; 10/10 % 3 -> 2 peak 2993 kPa, never at grade; 15/0 %
+        3 -> 2 trips at 6.7 h, 0 -> 2 7.7 h; 5/5 % 0 -> 2 16.0 h, 1 -> 2 16.7 h (the
+        G loop drives the E valve ahead of the plan, to 100 %, and the margin
+        holds it back).
+    hold_start_kpa, hold_full_kpa : float
+        The plan hold: while a leg is under way the plan's clock runs at
+        ``1 - f`` of real time, ``f`` rising linearly from 0 at ``hold_start_kpa``
+        to 1 (the plan stopped) at ``hold_full_kpa`` of reactor pressure (XMEAS 7):
+        the references and feedforwards wait while the pressure is near the
+        interlock instead of driving it further (a reference governor). The held
+        time delays the rest of the plan; a new plan (:meth:`TEController.retarget`)
+        starts without it.
+    purge_track_kpa : float
+        The pressure loop's set point P_r* is kept at most this far above the
+        measured reactor pressure (set-point tracking; the MPC and the PI core are
+        told the P_r* applied). Without it a pressure that fell below P_r* (the
+        condenser opening on 1 -> 3, IDV(7)'s lost C header pressure at mode 2) shut
+        the purge (Ti 0.5 h) for most of an hour; the gas the purge should have
+        taken gathered, the pressure then rose by 200 kPa in half an hour, and the
+        purge reopened too late.
+    """
+
+    e_feed_margin: float = 10.0
+    e_feed_margin_held: float = 0.0
+    hold_start_kpa: float = 2880.0
+    hold_full_kpa: float = 2930.0
+    purge_track_kpa: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in ("e_feed_margin", "e_feed_margin_held"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0.0 <= v <= 100.0):
+                raise ValueError(f"{name}: must be in [0, 100] %, got {v!r}")
+        if not (math.isfinite(self.purge_track_kpa) and self.purge_track_kpa >= 0.0):
+            raise ValueError(f"purge_track_kpa: must be finite and >= 0 kPa, got "
+                             f"{self.purge_track_kpa!r}")
+        for name in ("hold_start_kpa", "hold_full_kpa"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 2000.0 < v <= 3000.0):
+                raise ValueError(f"{name}: must be in (2000, 3000] kPa, got {v!r}")
+        if not self.hold_start_kpa < self.hold_full_kpa:
+            raise ValueError(f"hold_start_kpa/hold_full_kpa: need start < full, got "
+                             f"{self.hold_start_kpa}, {self.hold_full_kpa}")
+
+    def hold_fraction(self, pressure_kpa: float) -> float:
+        """The share of the plan's clock held at this reactor pressure, in [0, 1]
+        (0 for a pressure that is not finite: no measurement, no hold)."""
+        if not math.isfinite(pressure_kpa):
+            return 0.0
+        f = (pressure_kpa - self.hold_start_kpa) / (self.hold_full_kpa - self.hold_start_kpa)
+        return min(max(f, 0.0), 1.0)
+
+
 class TEController:
     """Supervisory TE controller (:class:`controller.interfaces.SampleController`).
 
@@ -225,12 +304,15 @@ class TEController:
         along the plan) trim the A+C-feed input target (:data:`PRODUCTION_LOOP`,
         the PI baseline has the same loop). Under IDV(6) it keeps the production,
         as the seed's MPC did by raising the A+C feed.
+    guards : TransitionGuards, optional
+        The E-feed limit, the plan hold and the pressure set point's tracking
+        (default :class:`TransitionGuards`).
     """
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
                  sample_h: float = SAMPLE_H, horizon: int = 10,
                  outer_a_loop: bool = True, production_loop: bool = True,
-                 targets=None) -> None:
+                 targets=None, guards: TransitionGuards | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -240,6 +322,9 @@ class TEController:
         self.sample_h = float(sample_h)
         self.horizon = int(horizon)
         self.outer_a_loop = bool(outer_a_loop)
+        self.guards = guards or TransitionGuards()
+        #: h the plan's clock is behind real time (the plan hold, TransitionGuards)
+        self.plan_lag_h = 0.0
         #: steady-state targets of the MPC core (:class:`controller.units.te.targets.CoreTargets`)
         self.targets = targets
         self.s: float | None = None
@@ -262,8 +347,10 @@ class TEController:
         self.outer_held: frozenset[int] = frozenset()
 
     def retarget(self, plan: TransitionPlan) -> None:
-        """Follow a new plan from now on (times are absolute, h)."""
+        """Follow a new plan from now on (times are absolute, h; the plan hold of the
+        previous plan is dropped)."""
         self.plan = plan
+        self.plan_lag_h = 0.0
 
     # -- operator hooks (controller.units.te.operator) ------------------------------------
     #: The outer loops by their CV (XMEAS number): production (17), A in feed (23),
@@ -304,7 +391,9 @@ class TEController:
     def _plan_refs(self, t: float) -> tuple[np.ndarray, np.ndarray, float]:
         """The plan at one sample: XMEAS references at ``t`` and over the horizon
         ((horizon + 1, 41); one row for the PI strategy), valve references at ``t`` and
-        at the horizon's end ((2, 12)) and the D share of the D+E feed at ``t``."""
+        at the horizon's end ((2, 12)) and the D share of the D+E feed at ``t``; ``t``
+        on the plan's clock (:attr:`plan_lag_h` behind real time)."""
+        t = t - self.plan_lag_h
         n_ahead = self.horizon if self.strategy not in ("pi", "plan") else 0
         lookup = self._lookup
         if lookup is None or lookup.plan is not self.plan or lookup.horizon != n_ahead:
@@ -347,6 +436,39 @@ class TEController:
             self.a_trim = min(max(self.a_trim, -A_TRIM_MAX), A_TRIM_MAX)
             self.e_a_prev = e
         return self.a_trim
+
+    def _e_feed_margin(self, xmeas: np.ndarray) -> float:
+        """How far (%) the E valve may go above the plan's (:class:`TransitionGuards`)."""
+        g = self.guards
+        f = g.hold_fraction(float(xmeas[6]))
+        return g.e_feed_margin + f * (g.e_feed_margin_held - g.e_feed_margin)
+
+    def _hold_step(self, t_ref: float, xmeas: np.ndarray, alarms: list) -> None:
+        """The plan hold (:class:`TransitionGuards`): while a leg is under way, the
+        plan's clock of the next sample falls behind by the held share of this one."""
+        legs = self.plan.legs
+        if not legs or t_ref - self.plan_lag_h < legs[0].t_h:
+            return
+        f = self.guards.hold_fraction(float(xmeas[6]))
+        if f > 0.0:
+            self.plan_lag_h += f * self.sample_h
+            alarms.append(f"reactor pressure {xmeas[6]:.0f} kPa: grade plan held "
+                          f"{100 * f:.0f} % (behind by {self.plan_lag_h:.2f} h)")
+
+    def _track_pressure_setpoint(self, core_u, xmeas: np.ndarray):
+        """P_r* at most :attr:`TransitionGuards.purge_track_kpa` above the measured
+        reactor pressure (not below :data:`PR_LIMITS`); a core that computed more is
+        told what was applied."""
+        p = float(xmeas[6])
+        cap = max(p + self.guards.purge_track_kpa, PR_LIMITS[0])
+        if not (math.isfinite(p) and core_u[2] > cap):
+            return core_u
+        core_u = np.array(core_u, dtype=float)
+        core_u[2] = cap
+        applied = getattr(self.core, "applied", None)
+        if callable(applied):
+            applied(core_u)
+        return core_u
 
     def _override_step(self, xmeas: np.ndarray) -> float:
         """High-pressure override: integral cut of the A+C feed (XMV 4) above
@@ -434,7 +556,8 @@ class TEController:
         # the sample grid (see _grid_time); usually evaluated after the previous move
         t_ref = self._grid_time(t)
         ahead, self._refs_ahead = self._refs_ahead, None
-        if ahead is not None and ahead[0] == t_ref and ahead[1] is self.plan:
+        if (ahead is not None and ahead[0] == t_ref and ahead[1] is self.plan
+                and ahead[3] == self.plan_lag_h):
             ym_all, xv_all, ff = ahead[2]
         else:
             ym_all, xv_all, ff = self._plan_refs(t_ref)
@@ -443,7 +566,8 @@ class TEController:
         s = self._ratio_step(ff, ym, xmeas)
         u = np.full(12, np.nan)
         d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
-        u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0)
+        u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0,
+                   max(xv[1] + self._e_feed_margin(xmeas), 0.0))
         u[4], u[8], u[11] = xv[4], xv[8], xv[11]
         ff = self._core_ff(xv, ym)
         info: dict[str, Any] = {}
@@ -477,6 +601,7 @@ class TEController:
                 if key in dec.extra:
                     info[key] = dec.extra[key]
             info.update((key, dec.extra[key]) for key in QP_WORK_KEYS if key in dec.extra)
+        core_u = self._track_pressure_setpoint(core_u, xmeas)
         for j, xmv in enumerate(CORE_XMVS):
             if xmv is not None:
                 u[xmv - 1] = core_u[j]
@@ -486,6 +611,7 @@ class TEController:
             if cut >= 0.05:
                 alarms.append(f"reactor pressure {xmeas[6]:.0f} kPa: high-pressure override "
                               f"cuts the A+C feed by {cut:.1f} % (interlock 3000 kPa)")
+        self._hold_step(t_ref, xmeas, alarms)
         setpoints = np.array([core_u[3], ym[7], ym[11], ym[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
         extra.update(info)
@@ -503,7 +629,7 @@ class TEController:
             finish()
         if self._t_last is not None and self._refs_ahead is None:
             t_next = self._t_last + self.sample_h
-            self._refs_ahead = (t_next, self.plan, self._plan_refs(t_next))
+            self._refs_ahead = (t_next, self.plan, self._plan_refs(t_next), self.plan_lag_h)
 
     def take_over(self) -> None:
         """Before the first sample after a take-over of a running plant (a restart from a
@@ -531,7 +657,7 @@ class TEController:
                 "core": None if self.core is None else self.core.checkpoint(),
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
-                "t_last": self._t_last}
+                "t_last": self._t_last, "plan_lag_h": self.plan_lag_h}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
@@ -544,6 +670,7 @@ class TEController:
         self._t_last = None if t_last is None else float(t_last)
         self._refs_ahead = None
         self.override = float(state.get("override", 0.0))
+        self.plan_lag_h = float(state.get("plan_lag_h", 0.0))
         self.a_trim = float(state.get("a_trim", 0.0))
         self.e_a_prev = state.get("e_a_prev")
         self.p_trim = float(state.get("p_trim", 0.0))
@@ -621,11 +748,13 @@ class TEMPCOptions:
         transitions among modes 0-3 from 5 to 4 ("ssmpc": 6 to 4): 1 -> 2 and
         2 -> 1 no longer trip, 1 -> 3 does (3.4 h; the A-feed trim winds up while
         the plan opens the condenser), the three legs from mode 3 trip as with
-        every strategy. When the MPC moved XMV4 and T_r* freely the 2 -> 3 leg of
-        0 -> 2 -> 3 tripped on reactor pressure at 32-35 h in every weighting tried
-        (the D valve of the level loop saturates and the level collapses), and
-        with XMV3 free of the A loop IDV(1) tripped. The seed notes that T_r*
-        stayed in a narrow range in its 0 -> 2 -> 3 run.
+        every strategy (all measured before :class:`TransitionGuards`, which remove
+        the 1 -> 3 and mode-3 trips and IDV 7 at mode 2). When the MPC moved XMV4
+        and T_r* freely the 2 -> 3 leg of 0 -> 2 -> 3 tripped on reactor pressure
+        at 32-35 h in every weighting tried (the D valve of the level loop
+        saturates and the level collapses), and with XMV3 free of the A loop IDV(1)
+        tripped. The seed notes that T_r* stayed in a narrow range in its
+        0 -> 2 -> 3 run.
     steady_targets : bool
         Take the MPC's input targets and CV references from the steady-state targets
         of the active model (:mod:`controller.units.te.targets`: the plan's values
@@ -772,7 +901,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        ratio: RatioSettings | None = None,
                        mpc: TEMPCOptions | None = None,
                        outer_a_loop: bool = True, production_loop: bool = True,
-                       realtime: bool = True) -> tuple[TEController, TEControlSpec]:
+                       realtime: bool = True, guards: TransitionGuards | None = None,
+                       ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
     Parameters
@@ -793,6 +923,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
     realtime : bool
         Keep the MPC's wall-clock budget (:func:`make_mpc_core`); False for offline
         runs, whose moves must not depend on the machine's load.
+    guards : TransitionGuards, optional
+        The E-feed limit and the plan hold (not for "decentralized").
 
     Returns
     -------
@@ -823,7 +955,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         targets = core_targets(strategy, mpc or TEMPCOptions())
     ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon,
                        outer_a_loop, production_loop,
-                       targets=targets if strategy in ("fixed", "ssmpc") else None)
+                       targets=targets if strategy in ("fixed", "ssmpc") else None,
+                       guards=guards)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 

@@ -25,7 +25,14 @@ Transition references
     reference trajectory"), evaluated in closed form so that it is exact at any
     time. This covers the reactor level 75 -> 65 %, the G mol% in product, the
     reactor temperature, the closing ramps of XMV(5) and XMV(9), and the valve
-    feedforwards.
+    feedforwards. The compressor recycle valve XMV(5) closes on its own, slower
+    time constant (:data:`TAU_DEFAULT_H` ``"recycle"``, 10 h; it opens on the
+    valves' 3 h): leaving mode 3 it closes from 77.6 % toward 1 %, which sends
+    more of the recycle gas to the reactor, and on 3 h the 3 -> 0 and 3 -> 1 legs
+    tripped on reactor pressure with every strategy, the plan's feedforward alone
+    included (noise on, seed 1: plan 4.1 h and 3.2 h; with 10 h, and the E-feed
+    limit and the plan hold of :mod:`controller.units.te.control`, neither trips).
+    Opening it on 10 h instead made 0 -> 3 and 2 -> 3 trip (7.3 h and 2.5 h).
 
 Metrics
     Operating cost ($/h, Downs & Vogel, from the simulator), production (stripper
@@ -109,8 +116,11 @@ CONTROLLED_VALVES = (1, 2, 3, 4, 6, 7, 8, 10, 11)
 #: Smallest distance (% of range) a controlled valve must keep from 0 % and 100 %
 #: at the grade's optimum for the grade to count as reachable.
 CONTROL_MARGIN = 0.5
-#: Default time constants (h) of the first-order references.
-TAU_DEFAULT_H = {"xmeas": 3.0, "xmv": 3.0}
+#: Default time constants (h) of the first-order references: measured outputs, valves,
+#: and the compressor recycle valve XMV(5) (see "Transition references").
+TAU_DEFAULT_H = {"xmeas": 3.0, "xmv": 3.0, "recycle": 10.0}
+#: XMV number of the compressor recycle valve.
+RECYCLE_XMV = 5
 
 
 @lru_cache(maxsize=1)
@@ -290,7 +300,7 @@ def first_order_path(t, t0: float, r0, switches) -> np.ndarray:
 
 
 def _relax(r, target, tau, dt):
-    if tau.ndim == 0 or np.all(tau == tau.flat[0]):  # one time constant (the plans' case)
+    if tau.ndim == 0 or np.all(tau == tau.flat[0]):  # one time constant
         t0 = float(tau.flat[0])
         a = np.exp(-dt / t0) if t0 > 0 else np.zeros_like(dt)
     else:
@@ -312,26 +322,36 @@ class _PathTable:
     times: np.ndarray  # (L,), ascending, times[0] = -inf
     start: np.ndarray  # (L, n)
     target: np.ndarray  # (L, n)
-    tau: np.ndarray  # 0-d
+    tau: np.ndarray  # 0-d (every column, every segment), or (L, n) per segment and column
 
     @classmethod
-    def build(cls, times, values, tau: float) -> _PathTable:
-        tau = np.asarray(float(tau))
+    def build(cls, times, values, tau: float, closing: dict | None = None) -> _PathTable:
+        """``closing``: column -> time constant of the segments that lower that column
+        (a valve closing more slowly than it opens)."""
+        tau0 = np.asarray(float(tau))
         r = np.asarray(values[0], dtype=float)
-        start, target = [r], [r]
+        start, target, taus = [r], [r], [np.full(r.shape, float(tau))]
         for i, ts in enumerate(times):
             if i > 0:  # the path at this switch: the previous segment relaxed to its end
-                r = _relax(r[None, :], target[-1], tau, np.array([[ts - times[i - 1]]]))[0]
+                r = _relax(r[None, :], target[-1], taus[-1] if closing else tau0,
+                           np.array([[ts - times[i - 1]]]))[0]
             start.append(r)
             target.append(np.asarray(values[i + 1], dtype=float))
-        return cls(np.array([-math.inf, *times]), np.array(start), np.array(target), tau)
+            seg = np.full(r.shape, float(tau))
+            for col, tau_c in (closing or {}).items():
+                if target[-1][col] < r[col]:
+                    seg[col] = tau_c
+            taus.append(seg)
+        return cls(np.array([-math.inf, *times]), np.array(start), np.array(target),
+                   np.array(taus) if closing else tau0)
 
     def __call__(self, t) -> np.ndarray:
         tt = np.asarray(t, dtype=float)
         scalar = tt.ndim == 0
         tt = tt.reshape(-1)
         i = np.searchsorted(self.times, tt, side="right") - 1
-        r = _relax(self.start[i], self.target[i], self.tau, (tt - self.times[i])[:, None])
+        tau = self.tau if self.tau.ndim == 0 else self.tau[i]
+        r = _relax(self.start[i], self.target[i], tau, (tt - self.times[i])[:, None])
         return r[0] if scalar else r
 
 
@@ -363,13 +383,17 @@ class TransitionPlan:
         Time constant of the measured-output references (h): G mol%, levels,
         reactor temperature, pressures ...
     tau_xmv_h : float
-        Time constant of the valve ramps and feedforwards (XMV(5), XMV(9) closing).
+        Time constant of the valve ramps and feedforwards (XMV(9) closing ...).
+    tau_recycle_h : float
+        Time constant of the compressor recycle valve XMV(5)'s feedforward where a leg
+        closes it (it opens on ``tau_xmv_h``).
     """
 
     start: str = "mode0"
     legs: tuple[Leg, ...] = ()
     tau_xmeas_h: float = TAU_DEFAULT_H["xmeas"]
     tau_xmv_h: float = TAU_DEFAULT_H["xmv"]
+    tau_recycle_h: float = TAU_DEFAULT_H["recycle"]
     _grades: tuple = field(default=(), repr=False, compare=False)
     _tables: dict = field(default_factory=dict, repr=False, compare=False)
 
@@ -379,7 +403,7 @@ class TransitionPlan:
         for a, b in zip(legs[:-1], legs[1:], strict=False):
             if b.t_h <= a.t_h:
                 raise GradeError(f"legs: times must increase ({a.t_h} then {b.t_h})")
-        for name in ("tau_xmeas_h", "tau_xmv_h"):
+        for name in ("tau_xmeas_h", "tau_xmv_h", "tau_recycle_h"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise GradeError(f"{name}: must be a finite time >= 0 h, got {v!r}")
@@ -394,7 +418,10 @@ class TransitionPlan:
         times = [lg.t_h for lg in legs]
         object.__setattr__(self, "_tables", {
             "xmeas": _PathTable.build(times, [g.xmeas for g in grades], self.tau_xmeas_h),
-            "xmv": _PathTable.build(times, [g.xmv for g in grades], self.tau_xmv_h),
+            "xmv": _PathTable.build(times, [g.xmv for g in grades], self.tau_xmv_h,
+                                    closing=({RECYCLE_XMV - 1: self.tau_recycle_h}
+                                             if self.tau_recycle_h != self.tau_xmv_h
+                                             else None)),
             "d_fraction": _PathTable.build(times, [np.array([g.d_fraction]) for g in grades],
                                            self.tau_xmv_h)})
 
