@@ -280,6 +280,7 @@ def test_a_plan_at_the_economic_ceiling_keeps_its_value(eco_ctl):
 def test_economic_settings_are_validated():
     for bad in ({"economic_pressure_max": 3050.0}, {"economic_weight": 0.0},
                 {"economic_settle_h": -1.0}, {"economic_ramp_kpa_h": float("inf")},
+                {"economic_lead_kpa": -1.0},
                 {"economics": 1}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             CoreTargetSettings(**bad)
@@ -289,13 +290,13 @@ def test_the_economics_lower_the_base_case_cost_and_keep_the_grade():
     """Closed loop at mode 0, noise on: the targets ride the pressure up to the economic
     ceiling; production and product G stay at the grade (their loops hold them)."""
     off = TEMPCOptions(target_settings=CoreTargetSettings(economics=False))
-    runs = {eco: run_te("ssmpc", TransitionPlan("mode0"), 16.0, noise=True, seed=1,
+    runs = {eco: run_te("ssmpc", TransitionPlan("mode0"), 24.0, noise=True, seed=1,
                         mpc=None if eco else off) for eco in (True, False)}
-    settled = {eco: r.t >= 10.0 for eco, r in runs.items()}
+    settled = {eco: r.t >= 16.0 for eco, r in runs.items()}
     cost = {eco: float(r.cost[settled[eco]].mean()) for eco, r in runs.items()}
     x = {eco: r.xmeas[settled[eco]].mean(axis=0) for eco, r in runs.items()}
     assert all(r.shutdown is None for r in runs.values())
-    # measured 143.6 against 172.9 $/h (seed 1)
+    # measured 137-138 against 172.9 $/h (seed 1)
     assert cost[True] < 0.9 * cost[False], cost
     assert x[True][6] == pytest.approx(CoreTargetSettings().economic_pressure_max, abs=10.0)
     assert x[False][6] == pytest.approx(BASE_PRESSURE_KPA, abs=10.0)

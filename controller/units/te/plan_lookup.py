@@ -53,8 +53,12 @@ class SampleReferences:
         self._times = xm.times
         self._start = np.hstack((xm.start, xv.start, df.start))
         self._target = np.hstack((xm.target, xv.target, df.target))
-        self._tau = np.concatenate([np.full(t.start.shape[1], float(t.tau))
-                                    for t in (xm, xv, df)])
+        # a table's time constant: one for every segment and column (0-d), or one per
+        # segment and column ((L, n): a valve closing more slowly than it opens)
+        n_seg = self._times.size
+        self._tau = np.hstack([np.broadcast_to(np.asarray(t.tau, dtype=float),
+                                               (n_seg, t.start.shape[1]))
+                               for t in (xm, xv, df)])  # (L, 54)
         self._positive = self._tau > 0
         self._all_positive = bool(self._positive.all())
         self._tau_div = np.where(self._positive, self._tau, 1.0)
@@ -84,9 +88,9 @@ class SampleReferences:
         tt = t + self._offsets
         i = np.searchsorted(self._times, tt, side="right") - 1
         dt = (tt - self._times[i])[:, None]
-        a = np.exp(-dt / self._tau_div)
+        a = np.exp(-dt / self._tau_div[i])
         if not self._all_positive:  # a step (tau = 0): the target at once
-            a = np.where(self._positive, a, 0.0)
+            a = np.where(self._positive[i], a, 0.0)
         target = self._target[i]
         r = target + (self._start[i] - target) * a
         nx = self.N_XMEAS

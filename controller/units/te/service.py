@@ -61,6 +61,11 @@ class HeldPlan:
     def grade_at(self, t):
         return self.plan.grade_at(self.t_h)
 
+    @property
+    def legs(self) -> tuple:
+        """None under way: the held references do not move."""
+        return ()
+
     def hours_since_change(self, t) -> float:
         """As the plan had it at the hold (the references stop there, so does the
         settling the economics wait for)."""

@@ -139,6 +139,11 @@ class CoreTargetSettings:
         APC target's ramp rate: the economic move is a slow one, never a step into the
         plant). When they stop acting (a grade change) the target returns to the plan
         at once; the MPC's move weights make that a ramp of the handle.
+    economic_lead_kpa : float
+        Most the economics may ask for P_r* above the measured reactor pressure, kPa:
+        the pressure follows its set point through the purge loop's lag, and a target
+        that ran ahead would only shut the purge (and meet the transition guard's
+        set-point tracking, 10 kPa, which then cuts it back).
     """
 
     pressure_max: float = 2895.0
@@ -152,6 +157,7 @@ class CoreTargetSettings:
     economic_weight: float = 1.0e4
     economic_settle_h: float = 12.0
     economic_ramp_kpa_h: float = 20.0
+    economic_lead_kpa: float = 5.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.pressure_max) and 2000.0 < self.pressure_max <= 3000.0):
@@ -183,6 +189,10 @@ class CoreTargetSettings:
                 and math.isfinite(self.economic_ramp_kpa_h) and self.economic_ramp_kpa_h > 0):
             raise ValueError(f"economic_ramp_kpa_h: must be > 0 kPa/h, got "
                              f"{self.economic_ramp_kpa_h!r}")
+        if not (isinstance(self.economic_lead_kpa, (int, float))
+                and math.isfinite(self.economic_lead_kpa) and self.economic_lead_kpa >= 0):
+            raise ValueError(f"economic_lead_kpa: must be >= 0 kPa, got "
+                             f"{self.economic_lead_kpa!r}")
         if not (isinstance(self.economic_weight, (int, float))
                 and math.isfinite(self.economic_weight) and self.economic_weight > 0):
             raise ValueError(f"economic_weight: must be > 0, got {self.economic_weight!r}")
@@ -281,6 +291,7 @@ class CoreTargets:
         self._econ_cost: np.ndarray | None = None  # the last gradient the economics used
         self._dt_h = 0.0
         self._applied_p = math.nan  # P_r* the plant has, kPa (observe)
+        self._pressure = math.nan  # the measured reactor pressure, kPa (observe)
         # the standing fields at the last full check of the solver's numbers (_check)
         self._checked: tuple | None = None
         self._gains: tuple | None = None  # (dt_h, settings, lag gain, offset gain)
@@ -315,6 +326,7 @@ class CoreTargets:
         self._n += 1
         self._dt_h = float(dt_h) if math.isfinite(dt_h) and dt_h > 0 else 0.0
         self._applied_p = float(np.asarray(u_applied, dtype=float).reshape(-1)[_P])
+        self._pressure = float(np.asarray(y, dtype=float).reshape(-1)[0])
         ss = self.steady_state(ssm, j)
         if ss is None or not np.isfinite(np.concatenate((y, u_applied, y_plan_now,
                                                          u_plan_now))).all():
@@ -367,8 +379,9 @@ class CoreTargets:
     def _ramp_economics(self, cost_u, u_plan_p: float) -> None:
         """One sample of the economic lift: up toward the ceiling at
         :attr:`CoreTargetSettings.economic_ramp_kpa_h` while a gradient is given
-        (:attr:`CoreTargetSettings.economics` on) and never more than one ramp step
-        above the P_r* applied (:meth:`observe`), at once to the plan otherwise (a
+        (:attr:`CoreTargetSettings.economics` on), never more than one ramp step
+        above the P_r* applied nor :attr:`CoreTargetSettings.economic_lead_kpa` above
+        the measured pressure (:meth:`observe`), at once to the plan otherwise (a
         grade change under way) or when the ceiling comes down."""
         st = self.settings
         c = None
@@ -389,7 +402,15 @@ class CoreTargets:
         # return to ON is bumpless
         ahead = max(self._applied_p - u_plan_p, 0.0) + step \
             if math.isfinite(self._applied_p) else math.inf
-        self.econ_lift = max(0.0, min(want, self.econ_lift + step, ahead))
+        # it rises no further above the measured pressure than the lead (a pressure that
+        # falls later does not pull it down: the transition guard's tracking does that)
+        lead = self._pressure + st.economic_lead_kpa - u_plan_p \
+            if math.isfinite(self._pressure) else math.inf
+        cap = min(want, ahead)
+        if min(cap, lead) > self.econ_lift:
+            self.econ_lift = min(self.econ_lift + step, cap, lead)
+        else:
+            self.econ_lift = max(0.0, min(self.econ_lift, cap))
 
     def problem(self, ssm, j: int, u_plan, y_plan) -> TargetProblem | None:
         """The target problem of model ``j`` around the plan's end point: handles
