@@ -446,7 +446,7 @@ class TEController:
     def _hold_step(self, t_ref: float, xmeas: np.ndarray, alarms: list) -> None:
         """The plan hold (:class:`TransitionGuards`): while a leg is under way, the
         plan's clock of the next sample falls behind by the held share of this one."""
-        legs = self.plan.legs
+        legs = getattr(self.plan, "legs", ())  # a held plan (an abort) has none
         if not legs or t_ref - self.plan_lag_h < legs[0].t_h:
             return
         f = self.guards.hold_fraction(float(xmeas[6]))

@@ -148,7 +148,9 @@ class TEServiceController:
             d["freeze_h"] = None
             d["legs"] = [*d["legs"], [t_s / 3600.0, grade]]
         elif event in ("aborted", "failed"):
-            d["freeze_h"] = t_s / 3600.0
+            # held where the references are: on the plan's clock, which the plan hold
+            # (TransitionGuards) may have put behind real time
+            d["freeze_h"] = t_s / 3600.0 - getattr(self.ctl, "plan_lag_h", 0.0)
         self._apply_plan()
 
     # -- operator control (controller.units.operator) -----------------------------------
