@@ -38,9 +38,9 @@ problem, solved by :mod:`controller.targets` (ranked limits, least relaxation)::
   first; ``lift`` is how far they have got. They wait
   :attr:`CoreTargetSettings.economic_settle_h` after a grade change. Modes 1-3 sit at
   2800 kPa already: there the plan stands; at mode 0 (the Downs & Vogel base case,
-  2705 kPa) the settled cost falls from 172.9 to 143.6 $/h (ssmpc, noise on, seed 1,
-  hours 20-30), production and product G unchanged (22.91 against 22.95 m³/h,
-  53.74 against 53.72 mol% G).
+  2705 kPa) the settled cost falls from 172.9 to 136.9 $/h (ssmpc, noise on, seed 1,
+  hours 20-30; 137.7-142.9 over hours 24-48 and plant seeds 1-3), production and
+  product G unchanged (22.94 against 22.95 m³/h, 53.73 against 53.72 mol% G).
 
 The grade's specifications (production and product G/H) are equalities the structure
 holds in the loops that own them: the production trim (XMEAS 17 -> the A+C feed's
