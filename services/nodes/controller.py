@@ -85,6 +85,7 @@ from controller.units.variables import at_limit, unit_variables
 from services.events import (
     AlarmTracker,
     action_event,
+    alarm_key,
     describe,
     identity_of,
     transition_event,
@@ -1240,11 +1241,12 @@ class ControllerNode:
             for alarm in decision.alarms:
                 self.alarms.append(alarm)
             if self.telemetry is not None and decision.alarms:
-                # an alarm goes to the event log when it appears, not every sample it holds
-                new = [a for a in decision.alarms if a not in self._alarms_logged]
+                # an alarm goes to the event log when it appears, not every sample it holds;
+                # one alarm whatever its numbers (its key, as the event store counts it)
+                new = [a for a in decision.alarms if alarm_key(a) not in self._alarms_logged]
                 for alarm in new:
                     self.telemetry.event(msg.seq, msg.t, alarm, "WARN")
-            self._alarms_logged = set(decision.alarms)
+            self._alarms_logged = {alarm_key(a) for a in decision.alarms}
             alarm_events = self.alarm_events.update(decision.alarms, msg.seq, msg.t,
                                                     (self._plant_incarnation or "")[:8])
             if alarm_events:

@@ -207,6 +207,11 @@ class RatioSettings:
                              f"{self.s_min}, {self.s_max}")
 
 
+#: The plan-hold alarm clears this far below the hold's start pressure, kPa (an alarm
+#: deadband: a pressure noisy about the start would raise and clear it every sample).
+HOLD_ALARM_DEADBAND_KPA = 10.0
+
+
 @dataclass(frozen=True)
 class TransitionGuards:
     """Limits that keep a grade change to what the plant can follow (all strategies).
@@ -325,6 +330,7 @@ class TEController:
         self.guards = guards or TransitionGuards()
         #: h the plan's clock is behind real time (the plan hold, TransitionGuards)
         self.plan_lag_h = 0.0
+        self._hold_alarm = False
         #: steady-state targets of the MPC core (:class:`controller.units.te.targets.CoreTargets`)
         self.targets = targets
         self.s: float | None = None
@@ -351,6 +357,7 @@ class TEController:
         previous plan is dropped)."""
         self.plan = plan
         self.plan_lag_h = 0.0
+        self._hold_alarm = False
 
     # -- operator hooks (controller.units.te.operator) ------------------------------------
     #: The outer loops by their CV (XMEAS number): production (17), A in feed (23),
@@ -449,10 +456,15 @@ class TEController:
         legs = getattr(self.plan, "legs", ())  # a held plan (an abort) has none
         if not legs or t_ref - self.plan_lag_h < legs[0].t_h:
             return
-        f = self.guards.hold_fraction(float(xmeas[6]))
+        p = float(xmeas[6])
+        f = self.guards.hold_fraction(p)
         if f > 0.0:
             self.plan_lag_h += f * self.sample_h
-            alarms.append(f"reactor pressure {xmeas[6]:.0f} kPa: grade plan held "
+            self._hold_alarm = True
+        elif self._hold_alarm and not p > self.guards.hold_start_kpa - HOLD_ALARM_DEADBAND_KPA:
+            self._hold_alarm = False  # cleared below the hold by the deadband (no chatter)
+        if self._hold_alarm:
+            alarms.append(f"reactor pressure {p:.0f} kPa: grade plan held "
                           f"{100 * f:.0f} % (behind by {self.plan_lag_h:.2f} h)")
 
     def _track_pressure_setpoint(self, core_u, xmeas: np.ndarray):
