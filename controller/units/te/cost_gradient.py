@@ -36,6 +36,8 @@ A grade without a measured gradient (modes 4-6) has none: the targets keep its p
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 
 __all__ = ["PRESSURE_COST_GRADIENT", "cost_gradient"]
@@ -46,10 +48,13 @@ PRESSURE_COST_GRADIENT = {"mode0": -0.274, "mode1": -0.095, "mode2": -0.223, "mo
 _P_INDEX = 2  # P_r* among the core handles (XMV 3, XMV 4, P_r*, T_r*, XMV 11)
 
 
+@cache
 def cost_gradient(grade: str) -> np.ndarray:
     """The operating cost's gradient in the five core handles at ``grade``, $/h per
-    handle unit (% for the valves, kPa for P_r*, degC for T_r*), shape (5,); zeros
-    for a grade without a measured gradient."""
+    handle unit (% for the valves, kPa for P_r*, degC for T_r*), shape (5,), read-only
+    (one array per grade, asked for every sample); zeros for a grade without a
+    measured gradient."""
     c = np.zeros(5)
     c[_P_INDEX] = PRESSURE_COST_GRADIENT.get(grade, 0.0)
+    c.setflags(write=False)
     return c

@@ -176,26 +176,19 @@ class CoreTargetSettings:
                 raise ValueError(f"{name}: must be > 0 h, got {v!r}")
         if not isinstance(self.economics, bool):
             raise ValueError(f"economics: must be true or false, got {self.economics!r}")
-        if not (isinstance(self.economic_pressure_max, (int, float))
-                and math.isfinite(self.economic_pressure_max)
-                and 2000.0 < self.economic_pressure_max <= 3000.0):
-            raise ValueError(f"economic_pressure_max: must be in (2000, 3000] kPa, got "
-                             f"{self.economic_pressure_max!r}")
-        if not (isinstance(self.economic_settle_h, (int, float))
-                and math.isfinite(self.economic_settle_h) and self.economic_settle_h >= 0):
-            raise ValueError(f"economic_settle_h: must be >= 0 h, got "
-                             f"{self.economic_settle_h!r}")
-        if not (isinstance(self.economic_ramp_kpa_h, (int, float))
-                and math.isfinite(self.economic_ramp_kpa_h) and self.economic_ramp_kpa_h > 0):
-            raise ValueError(f"economic_ramp_kpa_h: must be > 0 kPa/h, got "
-                             f"{self.economic_ramp_kpa_h!r}")
-        if not (isinstance(self.economic_lead_kpa, (int, float))
-                and math.isfinite(self.economic_lead_kpa) and self.economic_lead_kpa >= 0):
-            raise ValueError(f"economic_lead_kpa: must be >= 0 kPa, got "
-                             f"{self.economic_lead_kpa!r}")
-        if not (isinstance(self.economic_weight, (int, float))
-                and math.isfinite(self.economic_weight) and self.economic_weight > 0):
-            raise ValueError(f"economic_weight: must be > 0, got {self.economic_weight!r}")
+        v = self.economic_pressure_max
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and 2000.0 < v <= 3000.0):
+            raise ValueError(f"economic_pressure_max: must be in (2000, 3000] kPa, got {v!r}")
+        # (name, unit, whether 0 is allowed)
+        for name, unit, zero_ok in (("economic_settle_h", " h", True),
+                                    ("economic_ramp_kpa_h", " kPa/h", False),
+                                    ("economic_lead_kpa", " kPa", True),
+                                    ("economic_weight", "", False)):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)
+                    and (v >= 0 if zero_ok else v > 0)):
+                raise ValueError(f"{name}: must be {'>=' if zero_ok else '>'} 0{unit}, "
+                                 f"got {v!r}")
         if self.cv_band is not None:
             band = np.asarray(self.cv_band, dtype=float)
             if band.shape != (5, 2) or np.isnan(band).any() or np.any(band[:, 0] > band[:, 1]):
@@ -389,13 +382,12 @@ class CoreTargets:
             c = np.asarray(cost_u, dtype=float).reshape(5)
             if not (np.isfinite(c).all() and c[_P] < 0):
                 c = None  # only a cost falling with the pressure is priced
-        want = 0.0
-        if c is not None and math.isfinite(u_plan_p):
-            want = max(st.economic_pressure_max - u_plan_p, 0.0)
-            self._econ_cost = c
+        self._econ_cost = c
         if c is None:  # a grade change's path rules: back to the plan (the MPC's move
-            self.econ_lift, self._econ_cost = 0.0, None  # weights smooth the way)
+            self.econ_lift = 0.0  # weights smooth the way)
             return
+        want = max(st.economic_pressure_max - u_plan_p, 0.0) if math.isfinite(u_plan_p) \
+            else 0.0
         step = st.economic_ramp_kpa_h * self._dt_h
         # never more than a step ahead of the handle the plant has: while the
         # controller is WARM or OFF (moves held) the lift tracks the held P_r*, so the
@@ -488,16 +480,13 @@ class CoreTargets:
     def checkpoint(self) -> dict:
         """What a restart needs to go on (JSON-serialisable)."""
         return {"offset": None if self.offset is None else self.offset.tolist(),
-                "du_lagged": self.du_lagged.tolist(), "econ_lift": float(self.econ_lift),
-                "econ_cost": None if self._econ_cost is None else self._econ_cost.tolist()}
+                "du_lagged": self.du_lagged.tolist(), "econ_lift": float(self.econ_lift)}
 
     def restore(self, state: dict) -> None:
         off = state.get("offset")
         self.offset = None if off is None else np.asarray(off, dtype=float).reshape(5)
         self.du_lagged = np.asarray(state.get("du_lagged", np.zeros(5)),
                                     dtype=float).reshape(5)
+        # the gradient the lift prices comes with the next sample (solve)
         lift = float(state.get("econ_lift", 0.0) or 0.0)
-        cost = state.get("econ_cost")
-        ok = math.isfinite(lift) and lift > 0.0 and cost is not None
-        self.econ_lift = lift if ok else 0.0
-        self._econ_cost = np.asarray(cost, dtype=float).reshape(5) if ok else None
+        self.econ_lift = lift if math.isfinite(lift) and lift > 0.0 else 0.0
