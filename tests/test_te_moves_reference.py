@@ -16,8 +16,11 @@ import numpy as np
 import pytest
 
 DATA = Path(__file__).resolve().parent / "data" / "te_moves"
-#: Largest allowed difference of a move (% or kPa or degC): none.
-MOVES_ATOL = 0.0
+#: Largest allowed difference of a move (% or kPa or degC): round-off only. The
+#: same code on another numpy/OpenBLAS build differs in the last bits (measured
+#: with numpy 2.4.6, scipy 1.16-1.17: at most 4e-12 in the short cases and 5e-8
+#: over the 48 h run), far below any change of the control law.
+MOVES_ATOL = 1e-6
 
 
 def _references():

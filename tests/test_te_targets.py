@@ -48,9 +48,10 @@ def _scipy_targets(G, u_plan, y_pp, q_u, lo, hi, y_max):
     """min ½ Σ q_u (u - u_plan)² s.t. y_pp + G (u - u_plan) <= y_max, lo <= u <= hi."""
     cons = [{"type": "ineq", "fun": lambda u: y_max - (y_pp + G @ (u - u_plan)),
              "jac": lambda u: -G}]
-    res = minimize(lambda u: 0.5 * np.sum(q_u * (u - u_plan) ** 2), u_plan,
-                   jac=lambda u: q_u * (u - u_plan), bounds=list(zip(lo, hi)),
-                   constraints=cons, method="SLSQP", options={"ftol": 1e-14, "maxiter": 500})
+    q = q_u / float(np.max(q_u))  # the same minimizer, the objective scaled to order 1
+    res = minimize(lambda u: 0.5 * np.sum(q * (u - u_plan) ** 2), u_plan,
+                   jac=lambda u: q * (u - u_plan), bounds=list(zip(lo, hi)),
+                   constraints=cons, method="SLSQP", options={"ftol": 1e-10, "maxiter": 500})
     assert res.success, res.message
     return res.x
 
@@ -188,7 +189,7 @@ def _scipy_economic(G, u_plan, y_pp, q_u, c, lo, hi, y_max):
                    u_plan, jac=lambda u: (c + q_u * (u - u_plan)) / s,
                    bounds=list(zip(lo, hi)),
                    constraints=cons, method="SLSQP",
-                   options={"ftol": 1e-14, "maxiter": 500})
+                   options={"ftol": 1e-10, "maxiter": 500})
     assert res.success, res.message
     return res.x
 

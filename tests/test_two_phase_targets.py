@@ -74,14 +74,14 @@ def scipy_targets(p):
     bounds = list(zip(lo, hi))
     u0 = np.clip(p.u0, lo, hi)
     over = minimize(lambda u: max(G[0] @ u + yb[0] - p.y_max[0], 0.0) ** 2, u0,
-                    method="SLSQP", bounds=bounds, options={"ftol": 1e-16, "maxiter": 500})
+                    method="SLSQP", bounds=bounds, options={"ftol": 1e-12, "maxiter": 500})
     s1 = max(G[0] @ over.x + yb[0] - p.y_max[0], 0.0)
     w = 1.0 / p.y_scale ** 2
     res = minimize(lambda u: float(np.sum(w * (G @ u + yb - p.y_spec) ** 2)), u0,
                    method="SLSQP", bounds=bounds,
                    constraints=[{"type": "ineq",
                                  "fun": lambda u: p.y_max[0] + s1 - (G[0] @ u + yb[0])}],
-                   options={"ftol": 1e-16, "maxiter": 1000})
+                   options={"ftol": 1e-10, "maxiter": 1000})
     assert res.success, res.message
     return res.x, G @ res.x + yb
 
