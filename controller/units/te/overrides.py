@@ -37,13 +37,18 @@ Method
     - Everything else: the moves are those without this module (no alarm, valves
       untouched) as long as both feeds deliver what their valves ask.
 
-Measured (ssmpc, noise on, plant seeds 1-3, 48 h, disturbance from 2 h):
+Measured (noise on, plant seeds 1-3, 48 h, disturbance from 2 h):
 
-=======================  ====================================================
-IDV(7) at modes 0, 2, 3  no trip, reactor pressure at most 2814 kPa (before:
-                         mode 3 tripped at 5.9-6.0 h)
-IDV(6) at modes 0, 2, 3  as before (mode 2 trips at 13.8-13.9 h)
-=======================  ====================================================
+========================  ===================================================
+ssmpc, IDV(7), modes      no trip, reactor pressure at most 2814 kPa (before:
+0, 2, 3                   mode 3 tripped at 5.9-6.0 h)
+ssmpc, IDV(6), modes      as before (mode 2 trips at 13.8-13.95 h)
+0, 2, 3
+fixed, pi, plan, IDV(7),  no trip, peak 2802-2815 kPa (before, seed 1: fixed
+mode 3                    6.0 h, plan 22.6 h)
+fixed, pi, plan, IDV(6),  trip as before: fixed 13.8-13.9 h, pi 15.3-15.6 h,
+mode 2                    plan 13.5-13.6 h
+========================  ===================================================
 """
 
 from __future__ import annotations
