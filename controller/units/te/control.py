@@ -25,6 +25,9 @@ Layers (seed Fig. 7.2)
          input targets follow the grade plan (:class:`TEMPCOptions`), trimmed by an
          outer production loop (XMEAS 17 -> A+C feed);
        - a high-pressure override cuts the A+C feed above 2900 kPa (all strategies);
+       - the feed overrides (:mod:`controller.units.te.overrides`, all strategies but
+         "decentralized"): a short A+C feed is made up by its valve, a lost A feed
+         raises an alarm and holds the A-in-feed trim;
        - the transition guards (:class:`TransitionGuards`, all strategies but
          "decentralized"): the E feed at most 5 % above the plan's, the plan held
          while the reactor pressure is near the interlock, P_r* at most 10 kPa above
@@ -139,6 +142,7 @@ from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
+from controller.units.te.overrides import FeedOverrides, FeedOverrideSettings
 from controller.units.te.pi_baseline import PI_BASELINE_LOOPS, PRODUCTION_LOOP, VelocityPI
 from controller.units.te.plan_lookup import SampleReferences
 from controller.units.te.spec import ALARM_LIMITS, SAMPLE_H, TEControlSpec, alarm_crossings
@@ -312,12 +316,15 @@ class TEController:
     guards : TransitionGuards, optional
         The E-feed limit, the plan hold and the pressure set point's tracking
         (default :class:`TransitionGuards`).
+    feeds : FeedOverrideSettings, optional
+        The feed overrides (:mod:`controller.units.te.overrides`).
     """
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
                  sample_h: float = SAMPLE_H, horizon: int = 10,
                  outer_a_loop: bool = True, production_loop: bool = True,
-                 targets=None, guards: TransitionGuards | None = None) -> None:
+                 targets=None, guards: TransitionGuards | None = None,
+                 feeds: FeedOverrideSettings | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -328,6 +335,7 @@ class TEController:
         self.horizon = int(horizon)
         self.outer_a_loop = bool(outer_a_loop)
         self.guards = guards or TransitionGuards()
+        self.feeds = FeedOverrides(feeds, self.sample_h)
         #: h the plan's clock is behind real time (the plan hold, TransitionGuards)
         self.plan_lag_h = 0.0
         self._hold_alarm = False
@@ -437,7 +445,7 @@ class TEController:
             e = float(ym[A_FEED_LOOP.cv - 1]) - y
             if self.e_a_prev is None:
                 self.e_a_prev = e
-            if A_FEED_LOOP.cv not in self.outer_held:
+            if A_FEED_LOOP.cv not in self.outer_held and not self.feeds.a_lost:
                 self.a_trim += A_FEED_LOOP.gain * ((e - self.e_a_prev)
                                                    + self.sample_h / A_FEED_LOOP.ti_h * e)
             self.a_trim = min(max(self.a_trim, -A_TRIM_MAX), A_TRIM_MAX)
@@ -574,6 +582,7 @@ class TEController:
         else:
             ym_all, xv_all, ff = self._plan_refs(t_ref)
         self._t_last = t
+        self.feeds.observe(xmeas)
         xv, ym = xv_all[0], ym_all[0]
         s = self._ratio_step(ff, ym, xmeas)
         u = np.full(12, np.nan)
@@ -623,6 +632,10 @@ class TEController:
             if cut >= 0.05:
                 alarms.append(f"reactor pressure {xmeas[6]:.0f} kPa: high-pressure override "
                               f"cuts the A+C feed by {cut:.1f} % (interlock 3000 kPa)")
+        u[3] = self.feeds.ac_valve(u[3])
+        self.feeds.applied(u[2], u[3])
+        if self.feeds.active:
+            alarms.extend(self.feeds.alarms())
         self._hold_step(t_ref, xmeas, alarms)
         setpoints = np.array([core_u[3], ym[7], ym[11], ym[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
@@ -669,7 +682,8 @@ class TEController:
                 "core": None if self.core is None else self.core.checkpoint(),
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
-                "t_last": self._t_last, "plan_lag_h": self.plan_lag_h}
+                "t_last": self._t_last, "plan_lag_h": self.plan_lag_h,
+                "feeds": self.feeds.checkpoint()}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
@@ -687,6 +701,7 @@ class TEController:
         self.e_a_prev = state.get("e_a_prev")
         self.p_trim = float(state.get("p_trim", 0.0))
         self.e_p_prev = state.get("e_p_prev")
+        self.feeds.restore(state.get("feeds"))
 
 
 def _core_limits():
@@ -914,6 +929,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        mpc: TEMPCOptions | None = None,
                        outer_a_loop: bool = True, production_loop: bool = True,
                        realtime: bool = True, guards: TransitionGuards | None = None,
+                       feeds: FeedOverrideSettings | None = None,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -937,6 +953,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         runs, whose moves must not depend on the machine's load.
     guards : TransitionGuards, optional
         The E-feed limit and the plan hold (not for "decentralized").
+    feeds : FeedOverrideSettings, optional
+        The feed overrides (:mod:`controller.units.te.overrides`; not for
+        "decentralized").
 
     Returns
     -------
@@ -968,7 +987,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
     ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon,
                        outer_a_loop, production_loop,
                        targets=targets if strategy in ("fixed", "ssmpc") else None,
-                       guards=guards)
+                       guards=guards, feeds=feeds)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 
