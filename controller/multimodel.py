@@ -568,12 +568,12 @@ class MultiModelController:
 
     def _best_fixed(self, J: np.ndarray) -> int | None:
         """Fixed model with the smallest finite J (None if there is none)."""
-        if not self.fixed:
-            return None
-        Jf = np.asarray(J, dtype=float)[self.fixed]
-        Jf = np.where(np.isfinite(Jf), Jf, np.inf)
-        i = int(np.argmin(Jf))
-        return self.fixed[i] if np.isfinite(Jf[i]) else None
+        best, best_J = None, math.inf  # the first of equal ones, as np.argmin
+        for j in self.fixed:
+            v = float(J[j])
+            if math.isfinite(v) and v < best_J:
+                best, best_J = j, v
+        return best
 
     def _fixed_beats(self, b: int | None, j: int, J: np.ndarray) -> bool:
         """True when fixed model b is strictly better than adaptive model j (step 5)."""
@@ -685,11 +685,9 @@ class MultiModelController:
     def _steady_output_scale(self) -> np.ndarray:
         """omega(0)/d_j(0) per model (k,): 1 / |1 - theta2_j' n_ss|, n_ss the block's
         steady state for a unit input; 1 where d_j(0) is (numerically) zero."""
-        ratio = 1.0 - self.ssm.theta2_all() @ self.ssm.basis.steady
-        out = np.ones(ratio.size)
-        ok = np.isfinite(ratio) & (np.abs(ratio) > 1e-12)
-        out[ok] = 1.0 / np.abs(ratio[ok])
-        return out
+        ratio = (1.0 - self.ssm.theta2_all() @ self.ssm.basis.steady).tolist()
+        return np.array([1.0 / abs(r) if math.isfinite(r) and abs(r) > 1e-12 else 1.0
+                         for r in ratio])
 
     def checkpoint(self) -> dict[str, Any]:
         """Everything for a bumpless restart, as plain JSON data (the last sample's
