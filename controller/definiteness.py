@@ -45,8 +45,9 @@ of m columns instead of LAPACK's O(r^3) and its argument copies). Its pivots dif
 from ``dpotrf``'s in round-off only, so the two decide alike outside the round-off
 band above; a failed pivot is decided again by :func:`lowrank_floor_check` (the
 reason, floor or singular, is LAPACK's). Measured on the TE bench run (N = 213,
-blocks of 5, r = 5..80; 4,235 checks in 48 h, shared 2-core AMD EPYC at load 4-5):
-see :mod:`controller.adaptation`.
+blocks of 5, r = 5..85; 4,235 checks in 48 h; shared 2-core AMD EPYC at load 4-7):
+the covariance commit with its check 0.44-0.59 -> 0.23-0.32 ms per sample, see
+:mod:`controller.adaptation`.
 
 **Decisions against** ``numpy.linalg.eigvalsh`` (``tests/test_definiteness.py``):
 the same on random SPD, near-singular (``lambda_min`` at 1e-12 of the scale),
