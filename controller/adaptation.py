@@ -33,6 +33,62 @@ the bound alone). The exact decision is a Cholesky factorization of ``P - floor 
 would; a passed check leaves the floor itself as the bound. A covariance that is not finite, not
 symmetric positive definite, or a singular ``S`` also triggers a reset. Every reset
 is counted.
+
+The implicit form keeps V, ``V' V`` and the Cholesky factor of the floor check in
+buffers that grow to the largest rank once: a block of m columns is copied in and
+``V' V`` bordered (:func:`controller.definiteness.gram_append`), and a check factors
+only the rows added since the last one (:func:`controller.definiteness.cholesky_extend`).
+When V outgrows ``lowrank_max_rank`` at a sample whose bound has reached the floor and
+``N > exact_check_max_params``, the reset on the bound alone follows at once, so P is
+not made dense first (the dense P would be discarded by the reset). The products with
+V, the covariance and the parameters are the same arithmetic as before, bit for bit.
+
+**Measured** (TE ``ssmpc`` closed loop, N = 213, m = 5: a floor check at 4,235 of
+4,800 samples in 48 h, 281 resets, all at the rank limit; shared 2-core AMD EPYC at
+load 4-7, the code before and after run alternately).
+
+One estimator sample (prepare, update, commit) on TE-size data, best of 5 x 2,000
+samples' CPU time, two alternated pairs:
+
+==============  ==========  ==========  ==========  ===========
+code            prepare us  update us   commit us   sample (CPU)
+==============  ==========  ==========  ==========  ===========
+before          124-131     62-65       315-360     354-364 us
+after           90-95       43-52       68-72       139-167 us
+==============  ==========  ==========  ==========  ===========
+
+Where a 48 h ``ssmpc`` sample goes (inclusive method timers, ms per sample of wall
+time, two alternated pairs at load 4.0-5.5; every number is inflated 3-5x against a
+quiet machine, and unchanged parts moved by up to 30 % between runs with the load):
+
+======================================  =============  =============
+part                                    before         after
+======================================  =============  =============
+whole sample (plant, controller, loop)  3.63-4.32      4.33-5.49
+TE step, of which                       2.11-2.46      2.72-3.42
+  core step (MultiModelController)      1.29-1.43      1.53-1.96
+    MPC law and QP                      0.53-0.57      0.67-0.90
+    first-order-hold errors, advance    0.15-0.18      0.18-0.22
+    NLS update (compiled step)          0.13           0.14-0.19
+    index, switching, steady scale      0.15-0.16      0.16-0.20
+  steady-state targets                  0.52-0.66      0.79-0.95
+  plan references (ahead)               0.16           0.23-0.28
+core bookkeeping after the move         0.99-1.26      0.88-1.17
+  covariance commit (this module)       0.44-0.59      0.23-0.32
+  NLS prepare                           0.19-0.24      0.24-0.33
+  regressor (with its hold part)        0.13-0.16      0.10-0.13
+  shared-state update                   0.07-0.09      0.10-0.13
+  MPC law's refresh ahead               0.13-0.14      0.18-0.20
+plant and inner loops (compiled)        0.23-0.28      0.32-0.40
+======================================  =============  =============
+
+The commit halved in the runs where everything else slowed by a quarter.
+``ssmpc bench te-closed-loop --runs 2 --strategies ssmpc``, three alternated pairs
+at load 5.0-7.2: 1.55-1.96 process-h/s before (best run 2.02), 2.16-2.71 after (best
+2.92). At 40 process-h/s a sample has 0.25 ms; on this machine the core's remaining
+per-sample Python (law, targets, index, bookkeeping; about a dozen calls of a few
+µs each per part) is far above that, and only compiling the sample as a whole would
+reach it.
 """
 
 from __future__ import annotations
@@ -44,7 +100,14 @@ from typing import Any
 
 import numpy as np
 
-from controller.definiteness import ABOVE, floor_check, lowrank_floor_check
+from controller.definiteness import (
+    ABOVE,
+    cholesky_extend,
+    floor_check,
+    gram_append,
+    lowrank_floor_check,
+)
+from controller.finite_kernel import all_finite
 from controller.nls_kernel import (
     DEAD_ZONE,
     DIVERGED,
@@ -259,8 +322,14 @@ class NormalizedLeastSquares:
         self._lowrank = p0.size >= settings.lowrank_min_params
         self._Pd: np.ndarray | None = None
         self._c = 0.0
-        self._V = np.zeros((p0.size, 0))
-        self._G = np.zeros((0, 0))  # V' V, (r, r), kept with V
+        # the implicit form's V (N, r), V' V (r, r) and the Cholesky factor of
+        # (c - floor) I - V' V (its first _chol_n rows), in buffers of _cap columns
+        self._r = 0
+        self._cap = 0
+        self._Vbuf = np.zeros((p0.size, 0))
+        self._Gbuf = np.zeros((0, 0))
+        self._Lbuf = np.zeros((0, 0))
+        self._chol_n = 0
         self._pending: tuple | None = None  # a deferred covariance step (update(defer=True))
         self._prepared: tuple | None = None  # P W' of the next update (prepare())
         self._check_finite = False
@@ -273,11 +342,41 @@ class NormalizedLeastSquares:
         self.reset_reasons: dict[str, int] = {}
 
     # -- covariance representation --------------------------------------------------------
+    @property
+    def _V(self) -> np.ndarray:
+        """The implicit form's V, (N, r) (a view of its buffer)."""
+        return self._Vbuf[:, :self._r]
+
+    @property
+    def _G(self) -> np.ndarray:
+        """``V' V``, (r, r) (a view of its buffer)."""
+        return self._Gbuf[:self._r, :self._r]
+
+    def _reserve(self, cols: int) -> None:
+        """Room for ``cols`` columns of V in the buffers (kept: they grow, never shrink)."""
+        if cols <= self._cap:
+            return
+        cap = max(cols, int(self.settings.lowrank_max_rank) + 8)
+        r = self._r
+        V, G, L = np.zeros((self.p.size, cap)), np.zeros((cap, cap)), np.zeros((cap, cap))
+        V[:, :r] = self._Vbuf[:, :r]
+        G[:r, :r] = self._Gbuf[:r, :r]
+        L[:r, :r] = self._Lbuf[:r, :r]
+        self._Vbuf, self._Gbuf, self._Lbuf, self._cap = V, G, L, cap
+
+    def _set_lowrank(self, c: float, V: np.ndarray) -> None:
+        """The implicit form ``c I - V V'`` (V copied)."""
+        self._Pd, self._c, self._r, self._chol_n = None, c, 0, 0
+        r = V.shape[1]
+        self._reserve(r)
+        self._Vbuf[:, :r] = V
+        self._Gbuf[:r, :r] = V.T @ V
+        self._r = r
+
     def _set_identity(self, value: float) -> None:
         self._prepared = None
         if self._lowrank:
-            self._Pd, self._c, self._V = None, value, np.zeros((self.p.size, 0))
-            self._G = np.zeros((0, 0))
+            self._Pd, self._c, self._r, self._chol_n = None, value, 0, 0
         else:
             self._Pd = value * np.eye(self.p.size)
         self._lower = value  # lower bound on lambda_min(P)
@@ -289,8 +388,7 @@ class NormalizedLeastSquares:
         self.commit()
         if self._Pd is None:
             self._Pd = self._c * np.eye(self.p.size) - self._V @ self._V.T
-            self._V = np.zeros((self.p.size, 0))
-            self._G = np.zeros((0, 0))
+            self._r = self._chol_n = 0
         self._prepared = None
         self._check_finite = True  # the caller may write into it
         return self._Pd
@@ -381,13 +479,16 @@ class NormalizedLeastSquares:
     def _products(self, W_base, d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(d, P W_base', P d)``, ``d`` = zeros when None (shapes (N,), (N, m), (N,))."""
         d = np.zeros(self.p.size) if d is None else np.asarray(d, dtype=float).reshape(-1)
-        cols = np.column_stack((W_base.T, d))
+        m = W_base.shape[0]
+        cols = np.empty((self.p.size, m + 1))  # np.column_stack((W_base.T, d))
+        cols[:, :m] = W_base.T
+        cols[:, m] = d
         with np.errstate(invalid="ignore", over="ignore"):  # bad data: a skip, no warning
             if self._Pd is not None:
                 Pc = self._Pd @ cols
             else:
-                Pc = self._c * cols - self._V @ (self._V.T @ cols)
-        m = W_base.shape[0]
+                V = self._V
+                Pc = self._c * cols - V @ (V.T @ cols)
         return d, np.ascontiguousarray(Pc[:, :m]), np.ascontiguousarray(Pc[:, m])
 
     @property
@@ -490,23 +591,27 @@ class NormalizedLeastSquares:
             # g_d S^-1 = G G' with G = sqrt(g_d) L^-T: dP = (PWt G)(PWt G)'
             G = math.sqrt(self.g_d) * L_inv.T
             block = PWt @ G
-            if not np.isfinite(block).all():
+            if not all_finite(block):
                 self.reset_covariance("nonfinite")
                 return "nonfinite"
-            r, m = self._G.shape[0], block.shape[1]  # the Gram matrix V' V grows by a block
-            G = np.empty((r + m, r + m))
-            G[:r, :r] = self._G
-            G[:r, r:] = self._V.T @ block
-            G[r:, :r] = G[:r, r:].T
-            G[r:, r:] = block.T @ block
-            self._G = G
-            self._V = np.hstack((self._V, block))
-            if self._V.shape[1] > self.settings.lowrank_max_rank:
-                _ = self.P  # densify
+            r, m = self._r, block.shape[1]  # the Gram matrix V' V grows by a block
+            V = self._V
+            cross, bb = V.T @ block, block.T @ block
+            self._reserve(r + m)
+            gram_append(self._Vbuf, self._Gbuf, r, block, cross, bb)
+            self._r = r + m
         # trace of the PSD decrement bounds its largest eigenvalue
         self._lower -= trace_dP
-        if self._lower <= self.settings.eig_floor:
-            exact = self._Pd is None or self.p.size <= self.settings.exact_check_max_params
+        below = self._lower <= self.settings.eig_floor
+        large = self.p.size > self.settings.exact_check_max_params
+        # V grown past its rank: dense from now on, unless the reset on the bound alone
+        # (a dense P too large for the exact check) follows at once
+        densify = self._Pd is None and self._r > self.settings.lowrank_max_rank
+        if densify and not (below and large):
+            _ = self.P
+            densify = False
+        if below:
+            exact = (self._Pd is None and not densify) or not large
             if exact:
                 outcome, bound = self._floor_check()
                 if outcome != ABOVE:
@@ -530,6 +635,14 @@ class NormalizedLeastSquares:
         floor = float(self.settings.eig_floor)
         if self._Pd is not None:
             return floor_check(self._Pd, floor)
+        r = self._r
+        if r > 0:  # the rows of the factor added since the last check
+            done = cholesky_extend(self._Lbuf, self._Gbuf, self._chol_n, r,
+                                   float(self._c) - floor)
+            self._chol_n = done
+            if done == r:
+                return ABOVE, floor
+        # no columns, or a pivot not positive: LAPACK decides, and names the reason
         return lowrank_floor_check(self._c, self._G, floor)
 
     def smallest_eigenvalue(self) -> float:
@@ -567,7 +680,7 @@ class NormalizedLeastSquares:
         if self._Pd is not None:
             out["P"] = pack_array(self._Pd)
         else:
-            out["c"], out["V"] = self._c, pack_array(self._V)
+            out["c"], out["V"] = self._c, pack_array(np.ascontiguousarray(self._V))
         return out
 
     def restore(self, state: dict[str, Any]) -> None:
@@ -586,8 +699,7 @@ class NormalizedLeastSquares:
             V = unpack_array(state["V"]).reshape(p.size, -1)
             if not (math.isfinite(c) and np.isfinite(V).all()):
                 raise ValueError("state.V: non-finite covariance")
-            self._Pd, self._c, self._V = None, c, V
-            self._G = V.T @ V
+            self._set_lowrank(c, V)
         self.p = p.copy()
         self._since_sym = 0
         if self._Pd is None or p.size <= self.settings.exact_check_max_params:

@@ -219,11 +219,22 @@ class OutputHoldCorrection:
         self.h = E[:n, n + 1].copy()
         self.c = np.zeros((ssm.p, n))
         self.y_prev = np.zeros(ssm.p)
+        # (c Fd', c Fd' - y_prev h') of the current c and y_prev, or None: the sample
+        # reads them three times (regressor_parts, estimates, advance)
+        self._cf: tuple[np.ndarray, np.ndarray] | None = None
+
+    def _c_forward(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(c Fd', c Fd' - y_prev h')``, computed once per (c, y_prev)."""
+        if self._cf is None:
+            cF = self.c @ self.Fbd_T
+            self._cf = (cF, cF - self.y_prev[:, None] * self.h[None, :])
+        return self._cf
 
     def reset(self, y) -> None:
         """Steady start (matches :meth:`StateSharedModel.initialize`): c = 0."""
         self.c[:] = 0.0
         self.y_prev = np.asarray(y, dtype=float).reshape(-1).copy()
+        self._cf = None
 
     def _theta2(self) -> np.ndarray:
         """theta2 of every model, shape (k, n) (the same vector in every output block)."""
@@ -233,8 +244,7 @@ class OutputHoldCorrection:
         """A-priori estimates of all models with the first-order hold, shape (k, p)."""
         est = self.ssm.estimates()
         t2 = self._theta2()
-        cF = self.c @ self.Fbd_T
-        free = cF - self.y_prev[:, None] * self.h[None, :]  # (p, n)
+        cF, free = self._c_forward()  # free: (p, n)
         num = est + t2 @ free.T  # (k, p)
         den = 1.0 - t2 @ self.h  # (k,)
         safe = np.abs(den) > 1e-6
@@ -251,8 +261,9 @@ class OutputHoldCorrection:
     def advance(self, y) -> None:
         """Take in y_k: ``c_k = Fd c_(k-1) + H (y_k - y_(k-1))`` (call after :meth:`errors`)."""
         y = np.asarray(y, dtype=float).reshape(-1)
-        self.c = self.c @ self.Fbd_T + (y - self.y_prev)[:, None] * self.h[None, :]
+        self.c = self._c_forward()[0] + (y - self.y_prev)[:, None] * self.h[None, :]
         self.y_prev = y.copy()
+        self._cf = None
 
     def regressor(self) -> np.ndarray:
         """The shared regressor W with n2(t_k) = z_k + c_k (call after :meth:`advance`)."""
@@ -279,7 +290,7 @@ class OutputHoldCorrection:
         W = ssm.regressor()
         start = self.n * ssm.m * ssm.p
         cols = slice(start, start + self.n)
-        W[:, cols] += self.c @ self.Fbd_T - self.y_prev[:, None] * self.h[None, :]
+        W[:, cols] += self._c_forward()[1]
         d = np.zeros(W.shape[1])
         d[cols] = self.h
         return W, d
@@ -293,6 +304,7 @@ class OutputHoldCorrection:
         if not (np.isfinite(c).all() and np.isfinite(y).all()):
             raise ValueError("state.hold: non-finite first-order-hold correction")
         self.c, self.y_prev = c, y
+        self._cf = None
 
 
 class MultiModelController:
@@ -568,12 +580,12 @@ class MultiModelController:
 
     def _best_fixed(self, J: np.ndarray) -> int | None:
         """Fixed model with the smallest finite J (None if there is none)."""
-        if not self.fixed:
-            return None
-        Jf = np.asarray(J, dtype=float)[self.fixed]
-        Jf = np.where(np.isfinite(Jf), Jf, np.inf)
-        i = int(np.argmin(Jf))
-        return self.fixed[i] if np.isfinite(Jf[i]) else None
+        best, best_J = None, math.inf  # the first of equal ones, as np.argmin
+        for j in self.fixed:
+            v = float(J[j])
+            if math.isfinite(v) and v < best_J:
+                best, best_J = j, v
+        return best
 
     def _fixed_beats(self, b: int | None, j: int, J: np.ndarray) -> bool:
         """True when fixed model b is strictly better than adaptive model j (step 5)."""
@@ -685,11 +697,9 @@ class MultiModelController:
     def _steady_output_scale(self) -> np.ndarray:
         """omega(0)/d_j(0) per model (k,): 1 / |1 - theta2_j' n_ss|, n_ss the block's
         steady state for a unit input; 1 where d_j(0) is (numerically) zero."""
-        ratio = 1.0 - self.ssm.theta2_all() @ self.ssm.basis.steady
-        out = np.ones(ratio.size)
-        ok = np.isfinite(ratio) & (np.abs(ratio) > 1e-12)
-        out[ok] = 1.0 / np.abs(ratio[ok])
-        return out
+        ratio = (1.0 - self.ssm.theta2_all() @ self.ssm.basis.steady).tolist()
+        return np.array([1.0 / abs(r) if math.isfinite(r) and abs(r) > 1e-12 else 1.0
+                         for r in ratio])
 
     def checkpoint(self) -> dict[str, Any]:
         """Everything for a bumpless restart, as plain JSON data (the last sample's

@@ -8,6 +8,8 @@ call each:
 - :func:`model_errors`: ``e_j = y - (Theta_j^T n + b_j)`` for all k models (the a-priori
   errors of eq. 3.10), with the finiteness check of ``y``; the product is the same
   BLAS ``dgemv`` numpy makes, so the errors are numpy's to the last bit;
+- :func:`regressor`: the shared regressor ``W`` built from the shared state (only
+  copies: exact);
 - :func:`write_params`: an adaptive model's structured parameter vector written into
   the stacked ``Theta^T`` and its copy with the ``[u; y]`` column (only copies: exact).
 
@@ -25,7 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["model_errors", "write_params"]
+__all__ = ["model_errors", "regressor", "write_params"]
 
 
 @njit(cache=True)
@@ -92,3 +94,23 @@ def write_params(T, Taug, B, j, params, n, m, q):
                 Taug[r, blk * (n + 1) + c] = T[r, blk * n + c]
     for i in range(q):
         B[j, i] = params[nm * q + n + i]
+
+
+@njit(cache=True)
+def regressor(Z, n, m, q, n_cols):
+    """The shared regressor ``W`` (q, n_cols) of the shared state ``Z`` ((m+q), n+1).
+
+    Row i: the input blocks ``Z[:m, :n]`` row-major in columns ``i n m .. (i+1) n m``,
+    output block i ``Z[m+i, :n]`` in columns ``n m q ..``, and 1 in the bias column
+    ``n m q + n + i``; zeros elsewhere.
+    """
+    W = np.zeros((q, n_cols))
+    nm = n * m
+    for i in range(q):
+        for a in range(m):
+            for c in range(n):
+                W[i, i * nm + a * n + c] = Z[a, c]
+        for c in range(n):
+            W[i, nm * q + c] = Z[m + i, c]
+        W[i, nm * q + n + i] = 1.0
+    return W

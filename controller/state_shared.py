@@ -86,6 +86,7 @@ from controller.shared_basis import (
     orthonormal_theta,
 )
 from controller.state_kernel import model_errors, write_params
+from controller.state_kernel import regressor as state_regressor
 
 __all__ = [
     "companion_pair",
@@ -651,15 +652,7 @@ class StateSharedModel:
     def regressor(self) -> np.ndarray:
         """W (m, N_theta + m) with ``y_j = W @ p_j`` for every structured model j
         (p rows when the outputs differ in number from the inputs)."""
-        n, m, q = self.n_deg, self.m, self.p
-        nm = n * m
-        W = np.zeros((q, self.n_params + q))
-        n1 = self._N[:m].reshape(-1)
-        for i in range(q):
-            W[i, i * nm : (i + 1) * nm] = n1
-        W[:, nm * q : nm * q + n] = self._N[m:]
-        W[np.arange(q), nm * q + n + np.arange(q)] = 1.0
-        return W
+        return state_regressor(self._Z, self.n_deg, self.m, self.p, self.n_params + self.p)
 
     # -- state ---------------------------------------------------------------------------
     def _uy(self, u, y) -> np.ndarray:

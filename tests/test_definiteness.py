@@ -137,3 +137,34 @@ def test_estimator_resets_exactly_when_the_smallest_eigenvalue_reaches_the_floor
             np.testing.assert_allclose(_explicit(nls), P_next, atol=1e-9)
         decided[reset] += 1
     assert decided[True] > 3 and decided[False] > 10
+
+
+def test_incremental_factor_decides_as_the_eigenvalues_block_by_block():
+    """V grown by blocks of 3 columns: the Gram buffer holds V' V, the rows of the factor
+    added per block are those of the whole matrix's Cholesky factor, and the check says
+    "above" exactly while lambda_min(c I - V V') > floor."""
+    from controller.definiteness import cholesky_extend, gram_append
+
+    rng = np.random.default_rng(21)
+    n, cap, c = 40, 30, 10.0
+    V, G, L = np.zeros((n, cap)), np.zeros((cap, cap)), np.zeros((cap, cap))
+    r, done, outcomes = 0, 0, set()
+    while r + 3 <= cap:
+        block = rng.standard_normal((n, 3)) * 0.35
+        gram_append(V, G, r, block, V[:, :r].T @ block, block.T @ block)
+        np.testing.assert_array_equal(V[:, r:r + 3], block)
+        r += 3
+        np.testing.assert_allclose(G[:r, :r], V[:, :r].T @ V[:, :r], rtol=0, atol=1e-12)
+        lam = float(np.linalg.eigvalsh(c * np.eye(n) - V[:, :r] @ V[:, :r].T)[0])
+        if abs(lam - FLOOR_VALUE) < 1e-9:
+            continue
+        done = cholesky_extend(L, G, done, r, c - FLOOR_VALUE)
+        above = done == r
+        assert above == (lam > FLOOR_VALUE), (r, lam)
+        outcomes.add(above)
+        if above:
+            want = np.linalg.cholesky((c - FLOOR_VALUE) * np.eye(r) - G[:r, :r])
+            np.testing.assert_allclose(np.tril(L[:r, :r]), want, rtol=0, atol=1e-10)
+        else:
+            break
+    assert outcomes == {True, False}

@@ -56,3 +56,19 @@ def test_set_params_writes_what_set_theta_writes(p):
         np.testing.assert_array_equal(a._B, b._B)
         np.testing.assert_array_equal(a.theta(j), theta)
         np.testing.assert_array_equal(a.params_from_theta(a.theta(j), a.bias(j)), par)
+
+
+@pytest.mark.parametrize("p", [None, 3])
+def test_regressor_predicts_every_structured_model(p):
+    """``W p_j`` is model j's estimate ``Theta_j^T n + b_j`` (the regressor's meaning)."""
+    rng = np.random.default_rng(4)
+    ssm = _model(rng, p=p)
+    for _ in range(5):
+        W = ssm.regressor()
+        assert W.shape == (ssm.p, ssm.n_params + ssm.p)
+        n = ssm.n
+        for j in range(ssm.k):
+            p_j = ssm.params_from_theta(ssm.theta(j), ssm.bias(j))
+            np.testing.assert_allclose(W @ p_j, ssm.theta(j).T @ n + ssm.bias(j),
+                                       rtol=1e-12, atol=1e-14)
+        ssm.update(rng.standard_normal(ssm.m), rng.standard_normal(ssm.p))
