@@ -28,6 +28,7 @@ COLUMNS = (
     ("transition cost, $", "transition_cost_usd"),
     ("active models", lambda r: " ".join(f"{k} {v:.2f}" for k, v in
                                          (r.get("active_model_share") or {}).items())),
+    ("limit bound, share", "limit_bound_share"), ("binding limit", "binding_limit"),
     ("wall, s", "wall_s"), ("error", "error"), ("run", "run"),
 )
 
