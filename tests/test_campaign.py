@@ -28,7 +28,8 @@ from services.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
 METRICS = ("tripped", "trip", "time_to_grade_h", "peak_pressure_kpa", "mean_cost_usd_h",
-           "final_cost_usd_h", "transition_cost_usd", "active_model_share")
+           "final_cost_usd_h", "transition_cost_usd", "active_model_share",
+           "product_variability")
 
 # 0 -> 1 is reached within the run (a small grade change); IDV(6) from mode 2
 # can trip the plant: the comparison covers grade times and trips alike

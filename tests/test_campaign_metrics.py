@@ -100,8 +100,8 @@ def test_te_metrics_of_a_transition_by_hand():
                                                      "mode2": 1 / 6})
     assert list(m) == ["tripped", "trip", "time_to_grade_h", "peak_pressure_kpa",
                        "mean_cost_usd_h", "final_cost_usd_h", "transition_cost_usd",
-                       "active_model_share", "limit_bound_share", "binding_limit",
-                       "limit_shares"]
+                       "active_model_share", "product_variability", "limit_bound_share",
+                       "binding_limit", "limit_shares"]
 
 
 def test_te_metrics_of_a_tripped_run_integrate_the_cost_to_the_end():
@@ -122,6 +122,31 @@ def test_te_metrics_without_legs_have_no_grade_time_nor_transition_cost():
     assert m["time_to_grade_h"] is None and m["transition_cost_usd"] is None
     assert m["active_model_share"] == {}
     assert m["mean_cost_usd_h"] == pytest.approx(125.0)
+
+
+def test_product_variability_is_the_spread_from_the_disturbance_on():
+    t = np.arange(6) * 0.5
+    x = np.zeros((6, 41))
+    # G steady at 50 mol % before the onset at 1.0 h, then 49 / 51 alternating:
+    # a standard deviation of 1 mol %; the flow 20 before, 18 / 22 after: 2 on a
+    # mean of 20, 10 %
+    x[:, 39] = [50.0, 50.0, 49.0, 51.0, 49.0, 51.0]
+    x[:, 16] = [20.0, 20.0, 18.0, 22.0, 18.0, 22.0]
+    v = metrics.product_variability(t, x, from_h=1.0)
+    assert v["g_std_mol"] == pytest.approx(1.0)
+    assert v["production_std_pct"] == pytest.approx(10.0)
+    # the samples before the onset are steady, so the whole run spreads less
+    whole = metrics.product_variability(t, x)
+    assert whole["g_std_mol"] < v["g_std_mol"]
+    assert metrics.product_variability(t, x, from_h=2.5) is None   # one sample left
+
+
+def test_te_metrics_score_the_variability_from_the_onset_given():
+    t, x, cost, active = _te_series()
+    m = metrics.te_metrics(t, x, cost, active, ("reinit", "mode0", "mode2"), 0.5,
+                           None, None, disturbance_on_h=1.5)
+    assert m["product_variability"] == metrics.product_variability(t, x, from_h=1.5)
+    assert m["product_variability"] != metrics.product_variability(t, x)
 
 
 def test_limit_binding_is_the_share_of_the_window_any_limit_binds_and_names_the_longest():

@@ -22,6 +22,14 @@ integral is the rectangle sum ``sum_k rate_k dt`` over the samples in the window
   not reached; ``None`` without legs.
 - ``active_model_share``: fraction of the samples each model was active, by model
   name; ``{}`` for strategies without models (active index < 0).
+- ``product_variability`` (TE): ``{"g_std_mol", "production_std_pct"}``, the
+  standard deviation of G in product (XMEAS 40, mol %) and of the product flow
+  (XMEAS 17, % of its mean) over the samples from the first disturbance's onset
+  to the end of the run (to the trip, where it tripped; the whole run for a case
+  without disturbances) - the "product variability" Ricker (1996) and Downs &
+  Vogel (1993) score a TE controller on under a disturbance. Both are the raw
+  samples, analyzer and flow noise included, so runs compare only on the same
+  noise setting. ``None`` with fewer than two samples in the window.
 - ``limit_bound_share``, ``binding_limit``, ``limit_shares`` (TE): how much of the
   transition window a plant limit binds. The window is that of
   ``transition_cost_usd`` (the start of the last leg to the grade reached, or to the
@@ -44,7 +52,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["trip_record", "time_to_grade_h", "integrate_rate", "active_model_share",
-           "final_mean", "te_grade_targets", "te_metrics", "unit_metrics",
+           "final_mean", "te_grade_targets", "te_metrics", "unit_metrics", "product_variability",
            "limit_binding", "te_limits_at_bound",
            "TE_G_BAND_MOL", "TE_FLOW_BAND_REL", "FINAL_WINDOW_H", "TE_GRADE_WINDOW_H",
            "TE_VALVE_RANGE_TOL", "TE_PRESSURE_LIMIT_KPA", "TE_PRESSURE_BAND_KPA"]
@@ -141,6 +149,35 @@ def active_model_share(active, model_names) -> dict[str, float]:
     return {name: float(np.count_nonzero(a == j)) / a.size for j, name in enumerate(names)}
 
 
+def product_variability(t, xmeas, from_h: float = 0.0) -> dict | None:
+    """Standard deviations of G in product and of the product flow from ``from_h`` on.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Sample times, h.
+    xmeas : array_like, shape (K, 41)
+        XMEAS 1-41 (G in product is XMEAS 40, mol %; the product flow XMEAS 17, m3/h).
+    from_h : float
+        Start of the window, h.
+
+    Returns
+    -------
+    dict or None
+        ``{"g_std_mol": mol %, "production_std_pct": % of the window's mean flow}``;
+        None with fewer than two samples at or after ``from_h``.
+    """
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(xmeas, dtype=float).reshape(-1, 41)
+    win = x[t >= from_h - 1e-9]
+    if win.shape[0] < 2:
+        return None
+    flow = win[:, 16]
+    mean_flow = float(np.mean(flow))
+    pct = float(np.std(flow) / abs(mean_flow) * 100.0) if mean_flow != 0.0 else None
+    return {"g_std_mol": float(np.std(win[:, 39])), "production_std_pct": pct}
+
+
 def limit_binding(t, at_limit: dict, t_from: float, t_to: float
                   ) -> tuple[float | None, str | None, dict[str, float]]:
     """How much of the window ``t_from <= t_k < t_to`` limits bind.
@@ -226,7 +263,8 @@ def _common(t, dt, cost, last_leg, signals, targets, bands, tripped) -> dict:
 
 
 def te_metrics(t, xmeas, cost, active, model_names, dt: float,
-               last_leg: tuple[float, str] | None, trip: dict | None, xmv=None) -> dict:
+               last_leg: tuple[float, str] | None, trip: dict | None,
+               disturbance_on_h: float | None = None, xmv=None) -> dict:
     """The metrics of a TE run.
 
     Parameters
@@ -244,6 +282,9 @@ def te_metrics(t, xmeas, cost, active, model_names, dt: float,
     last_leg : (t_h, grade) or None
     trip : dict or None
         :func:`trip_record`.
+    disturbance_on_h : float or None
+        Onset of the run's first disturbance, h: the start of ``product_variability``'s
+        window (None: the whole run).
     xmv : array_like, shape (K, 12), optional
         XMV 1-12 in force, %; without it the valves bind nowhere (the pressure may).
     """
@@ -262,6 +303,8 @@ def te_metrics(t, xmeas, cost, active, model_names, dt: float,
     out.update(_common(t, dt, np.asarray(cost, dtype=float), t_leg, sig, targets, bands,
                        tripped))
     out["active_model_share"] = active_model_share(active, model_names)
+    out["product_variability"] = product_variability(
+        t, x, 0.0 if disturbance_on_h is None else float(disturbance_on_h))
     out.update(limit_bound_share=None, binding_limit=None, limit_shares={})
     t = np.asarray(t, dtype=float)
     if t_leg is not None and t.size:
@@ -283,10 +326,11 @@ def unit_metrics(t, y, active, model_names, dt: float, last_leg_h: float | None,
     out = {"tripped": False, "trip": None, "peak_pressure_kpa": None}
     out.update(_common(t, dt, None, last_leg_h, y, targets, bands, False))
     out["active_model_share"] = active_model_share(active, model_names)
+    out["product_variability"] = None
     out.update(limit_bound_share=None, binding_limit=None, limit_shares={})
     return {k: out[k] for k in _ORDER}
 
 
 _ORDER = ("tripped", "trip", "time_to_grade_h", "peak_pressure_kpa", "mean_cost_usd_h",
           "final_cost_usd_h", "transition_cost_usd", "active_model_share",
-          "limit_bound_share", "binding_limit", "limit_shares")
+          "product_variability", "limit_bound_share", "binding_limit", "limit_shares")

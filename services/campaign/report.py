@@ -26,6 +26,9 @@ COLUMNS = (
     ("time to grade, h", "time_to_grade_h"), ("peak pressure, kPa", "peak_pressure_kpa"),
     ("mean cost, $/h", "mean_cost_usd_h"), ("final cost, $/h", "final_cost_usd_h"),
     ("transition cost, $", "transition_cost_usd"),
+    ("G std, mol %", lambda r: (r.get("product_variability") or {}).get("g_std_mol")),
+    ("production std, %",
+     lambda r: (r.get("product_variability") or {}).get("production_std_pct")),
     ("active models", lambda r: " ".join(f"{k} {v:.2f}" for k, v in
                                          (r.get("active_model_share") or {}).items())),
     ("limit bound, share", "limit_bound_share"), ("binding limit", "binding_limit"),
