@@ -100,7 +100,8 @@ def test_te_metrics_of_a_transition_by_hand():
                                                      "mode2": 1 / 6})
     assert list(m) == ["tripped", "trip", "time_to_grade_h", "peak_pressure_kpa",
                        "mean_cost_usd_h", "final_cost_usd_h", "transition_cost_usd",
-                       "active_model_share", "product_variability"]
+                       "active_model_share", "product_variability", "limit_bound_share",
+                       "binding_limit", "limit_shares"]
 
 
 def test_te_metrics_of_a_tripped_run_integrate_the_cost_to_the_end():
@@ -146,3 +147,67 @@ def test_te_metrics_score_the_variability_from_the_onset_given():
                            None, None, disturbance_on_h=1.5)
     assert m["product_variability"] == metrics.product_variability(t, x, from_h=1.5)
     assert m["product_variability"] != metrics.product_variability(t, x)
+
+
+def test_limit_binding_is_the_share_of_the_window_any_limit_binds_and_names_the_longest():
+    t = np.arange(10) * 1.0
+    # window [2, 8): six samples; A binds at 2, 3, 4; B at 4 and 7; before the window
+    # A binds too (not counted)
+    a = np.zeros(10, bool)
+    a[[0, 1, 2, 3, 4]] = True
+    b = np.zeros(10, bool)
+    b[[4, 7]] = True
+    share, name, shares = metrics.limit_binding(t, {"A": a, "B": b}, 2.0, 8.0)
+    assert share == pytest.approx(4 / 6)          # samples 2, 3, 4, 7
+    assert name == "A"
+    assert shares == pytest.approx({"A": 3 / 6, "B": 2 / 6})
+
+
+def test_limit_binding_without_binding_and_with_an_empty_window():
+    t = np.arange(4) * 1.0
+    none = np.zeros(4, bool)
+    assert metrics.limit_binding(t, {"A": none}, 0.0, 4.0) == (0.0, None, {})
+    assert metrics.limit_binding(t, {"A": ~none}, 2.0, 2.0) == (None, None, {})
+
+
+def _flat_series(n: int):
+    x = np.zeros((n, 41))
+    x[:, 6] = 2800.0
+    u = np.full((n, 12), 50.0)
+    return x, u
+
+
+def test_te_limits_bind_at_a_valve_end_and_near_the_pressure_limit():
+    x, u = _flat_series(6)
+    u[1, 0] = 99.5          # D feed 0.5 % from full: binds
+    u[2, 0] = 98.0          # 2 % from full: does not
+    u[3, 5] = 0.4           # purge nearly shut: binds
+    u[4, 4] = 0.0           # the recycle valve is the plan's, not a controlled valve
+    u[4, 11] = 100.0        # nor is the agitator
+    x[5, 6] = 2885.0        # within 15 kPa of 2895: binds
+    x[2, 6] = 2870.0        # 25 kPa under: does not
+    b = metrics.te_limits_at_bound(x, u)
+    hits = {k: np.flatnonzero(v).tolist() for k, v in b.items() if v.any()}
+    assert hits == {"XMV1": [1], "XMV6": [3], "reactor pressure": [5]}
+
+
+def test_te_metrics_report_the_binding_over_the_transition_window_only():
+    dt = 0.5
+    t = np.arange(12) * dt                 # 0 ... 5.5 h, leg at 1 h
+    x, u = _flat_series(12)
+    x[:, 39], x[:, 16] = 53.72, 22.95      # mode 0's G and flow: never at mode 2
+    x[4:8, 39], x[4:8, 16] = MODE2_G, MODE2_FLOW
+    x[8:, 39], x[8:, 16] = MODE2_G, MODE2_FLOW
+    u[3:6, 1] = 100.0                      # the E feed wide open from 1.5 to 2.5 h
+    u[10:, 1] = 100.0                      # and after the grade is reached (not counted)
+    cost = np.full(12, 100.0)
+    row = metrics.te_metrics(t, x, cost, np.full(12, -1), (), dt, (1.0, "mode2"), None, xmv=u)
+    # the one-hour trailing mean (2 samples) is at grade from the sample at 2.5 h:
+    # window [1.0, 2.5): samples at 1.0, 1.5, 2.0; the E feed binds at 1.5 and 2.0
+    assert row["time_to_grade_h"] == pytest.approx(1.5)
+    assert row["limit_bound_share"] == pytest.approx(2 / 3)
+    assert row["binding_limit"] == "XMV2"
+    assert row["limit_shares"] == pytest.approx({"XMV2": 2 / 3})
+    # a run with no leg has no transition window
+    row = metrics.te_metrics(t, x, cost, np.full(12, -1), (), dt, None, None, xmv=u)
+    assert row["limit_bound_share"] is None and row["binding_limit"] is None

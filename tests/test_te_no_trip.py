@@ -20,6 +20,8 @@ INTERLOCK_KPA = 3000.0
                                        ({"e_feed_margin": float("nan")}, "e_feed_margin"),
                                        ({"hold_full_kpa": 3100.0}, "hold_full_kpa"),
                                        ({"purge_track_kpa": -1.0}, "purge_track_kpa"),
+                                       ({"a_loop_hold_h": -1.0}, "a_loop_hold_h"),
+                                       ({"a_loop_hold_h": float("inf")}, "a_loop_hold_h"),
                                        ({"hold_start_kpa": 2950.0, "hold_full_kpa": 2900.0},
                                         "hold_start_kpa/hold_full_kpa")])
 def test_bad_guards_name_their_field(kw, field):
@@ -76,6 +78,25 @@ def test_the_plan_waits_while_the_pressure_is_at_the_full_hold_and_goes_on_after
     assert again.plan_lag_h == pytest.approx(1.0)
     again.retarget(TransitionPlan("mode2"))
     assert again.plan_lag_h == 0.0
+
+
+def test_the_a_feed_loop_holds_its_trim_through_a_grade_change_only():
+    # A in the reactor feed (XMEAS 23) 3 mol % under the plan's: the loop raises the A
+    # feed's target, unless a grade change started less than a_loop_hold_h ago
+    def trim(plan, hold_h):
+        ctl, _ = make_te_controller("fixed", plan, guards=TransitionGuards(a_loop_hold_h=hold_h))
+        x = _xmeas(0, 2705.0)
+        x[22] -= 3.0
+        for k in range(10):
+            ctl.step(k, 1.0 + k * ctl.sample_h, x, None)
+            ctl.finish_sample()
+        return ctl.a_trim
+
+    change = TransitionPlan("mode0", (Leg(1.0, "mode1"),))
+    assert trim(change, 0.0) > 0.0                         # the default: the loop acts
+    assert trim(change, 4.0) == 0.0                        # within 4 h of the change
+    assert trim(change, 0.05) > 0.0                        # past a short hold it acts
+    assert trim(TransitionPlan("mode0"), 4.0) > 0.0        # a steady grade: it acts
 
 
 def test_no_hold_without_a_leg_under_way():

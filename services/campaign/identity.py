@@ -24,7 +24,7 @@ from services.campaign.spec import CampaignSpec, Case
 __all__ = ["RUN_FORMAT", "RunSpec", "plan_runs", "run_settings"]
 
 #: Version of what a run computes and records (bump when runs.py or metrics.py change it).
-RUN_FORMAT = "campaign-run-1"
+RUN_FORMAT = "campaign-run-2"
 
 
 @lru_cache(maxsize=8)

@@ -30,6 +30,21 @@ integral is the rectangle sum ``sum_k rate_k dt`` over the samples in the window
   Vogel (1993) score a TE controller on under a disturbance. Both are the raw
   samples, analyzer and flow noise included, so runs compare only on the same
   noise setting. ``None`` with fewer than two samples in the window.
+- ``limit_bound_share``, ``binding_limit``, ``limit_shares`` (TE): how much of the
+  transition window a plant limit binds. The window is that of
+  ``transition_cost_usd`` (the start of the last leg to the grade reached, or to the
+  end of the run or its trip). A limit binds in a sample when a valve a loop or the
+  controller manipulates (:data:`controller.units.te.grades.CONTROLLED_VALVES`) is
+  within :data:`TE_VALVE_RANGE_TOL` % of 0 or 100 %, or the reactor pressure
+  (XMEAS 7) is within :data:`TE_PRESSURE_BAND_KPA` of the targets' 2895 kPa limit
+  or above it (from 2880 kPa, where the transition guards' plan hold starts).
+  ``limit_bound_share``: the fraction of the window's samples in which any limit
+  binds; ``limit_shares``: that fraction per limit (``XMV1`` ... ``XMV11``,
+  ``reactor pressure``; the limits that bind at all); ``binding_limit``: the one
+  that binds longest (None when none does). None / ``{}`` when the window holds no
+  sample (at grade from the leg on), without legs, and for unit plants. A
+  controller that holds a limit through most of the window could not go faster
+  there without crossing it.
 """
 
 from __future__ import annotations
@@ -38,7 +53,9 @@ import numpy as np
 
 __all__ = ["trip_record", "time_to_grade_h", "integrate_rate", "active_model_share",
            "final_mean", "te_grade_targets", "te_metrics", "unit_metrics", "product_variability",
-           "TE_G_BAND_MOL", "TE_FLOW_BAND_REL", "FINAL_WINDOW_H", "TE_GRADE_WINDOW_H"]
+           "limit_binding", "te_limits_at_bound",
+           "TE_G_BAND_MOL", "TE_FLOW_BAND_REL", "FINAL_WINDOW_H", "TE_GRADE_WINDOW_H",
+           "TE_VALVE_RANGE_TOL", "TE_PRESSURE_LIMIT_KPA", "TE_PRESSURE_BAND_KPA"]
 
 #: Band on G in product, mol % (XMEAS 40).
 TE_G_BAND_MOL = 1.0
@@ -51,6 +68,14 @@ FINAL_WINDOW_H = 1.0
 #: samples outside the bands late in every run (measured: 15-23 h "to grade" in 24 h
 #: runs of every strategy, where the G analyzer's trailing mean is in band after 5-7 h).
 TE_GRADE_WINDOW_H = 1.0
+#: A valve binds within this of 0 % or 100 % (% of its range).
+TE_VALVE_RANGE_TOL = 1.0
+#: The reactor pressure's limit at the steady-state targets, kPa (Downs & Vogel's
+#: normal operating high limit; :class:`controller.units.te.targets.CoreTargetSettings`).
+TE_PRESSURE_LIMIT_KPA = 2895.0
+#: The reactor pressure binds from this far below its limit, kPa (2880 kPa: where the
+#: plan hold of :class:`controller.units.te.control.TransitionGuards` starts).
+TE_PRESSURE_BAND_KPA = 15.0
 
 
 def trip_record(at_h: float | None, reason: str | None) -> dict | None:
@@ -153,6 +178,60 @@ def product_variability(t, xmeas, from_h: float = 0.0) -> dict | None:
     return {"g_std_mol": float(np.std(win[:, 39])), "production_std_pct": pct}
 
 
+def limit_binding(t, at_limit: dict, t_from: float, t_to: float
+                  ) -> tuple[float | None, str | None, dict[str, float]]:
+    """How much of the window ``t_from <= t_k < t_to`` limits bind.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Sample times, h.
+    at_limit : dict
+        Limit name -> bool array (K,): the samples in which that limit binds.
+    t_from, t_to : float
+        The window, h.
+
+    Returns
+    -------
+    (share, name, shares)
+        The fraction of the window's samples in which any limit binds, the limit that
+        binds in the most of them (the first named on a tie; None when none binds),
+        and the fraction per limit that binds at all. ``(None, None, {})`` when the
+        window holds no sample.
+    """
+    t = np.asarray(t, dtype=float)
+    mask = (t >= t_from) & (t < t_to)
+    n = int(np.count_nonzero(mask))
+    if n == 0:
+        return None, None, {}
+    shares = {}
+    anyb = np.zeros(n, dtype=bool)
+    for name, b in at_limit.items():
+        bw = np.asarray(b, dtype=bool).reshape(-1)[mask]
+        anyb |= bw
+        c = int(np.count_nonzero(bw))
+        if c:
+            shares[str(name)] = c / n
+    best = max(shares, key=shares.get) if shares else None
+    return float(np.count_nonzero(anyb)) / n, best, shares
+
+
+def te_limits_at_bound(xmeas, xmv) -> dict[str, np.ndarray]:
+    """The TE limits of :func:`limit_binding`, sample by sample: ``XMVn`` for the
+    controlled valves (within :data:`TE_VALVE_RANGE_TOL` of 0 or 100 %) and ``reactor
+    pressure`` (from :data:`TE_PRESSURE_LIMIT_KPA` - :data:`TE_PRESSURE_BAND_KPA`).
+    ``xmeas`` (K, 41), ``xmv`` (K, 12) %. A value that is not finite does not bind."""
+    from controller.units.te.grades import CONTROLLED_VALVES
+
+    x = np.asarray(xmeas, dtype=float).reshape(-1, 41)
+    u = np.asarray(xmv, dtype=float).reshape(-1, 12)
+    with np.errstate(invalid="ignore"):
+        out = {f"XMV{v}": (u[:, v - 1] <= TE_VALVE_RANGE_TOL)
+               | (u[:, v - 1] >= 100.0 - TE_VALVE_RANGE_TOL) for v in CONTROLLED_VALVES}
+        out["reactor pressure"] = x[:, 6] >= TE_PRESSURE_LIMIT_KPA - TE_PRESSURE_BAND_KPA
+    return out
+
+
 def te_grade_targets(grade_name: str) -> tuple[np.ndarray, np.ndarray]:
     """Targets and bands of the TE grade signals (G mol %, product flow) of a grade."""
     from controller.units.te.grades import grade
@@ -185,7 +264,7 @@ def _common(t, dt, cost, last_leg, signals, targets, bands, tripped) -> dict:
 
 def te_metrics(t, xmeas, cost, active, model_names, dt: float,
                last_leg: tuple[float, str] | None, trip: dict | None,
-               disturbance_on_h: float | None = None) -> dict:
+               disturbance_on_h: float | None = None, xmv=None) -> dict:
     """The metrics of a TE run.
 
     Parameters
@@ -206,6 +285,8 @@ def te_metrics(t, xmeas, cost, active, model_names, dt: float,
     disturbance_on_h : float or None
         Onset of the run's first disturbance, h: the start of ``product_variability``'s
         window (None: the whole run).
+    xmv : array_like, shape (K, 12), optional
+        XMV 1-12 in force, %; without it the valves bind nowhere (the pressure may).
     """
     x = np.asarray(xmeas, dtype=float).reshape(-1, 41)
     tripped = trip is not None
@@ -224,6 +305,14 @@ def te_metrics(t, xmeas, cost, active, model_names, dt: float,
     out["active_model_share"] = active_model_share(active, model_names)
     out["product_variability"] = product_variability(
         t, x, 0.0 if disturbance_on_h is None else float(disturbance_on_h))
+    out.update(limit_bound_share=None, binding_limit=None, limit_shares={})
+    t = np.asarray(t, dtype=float)
+    if t_leg is not None and t.size:
+        ttg = out["time_to_grade_h"]
+        t_to = t_leg + ttg if ttg is not None else float(t[-1]) + dt
+        u = np.full((x.shape[0], 12), np.nan) if xmv is None else xmv
+        share, name, shares = limit_binding(t, te_limits_at_bound(x, u), t_leg, t_to)
+        out.update(limit_bound_share=share, binding_limit=name, limit_shares=shares)
     return {k: out[k] for k in _ORDER}
 
 
@@ -238,9 +327,10 @@ def unit_metrics(t, y, active, model_names, dt: float, last_leg_h: float | None,
     out.update(_common(t, dt, None, last_leg_h, y, targets, bands, False))
     out["active_model_share"] = active_model_share(active, model_names)
     out["product_variability"] = None
+    out.update(limit_bound_share=None, binding_limit=None, limit_shares={})
     return {k: out[k] for k in _ORDER}
 
 
 _ORDER = ("tripped", "trip", "time_to_grade_h", "peak_pressure_kpa", "mean_cost_usd_h",
           "final_cost_usd_h", "transition_cost_usd", "active_model_share",
-          "product_variability")
+          "product_variability", "limit_bound_share", "binding_limit", "limit_shares")

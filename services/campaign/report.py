@@ -31,6 +31,7 @@ COLUMNS = (
      lambda r: (r.get("product_variability") or {}).get("production_std_pct")),
     ("active models", lambda r: " ".join(f"{k} {v:.2f}" for k, v in
                                          (r.get("active_model_share") or {}).items())),
+    ("limit bound, share", "limit_bound_share"), ("binding limit", "binding_limit"),
     ("wall, s", "wall_s"), ("error", "error"), ("run", "run"),
 )
 

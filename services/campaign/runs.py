@@ -70,7 +70,8 @@ def _run_te(run: RunSpec, hours: float | None = None) -> RunOutcome:
     last_leg = None if not case.legs else (case.legs[-1].at_h, case.legs[-1].grade)
     onset = min((e.on_h for e in case.idvs), default=None)
     row = metrics.te_metrics(r.t, r.xmeas, r.cost, r.active, r.model_names,
-                             r.meta["sample_h"], last_leg, trip, disturbance_on_h=onset)
+                             r.meta["sample_h"], last_leg, trip, disturbance_on_h=onset,
+                             xmv=r.xmv)
     series = {"t_h": r.t, "xmeas": r.xmeas, "xmv": r.xmv, "setpoints": r.setpoints,
               "ref": r.ref, "cost_usd_h": r.cost, "active": r.active,
               "solve_ms": r.solve_ms, "model_names": np.array(r.model_names, dtype=str)}
@@ -196,4 +197,5 @@ def execute(run: RunSpec) -> RunOutcome:
 def failed_metrics() -> dict:
     return {"tripped": None, "trip": None, "time_to_grade_h": None, "peak_pressure_kpa": None,
             "mean_cost_usd_h": None, "final_cost_usd_h": None, "transition_cost_usd": None,
-            "active_model_share": {}, "product_variability": None}
+            "active_model_share": {}, "product_variability": None,
+            "limit_bound_share": None, "binding_limit": None, "limit_shares": {}}
