@@ -128,8 +128,11 @@ def _sample(ssm, est, j_ad, index, switcher, law, y, reference, u, k, timer, ada
         est.commit()
         est.prepare(ssm.regressor())
     t6 = clock()
+    rebuilds = law.counters().get("mpc_rebuilds", 0)
     law.finish_sample(ssm, dec.active)
     t7 = clock()
+    timer.parts.setdefault("rebuilt", []).append(
+        float(law.counters().get("mpc_rebuilds", 0) > rebuilds))
     timer.add("errors", t0, t1)
     timer.add("adapt", t1, t2)
     timer.add("switch", t2, t3)
@@ -147,10 +150,15 @@ def _sample(ssm, est, j_ad, index, switcher, law, y, reference, u, k, timer, ada
 def _case(name: str, timer: _Timer, **extra) -> dict:
     from services.bench._common import latency_case
 
-    times = {p: v for p, v in timer.parts.items() if p not in ("total", "preempted")}
+    times = {p: v for p, v in timer.parts.items() if p not in ("total", "preempted", "rebuilt")}
     parts = {f"{p}_median_ms": float(np.median(v)) for p, v in times.items()}
     parts.update({f"{p}_p99_ms": float(np.percentile(v, 99)) for p, v in times.items()})
     parts["preempted_samples"] = int(sum(timer.parts.get("preempted", ())))
+    # the MPC part of the samples right after a QP rebuild (its solver's first solve)
+    rebuilt = np.asarray(timer.parts.get("rebuilt", ()), dtype=bool)[:-1]
+    after = np.asarray(timer.parts["mpc"])[1:][rebuilt[:len(timer.parts["mpc"]) - 1]]
+    parts["after_rebuild_samples"] = int(after.size)
+    parts["after_rebuild_mpc_median_ms"] = float(np.median(after)) if after.size else None
     return latency_case(name, timer.parts["total"], unit="ms", **parts, **extra)
 
 
