@@ -18,9 +18,9 @@ Budget: ``budget_fraction * Ts / speed`` wall seconds from the measurement's
 arrival (when this node's thread takes it in: time it waited in Zenoh for a thread
 still busy with the previous sample is not in it; the plant counts that sample as held
 if its move comes after the next boundary). A :class:`~services.timing.Watchdog`
-publishes the fallback move (the last move, held) at the deadline if the step has not returned, so an overrun
-never stalls the plant; the late result is not published and the miss is
-counted. The controller's own fallback (``ControlDecision.fallback``: next
+publishes the fallback move (the last move, held) at the deadline if the step has
+not returned, so an overrun never stalls the plant; the late result is not published
+and the miss is counted. The controller's own fallback (``ControlDecision.fallback``: next
 move of the previous plan for the MPC) is counted too.
 
 Threads: a measurement is processed on the Zenoh thread that delivers it (no
