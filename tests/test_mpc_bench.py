@@ -33,6 +33,9 @@ def test_bench_mpc_step_two_phase_case_shape():
         assert f"{part}_median_ms" in c and f"{part}_p99_ms" in c
     # the samples the thread was switched out of, to read a wall tail by
     assert isinstance(c["preempted_samples"], int) and 0 <= c["preempted_samples"] <= c["n"]
+    # the samples right after a QP rebuild, counted apart (at most one per rebuild)
+    assert 0 < c["after_rebuild_samples"] <= c["rebuilds"]
+    assert c["after_rebuild_mpc_median_ms"] > 0
 
 
 def test_bench_mpc_step_two_phase_targets_case_shape():

@@ -203,3 +203,51 @@ def test_refreshes_of_a_fast_adapting_model_are_spaced_by_min_refresh_samples():
             rebuilt_at.append(k)
     assert len(rebuilt_at) >= 4
     assert np.all(np.diff(rebuilt_at) == 4)  # every 4th sample, never closer
+
+
+def test_a_rebuild_between_samples_sets_the_solver_up_there_too():
+    """With setup_ahead (the default) the QP rebuilt in finish_sample has its DAQP
+    workspace made there, so the next sample only solves; without, the solve makes it."""
+    s = MPCSettings(nu=2, ny=2, P=8, M=3, Lambda=[0.1, 0.1], du_max=[0.5, 0.5],
+                    budget_ms=1e3)
+    made = {}
+    for ahead in (True, False):
+        rng = np.random.default_rng(6)
+        ssm = small_ssm(rng)
+        law = MPCLaw(s, refresh_tol=0.0, min_refresh_samples=1, setup_ahead=ahead)
+        law.prepare(ssm)
+        ssm.initialize(np.zeros(2), np.zeros(2))
+        law.reset(np.zeros(2), np.zeros(2))
+        _drive_adaptive(law, ssm, rng, 0, 1, np.zeros(2))
+        p = ssm.params_from_theta(ssm.theta(2), ssm.bias(2))
+        ssm.set_params(2, p + 1e-3 * rng.standard_normal(p.size))  # Θ moved: stale
+        before = law.mpc.counters["rebuilds"]
+        law.finish_sample(ssm, 2)
+        assert law.mpc.counters["rebuilds"] == before + 1
+        made[ahead] = law.mpc._solvers[2][1]._model is not None
+    assert made == {True: True, False: False}
+
+
+SETUP_AHEAD_MOVES_ATOL = 1e-9  # valve %, the two-phase closed loop with/without
+
+
+def test_solver_set_up_ahead_keeps_the_two_phase_moves():
+    """The chapter-6 reactor in closed loop (adaptive model's QP rebuilt between
+    samples) moves the same with the solver set up at the rebuild as in the sample."""
+    import functools
+
+    import controller.units.two_phase_reactor as tp
+
+    runs = {}
+    for ahead in (True, False):
+        law = functools.partial(MPCLaw, setup_ahead=ahead)
+        orig = tp.MPCLaw
+        tp.MPCLaw = law
+        try:
+            runs[ahead] = tp.run_reactor(tp.ReactorCase())
+        finally:
+            tp.MPCLaw = orig
+    assert runs[True].counters["mpc_rebuilds"] >= 1
+    assert not runs[True].fallback.any()
+    np.testing.assert_allclose(runs[True].u, runs[False].u, rtol=0,
+                               atol=SETUP_AHEAD_MOVES_ATOL)

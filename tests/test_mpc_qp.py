@@ -102,3 +102,24 @@ def test_infeasible_hard_rows_are_reported():
     # proxsuite may run into its iteration limit instead of proving infeasibility.
     r = ProxsuiteBackend(H, A).solve(v)
     assert r.status in ("infeasible", "max_iter") and not r.ok
+
+
+def test_daqp_set_up_ahead_solves_as_set_up_in_the_solve(sequence, daqp_cold):
+    """A workspace set up before the solve (placeholder vectors) gives the solve's answer
+    within SETUP_AHEAD_ATOL: the first solve starts cold, whatever warm_start says."""
+    from controller.mpc.qp import SETUP_AHEAD_ATOL
+
+    for v, r0 in zip(sequence.vectors, daqp_cold):
+        solver = DAQPBackend(sequence.H, sequence.A, warm_start=True)
+        solver.setup_ahead()
+        assert solver._model is not None  # set up before any solve
+        r = solver.solve(v)
+        assert r.ok
+        np.testing.assert_allclose(r.x, r0.x, rtol=0, atol=SETUP_AHEAD_ATOL)
+    # and warm from there on: the working set carries over as without the set-up ahead
+    solver = DAQPBackend(sequence.H, sequence.A, warm_start=True)
+    solver.setup_ahead()
+    for v, r0 in zip(sequence.vectors, daqp_cold):
+        r = solver.solve(v)
+        assert r.ok
+        np.testing.assert_allclose(r.x, r0.x, atol=WARM_COLD_ATOL)

@@ -474,6 +474,28 @@ def test_status_is_published_at_most_every_min_wall_interval(harness):
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)  # fresh each time
 
 
+def test_a_due_status_waits_for_slack_before_the_next_measurement(harness):
+    """A due status goes out on a sample with time for it before the next measurement
+    (its measured cost), else it waits, at the latest STATUS_MAX_WALL_S."""
+    h = harness(start_plant=False)
+    node = h.ctrl
+    sent = []
+    node._publish_status = lambda: sent.append(time.perf_counter())
+    period = node.budget.wall_period_s
+    node._status_cost_s = 0.5 * period
+    now = time.perf_counter()
+    node._last_status_wall = now
+    node._status_due = True
+    node._maybe_publish_status(now - 0.9 * period)  # a tenth of a period left: waits
+    assert sent == [] and node._status_due
+    node._maybe_publish_status(time.perf_counter())  # a whole period left: goes out
+    assert len(sent) == 1 and not node._status_due
+    node._status_due = True
+    node._last_status_wall = time.perf_counter() - 1.1 * node.STATUS_MAX_WALL_S
+    node._maybe_publish_status(time.perf_counter() - period)  # no slack, but overdue
+    assert len(sent) == 2
+
+
 def test_busy_poll_processes_samples_on_the_run_thread(harness):
     """--busy-poll: the run() thread polls for measurements and processes them itself
     (Zenoh's threads only queue them); the loop runs a transition as the default does, and

@@ -304,13 +304,22 @@ class MPCController:
             fwd(d)
 
     # -- preparation ---------------------------------------------------------------
-    def prepare(self, key: Hashable, Phi, Gamma, C, Gamma_d=None) -> DeltaUFormulation:
-        """Build (or fetch) the formulation and solver of one model ahead of use."""
+    def prepare(self, key: Hashable, Phi, Gamma, C, Gamma_d=None, *,
+                setup_solver: bool = False) -> DeltaUFormulation:
+        """Build (or fetch) the formulation and solver of one model ahead of use.
+
+        With ``setup_solver`` a new solver also sets its workspace up now
+        (:meth:`controller.mpc.qp.QPSolver.setup_ahead`: its first solve then starts
+        cold, equal to one set up in the solve within
+        :data:`controller.mpc.qp.SETUP_AHEAD_ATOL`), so that no sample pays for it.
+        """
         form, built = self.cache.get(key, Phi, Gamma, C, Gamma_d)
         entry = self._solvers.get(key)
         if built or entry is None or entry[0] is not form:
             s = self.settings
             solver = make_solver(s.backend, form.H, form.A, s.max_iter, s.warm_start)
+            if setup_solver:
+                solver.setup_ahead()
             self._solvers[key] = (form, solver)
             if built:
                 self.counters["rebuilds"] += 1

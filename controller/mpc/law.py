@@ -225,6 +225,14 @@ class MPCLaw:
         so a restored law makes the same moves).
     min_refresh_samples : int
         Least number of samples between two refreshes of one adaptive model.
+    setup_ahead : bool
+        A QP rebuilt between samples (:meth:`finish_sample`) also sets its solver's
+        workspace up there (DAQP: the factorisation of ``H``), so the next sample only
+        solves. Its first solve then takes DAQP's update path, whose round-off differs
+        from the set-up path's (QP solutions within
+        :data:`controller.mpc.qp.SETUP_AHEAD_ATOL`; measured on the two-phase closed
+        loop in ``tests/test_mpc_law.py``). False: the workspace is set up in that
+        sample's solve, as before.
 
     Notes
     -----
@@ -236,8 +244,12 @@ class MPCLaw:
 
     def __init__(self, settings: MPCSettings,
                  refresh_tol: float = SharedStateSource.REFRESH_TOL,
-                 min_refresh_samples: int = SharedStateSource.MIN_REFRESH_SAMPLES) -> None:
+                 min_refresh_samples: int = SharedStateSource.MIN_REFRESH_SAMPLES,
+                 setup_ahead: bool = True) -> None:
+        if not isinstance(setup_ahead, bool):
+            raise ValueError(f"setup_ahead: expected True or False, got {setup_ahead!r}")
         self.settings = settings
+        self.setup_ahead = setup_ahead
         self.source = SharedStateSource(refresh_tol, min_refresh_samples)
         self.mpc = MPCController(settings, self.source, u0=np.zeros(settings.nu))
 
@@ -284,12 +296,14 @@ class MPCLaw:
         its Θ has moved by more than ``refresh_tol`` (see
         :meth:`SharedStateSource.refresh_ahead`), the inactive ones too, so that a
         switch to an adaptive model finds its QP ready. ``model`` (the active one) is
-        not needed for that; it is part of the law protocol."""
+        not needed for that; it is part of the law protocol. With ``setup_ahead`` the
+        rebuilt QP's solver workspace is set up here too."""
         self.source.ssm = ssm
         for j in range(ssm.k):
             form = self.source.refresh_ahead(j)
             if form is not None:
-                self.mpc.prepare(j, form[0], form[1], form[2])
+                self.mpc.prepare(j, form[0], form[1], form[2],
+                                 setup_solver=self.setup_ahead)
 
     def compute(self, k: int, model: int, ssm, y, reference, u_last):
         self.source.ssm = ssm

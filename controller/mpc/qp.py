@@ -8,7 +8,15 @@ only for a finished, optimal, finite solution; callers must check it before usin
 result with status ``"error"``.
 
 Warm start: DAQP keeps the working set of the previous solve (proven to give the
-cold-solve answer in ``tests/test_mpc_qp.py``). Proxsuite's
+cold-solve answer in ``tests/test_mpc_qp.py``).
+
+Set-up ahead (:meth:`QPSolver.setup_ahead`): DAQP's workspace (the factorisation of
+``H`` and the constraints' normalisation) can be made when the QP is built, between
+samples, instead of inside the first solve. That solve then goes through DAQP's update
+path with a cold working set, which rounds differently from its set-up path: measured
+on 200 random QPs of the two-phase size, max |Δx| 1.1e-16 with the set-up ahead against
+in the solve (:data:`SETUP_AHEAD_ATOL` bounds it in the tests). The workspace's set-up
+alone: two-phase QP (P = 40, M = 4) ~0.05 ms, TE (21 variables) ~0.02 ms. Proxsuite's
 ``WARM_START_WITH_PREVIOUS_RESULT`` misreports feasible problems as primal
 infeasible (shown in the same tests), so :class:`ProxsuiteBackend` always solves cold.
 """
@@ -25,7 +33,12 @@ from controller.finite_kernel import all_finite
 from controller.mpc.formulation import QPVectors
 from controller.mpc.vector_kernel import stacked_bounds
 
-__all__ = ["QPResult", "QPSolver", "DAQPBackend", "ProxsuiteBackend", "make_solver"]
+__all__ = ["QPResult", "QPSolver", "DAQPBackend", "ProxsuiteBackend", "make_solver",
+           "SETUP_AHEAD_ATOL"]
+
+#: Largest difference in a QP's solution between DAQP's workspace set up ahead
+#: (:meth:`QPSolver.setup_ahead`) and set up in the solve: round-off of its update path.
+SETUP_AHEAD_ATOL = 1e-12
 
 # Finite stand-in for "no limit" where a backend wants finite numbers.
 _BIG = 1.0e20
@@ -121,6 +134,11 @@ class QPSolver(ABC):
             x = None if status == "nan" else x
         return QPResult(status, x, int(it), ms, float(obj), self.name, str(raw))
 
+    def setup_ahead(self) -> None:
+        """Make the solver's workspace now (between samples) rather than in the next
+        solve, which then starts cold; nothing for a backend without one."""
+        return None
+
     @abstractmethod
     def reset(self) -> None:
         """Forget any warm-start information (the next solve is cold)."""
@@ -134,8 +152,9 @@ class QPSolver(ABC):
 class DAQPBackend(QPSolver):
     """DAQP (Arnström, Bemporad, Axehill), a dual active-set solver for small dense QPs.
 
-    The workspace (factorisation of H) is set up once; each solve updates only the
-    vectors. Warm start keeps the previous working set; a cold solve clears it.
+    The workspace (factorisation of H) is set up once, by the first solve or ahead of
+    it (:meth:`setup_ahead`); each solve updates only the vectors. Warm start keeps the
+    previous working set; a cold solve clears it.
     """
 
     name = "daqp"
@@ -152,9 +171,28 @@ class DAQPBackend(QPSolver):
         self._daqp = daqp
         self._model = None
         self._sense_cold = None
+        self._cold_next = False  # a workspace set up ahead: its first solve starts cold
 
     def reset(self) -> None:
         self._model = None
+
+    def setup_ahead(self) -> None:
+        """Set DAQP's workspace up now with placeholder vectors (zero cost vector, unit
+        bounds: the set-up factors ``H`` and normalises ``A``, it reads no vector). A
+        set-up that fails is left to the first solve, which reports it."""
+        if self._model is not None:
+            return
+        model = self._daqp.Model()
+        model.settings = {"iter_limit": self.max_iter, "primal_tol": self.primal_tol}
+        n_bounds = self.nz + self.m
+        flag = model.setup(self.H, np.zeros(self.nz), self.A, np.ones(n_bounds),
+                           -np.ones(n_bounds))
+        flag = flag[0] if isinstance(flag, tuple) else flag
+        if flag < 0:
+            return
+        self._model = model
+        self._sense_cold = np.zeros(n_bounds, dtype=np.int32)
+        self._cold_next = True
 
     def _solve(self, v: QPVectors, warm: bool, upper: np.ndarray, lower: np.ndarray):
         bu, bl = upper, lower
@@ -168,10 +206,11 @@ class DAQPBackend(QPSolver):
                 return "error", None, 0, float("nan"), f"setup {flag}"
             self._model = model
             self._sense_cold = np.zeros(bu.size, dtype=np.int32)
-        elif warm:
+        elif warm and not self._cold_next:
             self._model.update(f=f, bupper=bu, blower=bl)
         else:
             self._model.update(f=f, bupper=bu, blower=bl, sense=self._sense_cold)
+            self._cold_next = False
         x, fval, flag, info = self._model.solve()
         status = self._FLAGS.get(int(flag), "error")
         return status, np.array(x, dtype=float), info.get("iterations", 0), fval, flag

@@ -15,10 +15,12 @@ Per measurement (sample k):
 4. publish the move on ``ssmpc/<unit>/mv``.
 
 Budget: ``budget_fraction * Ts / speed`` wall seconds from the measurement's
-arrival. A :class:`~services.timing.Watchdog` publishes the fallback move (the
-last move, held) at the deadline if the step has not returned, so an overrun
-never stalls the plant; the late result is not published and the miss is
-counted. The controller's own fallback (``ControlDecision.fallback``: next
+arrival (when this node's thread takes it in: time it waited in Zenoh for a thread
+still busy with the previous sample is not in it; the plant counts that sample as held
+if its move comes after the next boundary). A :class:`~services.timing.Watchdog`
+publishes the fallback move (the last move, held) at the deadline if the step has
+not returned, so an overrun never stalls the plant; the late result is not published
+and the miss is counted. The controller's own fallback (``ControlDecision.fallback``: next
 move of the previous plan for the MPC) is counted too.
 
 Threads: a measurement is processed on the Zenoh thread that delivers it (no
@@ -30,7 +32,9 @@ others are counted as dropped) and is processed right after it.
 Status goes to ``ssmpc/<unit>/status`` every ``status_every`` samples, but no
 more often than every :attr:`ControllerNode.STATUS_MIN_WALL_S` of wall time (TE at
 10,000x: every 10 samples is ~28 messages a second at ~1.3 ms of the loop thread
-each; queries answer with a fresh status at any time);
+each), on a sample with the slack for it before the next measurement, at the latest
+after :attr:`ControllerNode.STATUS_MAX_WALL_S`; queries answer with a fresh status at
+any time;
 telemetry to Rerun in batches; a checkpoint (controller state, last move,
 transition state) to SQLite every ``checkpoint_every`` samples or 5 wall
 seconds — on the first such sample with time for the snapshot before the next
@@ -374,6 +378,8 @@ class ControllerNode:
         self._busy_until = 0.0
         self._last_flush = time.perf_counter()
         self._last_status_wall = -math.inf
+        self._status_due = False
+        self._status_cost_s = 0.0  # wall time of the latest status, decayed (s)
         self._checkpoint_cost_s = 0.0
         self._last_checkpoint_wall = time.perf_counter()
         # Bumpless (re)start: the first measurement from a plant that already runs on a
@@ -600,6 +606,34 @@ class ControllerNode:
         self._checkpoint_cost_s = max(cost, 0.5 * self._checkpoint_cost_s)
         self._last_checkpoint_wall = time.perf_counter()
         self._checkpoint_due = False
+
+    #: Longest wall time between status messages however little slack the loop has, s.
+    STATUS_MAX_WALL_S = 1.0
+
+    def _maybe_publish_status(self, arrived: float) -> None:
+        """Publish a due status when it fits before the next measurement is due.
+
+        On this thread, after the move (Python that, run by the worker, would contend
+        with the next step for the interpreter lock). The TE status costs 1.4-2.2 ms
+        (building and encoding it); at 10,000x that is more than a sample's slack after
+        the step and the bookkeeping, and publishing it anyway ran into the next
+        measurement, which then waited for this thread. A due status therefore waits for
+        a sample with the slack for it (its cost as last measured, decaying by half a
+        status), or :attr:`STATUS_MAX_WALL_S` at the latest.
+        """
+        now = time.perf_counter()
+        slack = arrived + self.budget.wall_period_s - now
+        overdue = now - self._last_status_wall > self.STATUS_MAX_WALL_S
+        if not (overdue or self._status_cost_s < slack):
+            return
+        self._status_due = False
+        self._last_status_wall = now
+        try:
+            self._publish_status()
+        except Exception:
+            log.exception("status not published")
+        cost = time.perf_counter() - now
+        self._status_cost_s = max(cost, 0.5 * self._status_cost_s)
 
     def flush(self) -> None:
         """Wait until every record and checkpoint submitted so far is written."""
@@ -1282,13 +1316,9 @@ class ControllerNode:
         now = time.perf_counter()
         if (msg.seq % self.cfg.status_every == 0
                 and now - self._last_status_wall >= self.STATUS_MIN_WALL_S):
-            # on this thread, after the move: Python that, run by the worker, would
-            # contend with the next step for the interpreter lock
-            self._last_status_wall = now
-            try:
-                self._publish_status()
-            except Exception:
-                log.exception("status not published")
+            self._status_due = True
+        if self._status_due:
+            self._maybe_publish_status(arrived)
 
     def _ramp_limited(self, u, hold, seq: int):
         """The move after a resume, limited by the ramp-in (:mod:`services.nodes.ramp_in`);
