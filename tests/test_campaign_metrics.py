@@ -145,8 +145,13 @@ def test_te_metrics_score_the_variability_from_the_onset_given():
     t, x, cost, active = _te_series()
     m = metrics.te_metrics(t, x, cost, active, ("reinit", "mode0", "mode2"), 0.5,
                            None, None, disturbance_on_h=1.5)
-    assert m["product_variability"] == metrics.product_variability(t, x, from_h=1.5)
-    assert m["product_variability"] != metrics.product_variability(t, x)
+    # from 1.5 h G is MODE2_G + 0.9, - 0.5, + 0: the deviations' mean square less
+    # their mean squared, (0.81 + 0.25) / 3 - (0.4 / 3)^2 = 0.3356, std 0.579 mol %
+    assert m["product_variability"]["g_std_mol"] == pytest.approx(0.5793, abs=1e-4)
+    # the whole run (from 53.7 mol % down) spreads far more
+    whole = metrics.te_metrics(t, x, cost, active, ("reinit", "mode0", "mode2"), 0.5,
+                               None, None)
+    assert whole["product_variability"]["g_std_mol"] > 5.0
 
 
 def test_limit_binding_is_the_share_of_the_window_any_limit_binds_and_names_the_longest():
