@@ -154,8 +154,10 @@ def _json_targets(report) -> dict | None:
 
 
 class _Worker:
-    """One background thread for the slow chores of a sample (SQLite, Rerun),
-    in submission order, so that they never delay the next move.
+    """One background thread for slow chores of a sample, in submission order, so that
+    they never delay the next move. The node keeps one for the store (SQLite) and one
+    for telemetry (Rerun): a slow telemetry sink never holds up a write that a request
+    is answered on.
 
     ``on_error(exc)`` is told of every task that raised (after it is logged)."""
 
@@ -373,7 +375,10 @@ class ControllerNode:
         self._dropped = 0
         #: why the store last failed to commit (None: it commits); writes answer 503
         self.store_error: str | None = None
-        self._worker = _Worker(on_error=self._background_failed)
+        self._worker = _Worker(on_error=self._background_failed)  # the store's writes
+        #: telemetry's flushes (Rerun) apart from the store's writes
+        self._telemetry_worker = _Worker(on_error=self._telemetry_failed) \
+            if telemetry is not None else None
         self._checkpoint_due = False
         self._busy_until = 0.0
         self._last_flush = time.perf_counter()
@@ -536,6 +541,11 @@ class ControllerNode:
 
     def _background_failed(self, exc: BaseException) -> None:
         self._store_failed("a background write", exc)
+
+    def _telemetry_failed(self, exc: BaseException) -> None:
+        """A telemetry flush raised: an alarm; the store and the loop are not concerned."""
+        with self._lock:
+            self.alarms.append(f"telemetry not written: {type(exc).__name__}: {exc}")
 
     def checkpoint(self, wait: bool = True) -> None:
         """Snapshot the node's state now and write it (in order with transition records);
@@ -1300,7 +1310,7 @@ class ControllerNode:
             if full or now - self._last_flush > self.telemetry.max_wall_s:
                 # in batches, but never more than a second behind (a live viewer)
                 self._last_flush = now
-                self._worker.submit(self.telemetry.flush)
+                self._telemetry_worker.submit(self.telemetry.flush)
         if t_disarmed - self._last_steps_wall >= self.STEPS_WALL_S:
             # tiny: written every sample (at most every STEPS_WALL_S), the checkpoint waits
             steps = self._moves.steps()
@@ -1423,6 +1433,7 @@ class ControllerNode:
         try:
             self.checkpoint(wait=True)
         finally:
-            if self.telemetry is not None:
-                self._worker.submit(self.telemetry.close)
             self._worker.close()
+            if self._telemetry_worker is not None:
+                self._telemetry_worker.submit(self.telemetry.close)
+                self._telemetry_worker.close()
