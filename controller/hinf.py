@@ -28,11 +28,13 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import control as ct
 import numpy as np
 import scipy.linalg
+
+if TYPE_CHECKING:  # python-control pulls in scipy.signal and matplotlib (~2 s at start-up):
+    import control as ct  # imported where a design is made, not by every node process
 
 __all__ = [
     "HInfWeights",
@@ -109,9 +111,13 @@ class HInfWeights:
         return cls((1.0, 3.5), (2.0, 2.0 * eps), (c, 25.0 * c), (1.0, 6000.0), **kw)
 
     def w1(self) -> ct.TransferFunction:
+        import control as ct
+
         return ct.tf(self.w1_num, self.w1_den)
 
     def w2(self) -> ct.TransferFunction:
+        import control as ct
+
         return ct.tf(self.w2_num, self.w2_den)
 
     def as_dict(self) -> dict[str, Any]:
@@ -222,6 +228,7 @@ def synthesize(num, den, weights: HInfWeights, dt: float) -> HInfDesign:
     HInfSynthesisError
         When the problem has no admissible controller or the loop is not stable.
     """
+    import control as ct
     from slycot import sb10fd
 
     if not (math.isfinite(dt) and dt > 0):
