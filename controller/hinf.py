@@ -410,6 +410,10 @@ class HInfLaw:
         if warm_samples < 0:
             raise ValueError(f"warm_samples: must be >= 0, got {warm_samples}")
         self.warm_samples = int(warm_samples)
+        # python-control loaded here, at the law's construction: the first design is made
+        # inside a sample, which must not also pay for the import (~2 s)
+        import control  # noqa: F401
+
         self._errors: list[float] = []
         self._settled_start = False  # after align: new states start in equilibrium
         self._ramp_from: float | None = None  # after align: the first error, for the slope

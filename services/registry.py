@@ -32,10 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.units import siso, two_phase_reactor
-from controller.units.baselines import HoldController, build_pi
 from controller.units.config import UnitConfig, build_plant, grade_setpoints
-from controller.units.te import service as te_service
 from controller.units.te.structure import TE_XMEAS
 
 __all__ = ["CONTROLLER_BUILDERS", "UNITS", "build_controller", "get_unit", "load_unit_config",
@@ -106,14 +103,50 @@ def load_unit_config(unit: str, path: str | Path | None = None, **overrides) -> 
         cfg = replace(cfg, **overrides)
     return cfg
 
+# Each builder imports its unit's controller when it is called: the commands that only
+# read a configuration (``ssmpc up``, the api node, the operator's tools) do not load
+# the numerical core.
+def _build_pi(cfg, plant, u0, grades):
+    from controller.units.baselines import build_pi
+
+    return build_pi(cfg, plant, u0, grades)
+
+
+def _build_hold(cfg, plant, u0, grades):
+    from controller.units.baselines import HoldController
+
+    return HoldController(u0)
+
+
+def _build_siso(law: str) -> Callable:
+    def build(cfg, plant, u0, grades):
+        from controller.units import siso
+
+        return siso.build(cfg, plant, u0, grades, law)
+
+    return build
+
+
+def _build_two_phase(cfg, plant, u0, grades):
+    from controller.units import two_phase_reactor
+
+    return two_phase_reactor.build(cfg, plant, u0, grades)
+
+
+def _build_te(cfg, plant, u0, grades):
+    from controller.units.te import service as te_service
+
+    return te_service.build(cfg, plant, u0, grades)
+
+
 #: Controller builders by ``UnitConfig.controller``: ``fn(cfg, plant, u0, grades)``.
 CONTROLLER_BUILDERS: dict[str, Callable] = {
-    "pi": build_pi,
-    "hold": lambda cfg, plant, u0, grades: HoldController(u0),
-    "hinf": lambda cfg, plant, u0, grades: siso.build(cfg, plant, u0, grades, "hinf"),
-    "mrac": lambda cfg, plant, u0, grades: siso.build(cfg, plant, u0, grades, "mrac"),
-    "ssmpc": two_phase_reactor.build,
-    "te": te_service.build,
+    "pi": _build_pi,
+    "hold": _build_hold,
+    "hinf": _build_siso("hinf"),
+    "mrac": _build_siso("mrac"),
+    "ssmpc": _build_two_phase,
+    "te": _build_te,
 }
 
 

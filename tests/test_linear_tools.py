@@ -137,6 +137,29 @@ def test_minimal_realization_removes_hidden_modes():
     np.testing.assert_allclose(mini.frequency_response(W), big.frequency_response(W), atol=1e-9)
 
 
+@pytest.mark.parametrize("m,p", [(1, 1), (2, 3), (3, 2)])
+def test_minimal_realization_is_python_controls_minreal(m, p):
+    """The direct SLICOT call gives what ``control.minreal`` gives, to the bit, on
+    systems with a hidden mode (padding of B and C for m != p included)."""
+    import control
+
+    rng = np.random.default_rng(40 + 3 * m + p)
+    for hide in ("uncontrollable", "unobservable"):
+        A = rng.standard_normal((5, 5))
+        B = rng.standard_normal((5, m))
+        C = rng.standard_normal((p, 5))
+        D = rng.standard_normal((p, m))
+        if hide == "uncontrollable":
+            A[-1, :-1], B[-1] = 0.0, 0.0
+        else:
+            A[1:, 0], C[:, 0] = 0.0, 0.0
+        ours = minimal_realization(A, B, C, D)
+        ref = control.minreal(control.ss(A, B, C, D), verbose=False)
+        assert ours.order == 4
+        for got, want in ((ours.A, ref.A), (ours.B, ref.B), (ours.C, ref.C), (ours.D, ref.D)):
+            np.testing.assert_array_equal(got, np.asarray(want))
+
+
 # -- MFD --------------------------------------------------------------------------------
 @pytest.mark.parametrize("seed,nx,m,p", [(20, 1, 1, 1), (21, 3, 2, 2), (22, 5, 3, 3),
                                          (23, 4, 2, 3), (24, 8, 3, 3)])

@@ -460,7 +460,7 @@ def test_status_is_published_at_most_every_min_wall_interval(harness):
     try:
         h.wait_samples(5)
         k0, t0 = h.ctrl.k, time.monotonic()
-        time.sleep(1.5)
+        time.sleep(2.5)
         k1, t1 = h.ctrl.k, time.monotonic()
     finally:
         sub.undeclare()
@@ -469,7 +469,9 @@ def test_status_is_published_at_most_every_min_wall_interval(harness):
     assert k1 - k0 > 3 * len(window)  # many more samples than status messages
     floor = ControllerNode.STATUS_MIN_WALL_S
     assert len(window) <= (t1 - t0) / floor + 2, samples_per_status
-    assert len(window) >= 3  # still published while the loop runs
+    # still published while the loop runs: a due status waits for a sample with slack,
+    # at the latest STATUS_MAX_WALL_S (a loaded machine leaves little slack)
+    assert len(window) >= (t1 - t0) / ControllerNode.STATUS_MAX_WALL_S - 1
     seqs = [m["sample"] for _, m in window]
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)  # fresh each time
 

@@ -51,11 +51,14 @@ def test_up_transition_and_clean_shutdown(tmp_path):
             lines.append(line)
             if line.startswith("ssmpc up:"):
                 break
-        # it says what it starts, then each node's ready line, in order
+        # it says what it starts, then each node's ready line: the plant only once the
+        # controller is ready, the API alongside the controller
         ready = [ln.split()[1] for ln in lines if ln.startswith("ready")]
         assert ready == ["controller", "plant", "api"]
         starting = [ln.split()[2] for ln in lines if ln.startswith("starting the")]
-        assert starting == ["controller", "plant", "api"]
+        assert starting == ["controller", "api", "plant"]
+        assert lines.index(next(ln for ln in lines if ln.startswith("ready controller"))) \
+            < lines.index(next(ln for ln in lines if ln.startswith("starting the plant")))
         children = _children(proc.pid)
         assert len(children) == 3
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as c:

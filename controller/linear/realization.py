@@ -127,14 +127,17 @@ def as_realization(A, B=None, C=None, D=None) -> Realization:
 
 
 def minimal_realization(A, B=None, C=None, D=None, tol: float | None = None) -> Realization:
-    """Remove uncontrollable and unobservable modes (slycot TB01PD via python-control).
+    """Remove uncontrollable and unobservable modes (SLICOT TB01PD through slycot).
+
+    The call ``control.minreal`` makes, without importing python-control (which pulls in
+    scipy.signal and matplotlib: seconds at a node's start-up).
 
     Parameters
     ----------
     A, B, C, D : array_like or Realization
         See :func:`as_realization`.
     tol : float, optional
-        Rank tolerance passed to ``control.minreal`` (SLICOT default when None).
+        Rank tolerance of TB01PD (passed as ``control.minreal`` passes it).
 
     Returns
     -------
@@ -142,11 +145,17 @@ def minimal_realization(A, B=None, C=None, D=None, tol: float | None = None) -> 
         A minimal (controllable and observable) realization of the same transfer
         matrix; its order is the McMillan degree.
     """
-    import control
+    from slycot import tb01pd
 
     sys = as_realization(A, B, C, D)
     if sys.order == 0:
         return sys
-    red = control.minreal(sys.to_control(), tol=tol, verbose=False)
-    return Realization(np.asarray(red.A), np.asarray(red.B), np.asarray(red.C),
-                       np.asarray(red.D))
+    n, m, p = sys.order, sys.n_inputs, sys.n_outputs
+    # TB01PD works on B and C padded to max(m, p) columns / rows
+    b = np.empty((n, max(m, p)))
+    b[:, :m] = sys.B
+    c = np.empty((max(p, m), n))
+    c[:p, :] = sys.C
+    a, b, c, nr = tb01pd(n, m, p, np.array(sys.A, dtype=float), b, c, tol=tol)
+    return Realization(np.array(a[:nr, :nr]), np.array(b[:nr, :m]), np.array(c[:p, :nr]),
+                       np.array(sys.D, dtype=float))

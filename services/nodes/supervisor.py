@@ -30,7 +30,7 @@ starts, and the plant starts first (the controller connects to it).
 from __future__ import annotations
 
 import os
-import select
+import queue
 import signal
 import subprocess
 import sys
@@ -106,28 +106,59 @@ def _spawn(argv: list[str]) -> subprocess.Popen:
 PROGRESS_EVERY_S = 10.0
 
 
+def _lines(proc: subprocess.Popen) -> queue.SimpleQueue:
+    """The node's stdout, line by line (None at its end), read on a thread of its own.
+
+    A thread rather than ``select`` on the pipe: a node that printed several lines at
+    once leaves them in the reader's buffer, where ``select`` does not see them, and a
+    node whose output nobody reads would block once the pipe is full."""
+    q = getattr(proc, "_ssmpc_lines", None)
+    if q is None:
+        q = queue.SimpleQueue()
+        proc._ssmpc_lines = q
+
+        def read() -> None:
+            try:
+                for line in proc.stdout:
+                    q.put(line)
+            except (OSError, ValueError):
+                pass
+            q.put(None)
+
+        threading.Thread(target=read, name="ssmpc-node-output", daemon=True).start()
+    return q
+
+
 def _wait_ready(proc: subprocess.Popen, role: str, deadline: float,
                 progress=None) -> str:
     """Wait for the node's ``ready`` line; ``progress(elapsed_s)`` is called every
     :data:`PROGRESS_EVERY_S` meanwhile (a first start compiles for a minute)."""
+    lines = _lines(proc)
     t0 = time.monotonic()
     next_note = t0 + PROGRESS_EVERY_S
     while time.monotonic() < deadline:
         if progress is not None and time.monotonic() >= next_note:
             progress(time.monotonic() - t0)
             next_note += PROGRESS_EVERY_S
-        if proc.poll() is not None:
+        try:
+            line = lines.get(timeout=0.2)
+        except queue.Empty:
+            continue
+        if line is None:  # its output ended: it exited (or is about to)
+            try:
+                proc.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                pass
             raise CLIError(f"{role}: node exited with code {proc.returncode} before it was ready")
-        r, _, _ = select.select([proc.stdout], [], [], 0.2)
-        if r:
-            line = proc.stdout.readline()
-            if line.startswith("ready"):
-                return line.strip()
+        if line.startswith("ready"):
+            return line.strip()
     raise CLIError(f"{role}: not ready within the timeout")
 
 
 def _drain(proc: subprocess.Popen) -> None:
-    for line in proc.stdout:
+    """Echo the node's output after its ``ready`` line to this process's stdout."""
+    lines = _lines(proc)
+    while (line := lines.get()) is not None:
         sys.stdout.write(line)
 
 
@@ -210,19 +241,25 @@ def run_up(args) -> int:
     procs: list[subprocess.Popen] = []
     nodes: dict[str, dict] = {}
 
-    def start(role: str, argv: list[str], doing: str) -> None:
+    def spawn(role: str, argv: list[str], doing: str) -> None:
         print(f"starting the {role} node: {doing}", flush=True)
         proc = _spawn(argv)
         procs.append(proc)
+        nodes.setdefault(role, {"argv": argv, "doing": doing, "restarts": []})["proc"] = proc
 
+    def ready(role: str) -> None:
         def progress(elapsed: float) -> None:
             print(f"  still starting the {role} node ({elapsed:.0f} s): the first start "
                   f"compiles the numerical kernels with numba (about 45 s on 2 cores); "
                   f"later starts load them from the cache", flush=True)
 
+        proc = nodes[role]["proc"]
         print(_wait_ready(proc, role, deadline, progress), flush=True)
-        nodes.setdefault(role, {"argv": argv, "doing": doing, "restarts": []})["proc"] = proc
         threading.Thread(target=_drain, args=(proc,), daemon=True).start()
+
+    def start(role: str, argv: list[str], doing: str) -> None:
+        spawn(role, argv, doing)
+        ready(role)
 
     try:
         deadline = time.monotonic() + args.ready_timeout
@@ -230,16 +267,23 @@ def run_up(args) -> int:
                       + (["--busy-poll"] if args.busy_poll else []))
         plant = (["opcua" if opcua else "plant", *common]
                  + (["--lockstep"] if args.lockstep else []) + opcua)
-        if opcua:  # the controller connects to the plant's OPC UA server: plant first
-            start("plant", plant, f"the {args.unit} simulation, OPC UA on "
+        api = ["api", *join, "--lease-ms", str(args.lease_ms), "--port", str(args.port)]
+        # The plant starts after the node it follows is ready (the controller; with
+        # OPC UA the controller connects to the plant's server, so the plant first). The
+        # API needs neither to start: it starts alongside the first node.
+        if opcua:
+            spawn("plant", plant, f"the {args.unit} simulation, OPC UA on "
                                   f"{args.opcua_endpoint}")
+            spawn("api", api, f"REST on 127.0.0.1:{args.port}")
+            ready("plant")
             start("controller", [*controller, "--plant-io", "opcua", *opcua],
                   f"models, controller and store in {args.state_dir}, linked by OPC UA")
         else:
-            start("controller", controller, f"models, controller and store in {args.state_dir}")
+            spawn("controller", controller, f"models, controller and store in {args.state_dir}")
+            spawn("api", api, f"REST on 127.0.0.1:{args.port}")
+            ready("controller")
             start("plant", plant, f"the {args.unit} simulation")
-        start("api", ["api", *join, "--lease-ms", str(args.lease_ms), "--port", str(args.port)],
-              f"REST on 127.0.0.1:{args.port}")
+        ready("api")
         print(f"ssmpc up: unit {args.unit} at {args.speed:g}x, API http://127.0.0.1:{args.port}"
               f" (Ctrl-C to stop)", flush=True)
         t_end = None if args.duration is None else time.monotonic() + args.duration

@@ -14,9 +14,6 @@ from typing import Any
 
 import numpy as np
 
-from controller.units.te.control import TEControlSpec
-from controller.units.te.grades import grade as te_grade
-
 __all__ = ["TE_EULER_STEP_S", "TE_STRATEGIES", "TE_XMEAS", "check_config", "grade_values",
            "te_mv_names", "te_setpoint_name", "te_structure"]
 
@@ -58,7 +55,9 @@ def te_structure(strategy: str = "pi") -> tuple[tuple, tuple[int, ...]]:
         from controller.units.te.decentralized import decentralized_spec
 
         spec = decentralized_spec(TE_EULER_STEP_S * 20 / 3600.0, 20)
-    else:
+    else:  # imported here: the cascade loads the plant's compiled kernels
+        from controller.units.te.control import TEControlSpec
+
         spec = TEControlSpec(strategy, TE_EULER_STEP_S * 20 / 3600.0, 20)
     return tuple(spec.loops), tuple(spec.written_xmvs)
 
@@ -107,6 +106,7 @@ def grade_values(cfg) -> dict[str, dict[str, Any]]:
     """TE grades: noise-free XMEAS at each mode's start state as CV set points; the
     mode's XMVs and its regulatory set points (the loops' CVs there) as MVs."""
     from controller.units.te.grades import BACKOFF_GRADES
+    from controller.units.te.grades import grade as te_grade
     from plant_sim.tennessee_eastman.modes import MODES, grade_name
 
     cvi = [int(n[5:]) - 1 for n in cfg.cvs]
