@@ -2,11 +2,13 @@
 
 import math
 
+import numpy as np
 import pytest
 
 from services.reproduce import StudyContext, ch7
 
-CTX = StudyContext()
+# the TE studies' runs in two processes, as `ssmpc reproduce --workers 2` makes them
+CTX = StudyContext(workers=2)
 PROD_UP = 5.0  # %, a production rise beyond this under a lost feed would be implausible
 
 
@@ -83,6 +85,25 @@ def test_r7_13_idv6_no_shutdown_and_production_drop_bounded():
     if dec == 0.0:
         assert _row(res, "decentralized loops: production change").ours == -100.0
     _verdict_follows_claims(res)
+
+
+def test_runs_made_in_worker_processes_are_those_made_here():
+    """A study's numbers do not depend on ``workers``: a run made in a spawned worker
+    process equals, to the bit, the same run made in this process."""
+    ch7.prefetch(("idv6",), CTX.seed, 2)  # already made if R7.13 ran in this process
+    for strategy in ("pi", "plan"):
+        there = ch7._RUNS[("idv6", strategy, CTX.seed)]
+        here = ch7._simulate(("idv6", strategy, CTX.seed))
+        for field in ("t", "xmeas", "xmv", "setpoints", "cost"):
+            np.testing.assert_array_equal(getattr(here, field), getattr(there, field))
+        assert (here.shutdown is None) == (there.shutdown is None)
+
+
+def test_reproduce_refuses_a_bad_worker_count(capsys):
+    from services.cli.entry import main
+
+    assert main(["reproduce", "R7.13", "--workers", "0"]) == 2
+    assert "error: workers: expected an integer >= 1, got 0" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -4,4 +4,5 @@ import sys
 
 from services.cli.entry import main
 
-sys.exit(main())
+if __name__ == "__main__":  # not in a process spawned from it (multiprocessing)
+    sys.exit(main())

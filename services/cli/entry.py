@@ -80,6 +80,9 @@ def _add_reproduce(sub) -> None:
     p.add_argument("--json", action="store_true", help="print the JSON record")
     p.add_argument("--plot", metavar="DIR", help="write figures into DIR")
     p.add_argument("--seed", type=int, default=0, help="random seed for studies that draw")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="processes for a study's independent closed-loop runs (TE studies; "
+                        "the numbers do not depend on it; default 1)")
     p.set_defaults(func=_run_reproduce)
 
 
@@ -112,7 +115,11 @@ def _run_reproduce(args) -> int:
             plot_dir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise CLIError(f"plot: cannot create {args.plot!r}: {exc}") from exc
-    res = studies[rid](StudyContext(plot_dir=plot_dir, seed=args.seed))
+    try:
+        ctx = StudyContext(plot_dir=plot_dir, seed=args.seed, workers=args.workers)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from exc
+    res = studies[rid](ctx)
     doc = res.as_dict()
     from services.reproduce.titles import record_verdict
 

@@ -68,11 +68,19 @@ class ReproduceResult:
 
 @dataclass(frozen=True)
 class StudyContext:
-    """What a study may use: where to put figures (None = no figures) and a seed."""
+    """What a study may use: where to put figures (None = no figures), a seed, and how
+    many processes may make its independent closed-loop runs (``workers``; the TE
+    studies use them, the numbers do not depend on it)."""
 
     plot_dir: Path | None = None
     seed: int = 0
     quick: bool = False
+    workers: int = 1
+
+    def __post_init__(self) -> None:
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) \
+                or self.workers < 1:
+            raise ValueError(f"workers: expected an integer >= 1, got {self.workers!r}")
 
 
 StudyFn = Callable[[StudyContext], ReproduceResult]

@@ -24,12 +24,13 @@ active model share and how the index ranked the adaptive model
 mode's state), R7.8 (cost), R7.10 (spectra), R7.11 (Table 7.10 loops hold mode 0),
 R7.15 (SSMPC structure).
 
-Runs are cached per process (:func:`run_case`), so R7.14 and R7.16 share the 0 -> 2
-runs when one process asks for both. Measured (offline, ``realtime=False``, the
-shared 2-core machine at load 4.5-5): one 40 h run takes fixed 12-24 s, ssmpc 8-18 s,
-pi and plan 1-2 s, decentralized under 1 s; through the CLI R7.13 takes 20-33 s,
-R7.16 52-59 s, R7.14 157-253 s (30 runs). Results and what they show:
-``docs/reproduce_ch7.md``.
+Runs are cached per process (:func:`run_case`), so R7.14 and R7.16 share the 0 -> 2 runs
+when one process asks for both; with ``--workers N`` (``StudyContext.workers``) a study
+makes its runs in N processes first (:func:`prefetch`), with the same numbers. Measured
+(offline, ``realtime=False``, the shared 2-core machine at load 4.5-5): one 40 h run
+takes fixed 12-24 s, ssmpc 8-18 s, pi and plan 1-2 s, decentralized under 1 s; through
+the CLI R7.13 takes 20-33 s, R7.16 52-59 s, R7.14 157-253 s (30 runs). Results and what
+they show: ``docs/reproduce_ch7.md``.
 
 Deviations from the seed, with evidence in :mod:`controller.units.te.control`:
 reactor-temperature loop gain -2 %/degC (Table 7.10's -0.5 leaves the loop
@@ -42,7 +43,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
@@ -69,7 +69,7 @@ from services.reproduce.ch7_verdicts import (
     judge_r7_16,
 )
 
-__all__ = ["RESULTS", "Case", "CASES", "run_case", "case_runs", "case_metrics",
+__all__ = ["RESULTS", "Case", "CASES", "run_case", "case_runs", "prefetch", "case_metrics",
            "adaptive_selection", "G_BAND"]
 
 G_BAND = 1.0  # mol%, the ±1 mol% band of R7.14/R7.16
@@ -119,12 +119,45 @@ CASES = {
 }
 
 
-@lru_cache(maxsize=40)  # every strategy on each of the 7 cases
-def run_case(name: str, strategy: str, seed: int = 0) -> TERun:
-    """Run (and cache within the process) one case with one strategy."""
+#: Runs made in this process, by (case, strategy, seed): every strategy on each case.
+_RUNS: dict[tuple[str, str, int], TERun] = {}
+
+
+def _simulate(key: tuple[str, str, int]) -> TERun:
+    name, strategy, seed = key
     c = CASES[name]
     return run_te(strategy, c.plan(), c.hours, noise=c.noise, input_snr=c.input_snr,
                   idv=dict(c.idv), seed=seed)
+
+
+def run_case(name: str, strategy: str, seed: int = 0) -> TERun:
+    """Run (and cache within the process) one case with one strategy."""
+    key = (name, strategy, int(seed))
+    if key not in _RUNS:
+        _RUNS[key] = _simulate(key)
+    return _RUNS[key]
+
+
+def prefetch(names, seed: int, workers: int) -> None:
+    """Make the runs of every strategy on the cases ``names`` that this process has not
+    made yet, in ``workers`` processes (``StudyContext.workers``), longest first.
+
+    Each run is the same computation in its own process as in this one (a seeded
+    simulation from the case's start), so a study's numbers do not depend on
+    ``workers``; with 1 the runs are made one by one when the study asks for them."""
+    todo = [(n, s, int(seed)) for n in names for s in STRATEGIES
+            if (n, s, int(seed)) not in _RUNS]
+    if workers <= 1 or len(todo) <= 1:
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    todo.sort(key=lambda k: -CASES[k[0]].hours)
+    # spawned, not forked: the caller may hold threads (Zenoh, Dask) a fork would copy
+    with ProcessPoolExecutor(max_workers=min(int(workers), len(todo)),
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
+        for key, run in zip(todo, pool.map(_simulate, todo)):
+            _RUNS[key] = run
 
 
 def adaptive_selection(run: TERun, hysteresis: float | None = None) -> dict:
@@ -469,6 +502,7 @@ def _claim_rows(judgement) -> list[Row]:
 
 
 def r7_13(ctx: StudyContext) -> ReproduceResult:
+    prefetch(("idv6",), ctx.seed, ctx.workers)
     case = CASES["idv6"]
     runs = case_runs("idv6", ctx.seed)
     met = {s: case_metrics(r, case) for s, r in runs.items()}
@@ -535,6 +569,7 @@ def r7_14(ctx: StudyContext) -> ReproduceResult:
     figs: list[str] = []
     met_by_case = {}
     notes = []
+    prefetch(R7_14_CASES, ctx.seed, ctx.workers)
     for name in R7_14_CASES:
         case = CASES[name]
         runs = case_runs(name, ctx.seed)
@@ -562,6 +597,7 @@ def r7_14(ctx: StudyContext) -> ReproduceResult:
 
 
 def r7_16(ctx: StudyContext) -> ReproduceResult:
+    prefetch(("0-2",), ctx.seed, ctx.workers)
     case = CASES["0-2"]
     runs = case_runs("0-2", ctx.seed)
     met = {s: case_metrics(r, case) for s, r in runs.items()}
