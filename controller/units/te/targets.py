@@ -78,8 +78,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.target_solver import TargetSolver
-from controller.targets import TargetProblem, TargetResult
+from controller.finite_kernel import all_finite
+from controller.target_solver import TargetSolver, _cost
+from controller.targets import VIOLATION_TOL, TargetProblem, TargetResult
 
 __all__ = ["CoreTargetSettings", "CoreTargets", "model_steady_state"]
 
@@ -288,6 +289,8 @@ class CoreTargets:
         # the standing fields at the last full check of the solver's numbers (_check)
         self._checked: tuple | None = None
         self._gains: tuple | None = None  # (dt_h, settings, lag gain, offset gain)
+        # (model, its steady state) as observe found it, for the solve of the same sample
+        self._observed: tuple | None = None
 
     def steady_state(self, ssm, j: int):
         """(G, a) of model j, cached while its parameters stand (adaptive models:
@@ -318,13 +321,16 @@ class CoreTargets:
         are skipped (``d`` holds)."""
         self._n += 1
         self._dt_h = float(dt_h) if math.isfinite(dt_h) and dt_h > 0 else 0.0
-        self._applied_p = float(np.asarray(u_applied, dtype=float).reshape(-1)[_P])
-        self._pressure = float(np.asarray(y, dtype=float).reshape(-1)[0])
+        u_applied = np.asarray(u_applied, dtype=float)
+        y = np.asarray(y, dtype=float)
+        self._applied_p = float(u_applied.reshape(-1)[_P])
+        self._pressure = float(y.reshape(-1)[0])
         ss = self.steady_state(ssm, j)
-        if ss is None or not np.isfinite(np.concatenate((y, u_applied, y_plan_now,
-                                                         u_plan_now))).all():
+        self._observed = (j, ss)
+        if ss is None or not all_finite(np.concatenate((y, u_applied, y_plan_now,
+                                                        u_plan_now))):
             return
-        du = np.asarray(u_applied, dtype=float) - u_plan_now
+        du = u_applied - u_plan_now
         if self.offset is None:
             self.offset = np.zeros(5)  # the plan is the steady state until shown otherwise
             self.du_lagged = np.zeros(5)
@@ -333,7 +339,7 @@ class CoreTargets:
         # part not yet arrived as a disturbance (a slow oscillation of the targets)
         lag, alpha = self._filter_gains(float(dt_h))
         self.du_lagged += lag * (du - self.du_lagged)
-        e = np.asarray(y, dtype=float) - y_plan_now - ss[0] @ self.du_lagged
+        e = y - y_plan_now - ss[0] @ self.du_lagged
         self.offset += alpha * (e - self.offset)
 
     def _filter_gains(self, dt_h: float) -> tuple[float, float]:
@@ -349,8 +355,12 @@ class CoreTargets:
     def _fields(self, ssm, j: int, u_plan, y_plan) -> dict | None:
         """The fields of :meth:`problem` (those of :class:`TargetProblem` but the
         names), or None."""
-        ss = self.steady_state(ssm, j)
-        if ss is None or not (np.isfinite(u_plan).all() and np.isfinite(y_plan).all()):
+        observed, self._observed = self._observed, None
+        # the steady state observe found this sample (no model moves in between)
+        ss = observed[1] if observed is not None and observed[0] == j \
+            else self.steady_state(ssm, j)
+        if ss is None or not (all_finite(np.asarray(u_plan, dtype=float))
+                              and all_finite(np.asarray(y_plan, dtype=float))):
             return None
         u_ref = np.minimum(np.maximum(u_plan, self.u_min), self.u_max)
         d = np.zeros(5) if self.offset is None else self.offset
@@ -449,15 +459,46 @@ class CoreTargets:
         if fields is None:
             self.last = None
             return None
-        if not self.q_y.any() and not _cheaper_within(fields):
-            y_pp = np.asarray(y_plan, dtype=float) + fields["bias"]
-            if np.all(y_pp >= self.y_min) and np.all(y_pp <= self.y_max):
-                self._check(fields)  # the numbers a QP would refuse
-                self.last = TargetResult("optimal", fields["u_ref"].copy(), y_pp, (), 0.0, 0)
-                return self.last
+        if not self.q_y.any():
+            if not _cheaper_within(fields):
+                y_pp = np.asarray(y_plan, dtype=float) + fields["bias"]
+                if (y_pp >= self.y_min).all() and (y_pp <= self.y_max).all():
+                    self._check(fields)  # the numbers a QP would refuse
+                    self.last = TargetResult("optimal", fields["u_ref"].copy(), y_pp, (),
+                                             0.0, 0)
+                    return self.last
+            else:
+                res = self._at_bounds(fields)
+                if res is not None:
+                    self.last = res
+                    return res
         res = self._solver.solve(**fields)
         self.last = None if res.status == "failed" else res
         return self.last
+
+    def _at_bounds(self, fields: dict) -> TargetResult | None:
+        """The answer of a priced problem without its QP when it is one of the box: every
+        handle's own minimizer ``u_ref - c_u / q_u`` (no CV weights) lies on or beyond
+        one of its bounds, and the CV limits hold at those bounds by more than the
+        solver's violation tolerance (so no limit is active and none is relaxed). The
+        optimum is then those bounds, and u, y and the cost are computed as
+        :meth:`TargetSolver.solve` computes them from its QP's answer (the same numbers,
+        measured on the TE runs of ``tests/test_te_targets.py``). None: the QP decides."""
+        c, q, r = fields["cost_u"], fields["q_u"], fields["u_ref"]
+        lo, hi = fields["u_min"], fields["u_max"]
+        x = -(c - q * r) / q  # the solver's linear term f = c_u - q_u u_ref, x = -f / q_u
+        up, down = x >= hi, x <= lo
+        if not (up | down).all():
+            return None
+        self._check(fields)  # the numbers a QP would refuse
+        u = np.where(up, hi, lo)
+        G = fields["gain"]
+        y = (fields["y0"] + fields["bias"]) - G @ fields["u0"] + G @ u
+        tol = VIOLATION_TOL * self.y_scale
+        if not ((y <= self.y_max - tol).all() and (y >= self.y_min + tol).all()):
+            return None
+        return TargetResult("optimal", u, y, (),
+                            _cost(u, y, q, r, fields["y_ref"], c, None, None), 0)
 
     def _check(self, fields: dict) -> None:
         """:meth:`TargetSolver.check` of the sample's fields (ValueError on numbers a QP
@@ -474,7 +515,7 @@ class CoreTargets:
         lo, hi = fields["u_min"], fields["u_max"]
         moving = np.concatenate((fields["gain"].ravel(), fields["u0"], fields["y0"],
                                  fields["bias"], lo, hi))
-        if not (np.isfinite(moving).all() and (lo <= hi).all()):
+        if not (all_finite(moving) and (lo <= hi).all()):
             self._solver.check(**fields)  # raises, naming the field
 
     def checkpoint(self) -> dict:
