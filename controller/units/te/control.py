@@ -670,12 +670,16 @@ class TEController:
 
     def finish_sample(self) -> None:
         """The bookkeeping after the move: the core's (see
-        :meth:`controller.multimodel.MultiModelController.finish_sample`) and the plan's
+        :meth:`controller.multimodel.MultiModelController.finish_sample`), the steady state
+        the next sample's targets will refresh (:meth:`CoreTargets.prepare
+        <controller.units.te.targets.CoreTargets.prepare>`) and the plan's
         references of the next sample (at the last sample's time + ``sample_h``; used
         when the next step comes at exactly that time)."""
         finish = getattr(self.core, "finish_sample", None)
         if callable(finish):
             finish()
+        if self.targets is not None and getattr(self.core, "initialized", False):
+            self.targets.prepare(self.core.ssm, self.core.active)  # a refresh due next
         if self._t_last is not None and self._refs_ahead is None:
             t_next = self._t_last + self.sample_h
             self._refs_ahead = (t_next, self.plan, self._plan_refs(t_next), self.plan_lag_h)

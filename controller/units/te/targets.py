@@ -291,10 +291,18 @@ class CoreTargets:
         self._gains: tuple | None = None  # (dt_h, settings, lag gain, offset gain)
         # (model, its steady state) as observe found it, for the solve of the same sample
         self._observed: tuple | None = None
+        # (model, sample, theta, steady state) computed after the previous move (prepare)
+        self._ahead: tuple | None = None
 
     def steady_state(self, ssm, j: int):
         """(G, a) of model j, cached while its parameters stand (adaptive models:
         refreshed at most every ``refresh_samples`` samples); None if it has none."""
+        ahead, self._ahead = self._ahead, None
+        if (ahead is not None and ahead[0] == j and ahead[1] == self._n
+                and ssm.model(j).theta is ahead[2]):
+            # what the lines below compute now, from the same parameters (prepare)
+            self._steady[j] = (ahead[2], self._n, ahead[3])
+            return ahead[3]
         cached = self._steady.get(j)
         if cached is not None:
             th, made, ss = cached
@@ -311,6 +319,21 @@ class CoreTargets:
         ss = model_steady_state(ssm, j)
         self._steady[j] = (theta, self._n, ss)
         return ss
+
+    def prepare(self, ssm, j: int) -> None:
+        """After the move: the steady state of model ``j`` (the active one) that the next
+        sample's :meth:`observe` would compute, computed now when it is due (a new model,
+        or an adaptive model's refresh with its parameters moved); off the path from the
+        measurement to the move. The next sample takes it only if ``j`` is still the
+        model and its parameters are the very ones used here."""
+        cached = self._steady.get(j)
+        if (cached is not None and ssm.kinds[j] != "fixed"
+                and self._n + 1 - cached[1] < self.settings.refresh_samples):
+            return
+        theta = ssm.model(j).theta
+        if cached is not None and cached[0] is theta:
+            return
+        self._ahead = (j, self._n + 1, theta, model_steady_state(ssm, j))
 
     def observe(self, ssm, j: int, y, u_applied, y_plan_now, u_plan_now, dt_h: float) -> None:
         """Take in one sample: measured CVs ``y`` (5,) under the applied handles
