@@ -11,14 +11,19 @@ Even as base64 a large array is most of a checkpoint's encoding: ``json.dumps`` 
 every character of a string for escapes (~4 ns a character, 0.4-0.5 ms for the TE
 estimator's 125 kB). :func:`dumps` gives the very text of ``json.dumps(state,
 allow_nan=False)`` with the base64 text of :func:`pack_array` (which needs no escape)
-put in without that scan.
+put in without that scan. Vectors of a few hundred floats are worth packing too: as
+decimals each costs ~1 us of float formatting.
 
-**Measured** (the TE controller node's checkpoint after 300 samples, 160 kB of JSON,
-median of 30, shared 2-core AMD EPYC at load 2-4)::
+**Measured** (the TE controller node driven offline, its checkpoint after 300 samples,
+~220 kB of JSON, CPU time, medians of 20-60 calls; shared 2-core AMD EPYC at the load
+given)::
 
-    part                                   json.dumps      dumps
-    whole node snapshot and encoding       1.65 ms         see docs/realtime.md
-    its JSON alone                         0.92 ms         0.45 ms
+    part (load)                                   before          after
+    the node's snapshot + encoding (4.1-4.7)      2.91 ms         2.12 ms (dumps)
+    the same, main's tree against this (5.5-7.9)  2.17-3.14 ms    1.05-2.04 ms (dumps,
+                                                                  vectors packed too)
+    the state's JSON alone (5.5)                  0.85-1.47 ms    0.36-0.57 ms
+                                                  (json.dumps)    (dumps)
 """
 
 from __future__ import annotations
