@@ -311,8 +311,6 @@ class CoreTargets:
         # the standing fields at the last full check of the solver's numbers (_check)
         self._checked: tuple | None = None
         self._gains: tuple | None = None  # (dt_h, settings, lag gain, offset gain)
-        # (model, its steady state) as observe found it, for the solve of the same sample
-        self._observed: tuple | None = None
         # (model, sample, theta, steady state) computed after the previous move (prepare)
         self._ahead: tuple | None = None
 
@@ -371,7 +369,6 @@ class CoreTargets:
         self._applied_p = float(u_applied.reshape(-1)[_P])
         self._pressure = float(y.reshape(-1)[0])
         ss = self.steady_state(ssm, j)
-        self._observed = (j, ss)
         if ss is None or not all_finite(np.concatenate((y, u_applied, y_plan_now,
                                                         u_plan_now))):
             return
@@ -400,10 +397,7 @@ class CoreTargets:
     def _fields(self, ssm, j: int, u_plan, y_plan) -> dict | None:
         """The fields of :meth:`problem` (those of :class:`TargetProblem` but the
         names), or None."""
-        observed, self._observed = self._observed, None
-        # the steady state observe found this sample (no model moves in between)
-        ss = observed[1] if observed is not None and observed[0] == j \
-            else self.steady_state(ssm, j)
+        ss = self.steady_state(ssm, j)
         if ss is None or not (all_finite(np.asarray(u_plan, dtype=float))
                               and all_finite(np.asarray(y_plan, dtype=float))):
             return None
