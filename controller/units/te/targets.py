@@ -521,15 +521,16 @@ class CoreTargets:
         one of its bounds, and the CV limits hold at those bounds by more than the
         solver's violation tolerance (so no limit is active and none is relaxed). The
         optimum is then those bounds, and u, y and the cost are computed as
-        :meth:`TargetSolver.solve` computes them from its QP's answer (the same numbers,
-        measured on the TE runs of ``tests/test_te_targets.py``). None: the QP decides."""
+        :meth:`TargetSolver.solve` computes them from its QP's answer (the same numbers
+        bit for bit: random problems in ``tests/test_te_targets.py``, eight TE runs in
+        the module's table). None: the QP decides."""
+        self._check(fields)  # the numbers a QP would refuse (q_u > 0 among them)
         c, q, r = fields["cost_u"], fields["q_u"], fields["u_ref"]
         lo, hi = fields["u_min"], fields["u_max"]
         x = -(c - q * r) / q  # the solver's linear term f = c_u - q_u u_ref, x = -f / q_u
         up, down = x >= hi, x <= lo
         if not (up | down).all():
             return None
-        self._check(fields)  # the numbers a QP would refuse
         u = np.where(up, hi, lo)
         G = fields["gain"]
         y = (fields["y0"] + fields["bias"]) - G @ fields["u0"] + G @ u
