@@ -662,14 +662,14 @@ class NormalizedLeastSquares:
     def checkpoint(self) -> dict[str, Any]:
         """JSON-serialisable state (parameters, covariance, bound, counters).
 
-        A deferred covariance step is committed first. The covariance is stored as
-        given, dense ``P`` or the implicit ``c``, ``V``, packed exactly
+        A deferred covariance step is committed first. The parameters and the
+        covariance (as given, dense ``P`` or the implicit ``c``, ``V``) are packed exactly
         (:func:`controller.packing.pack_array`: a TE-size covariance as decimal
         lists would cost ~6 ms of serialization per snapshot).
         """
         self.commit()
         out = {
-            "p": self.p.tolist(),
+            "p": pack_array(self.p),
             "lower": self._lower,
             "n_updates": self.n_updates,
             "n_resets": self.n_resets,
@@ -684,7 +684,7 @@ class NormalizedLeastSquares:
         return out
 
     def restore(self, state: dict[str, Any]) -> None:
-        p = np.asarray(state["p"], dtype=float).reshape(-1)
+        p = unpack_array(state["p"]).reshape(-1)  # packed, or a list (older checkpoints)
         if p.shape != self.p.shape or not np.isfinite(p).all():
             raise ValueError(f"state: parameters must be {self.p.size} finite values")
         self._pending = None

@@ -770,7 +770,8 @@ class StateSharedModel:
     def checkpoint(self) -> dict:
         """JSON-serialisable snapshot; :meth:`restore` is exact.
 
-        The model parameters are packed (:func:`controller.packing.pack_array`);
+        The shared state and the model parameters are packed
+        (:func:`controller.packing.pack_array`);
         plain lists, as older checkpoints hold them, are accepted by :meth:`restore`.
         """
         doc = {
@@ -778,7 +779,7 @@ class StateSharedModel:
             "m": self.m,
             "p": self.p,
             "dt": self.dt,
-            "n": self._N.reshape(-1).tolist(),
+            "n": pack_array(self._N.reshape(-1)),
             "models": [
                 {"name": spec.name, "kind": spec.kind, "theta": pack_array(spec.theta),
                  "bias": spec.bias.tolist()}
@@ -812,7 +813,10 @@ class StateSharedModel:
             raise ValueError(f"state.p: expected {self.p}, got {state.get('p')!r}")
         if float(state["dt"]) != self.dt:
             raise ValueError(f"state.dt: expected {self.dt}, got {state['dt']!r}")
-        n = finite_vector(state["n"], self.order, "state.n")
+        n = state["n"]  # packed, or a list (older checkpoints)
+        if isinstance(n, dict):
+            n = unpack_array(n)
+        n = finite_vector(n, self.order, "state.n")
         specs = [ModelSpec(d["name"], unpack_array(d["theta"]), d["bias"], d["kind"])
                  for d in state["models"]]
         for s in specs:

@@ -40,6 +40,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from controller.packing import dumps
 from services.events import ALARM_CLEARED, ALARM_RAISED, Event, fold_alarms
 
 __all__ = ["StoreError", "UnitStore", "default_store_path"]
@@ -370,8 +371,10 @@ class UnitStore:
     # -- checkpoint ----------------------------------------------------------------
     @staticmethod
     def encode_checkpoint(state: dict[str, Any]) -> str:
-        """The stored text of a checkpoint (JSON; NaN/inf refused with ValueError)."""
-        return json.dumps(state, allow_nan=False)
+        """The stored text of a checkpoint (JSON; NaN/inf refused with ValueError): that
+        of ``json.dumps(state, allow_nan=False)``, the packed arrays' base64 put in
+        without the encoder's scan (:func:`controller.packing.dumps`)."""
+        return dumps(state)
 
     def save_checkpoint(self, sample: int, process_time: float, state: dict[str, Any] | str
                         ) -> None:

@@ -178,6 +178,35 @@ def test_te_step_reads_no_covariance_when_the_bookkeeping_ran():
     assert est.n_updates >= 19
 
 
+def test_te_step_computes_no_steady_state_when_the_bookkeeping_ran(monkeypatch):
+    """The targets' steady state of the active model, due every refresh_samples samples
+    for the adaptive model, is computed after the move (CoreTargets.prepare), not in the
+    step; the moves are those of the lazy path (test above)."""
+    from test_te_control_mpc import apply_decision
+
+    from controller.units.te import targets as te_targets
+    from controller.units.te.control import make_te_controller
+    from controller.units.te.grades import TransitionPlan
+    from plant_sim.tennessee_eastman import TESimulator
+    from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
+
+    ctl, spec = make_te_controller("ssmpc", TransitionPlan("mode0"), realtime=False)
+    sim = TESimulator()
+    reg = RegulatoryLayer(sim, loops=spec.loops)
+    where, phase = [], ["finish"]
+    original = te_targets.model_steady_state
+    monkeypatch.setattr(te_targets, "model_steady_state",
+                        lambda ssm, j: (where.append(phase[0]), original(ssm, j))[1])
+    for k in range(35):
+        phase[0] = "step"
+        dec = ctl.step(k, sim.time, sim.xmeas, None)
+        phase[0] = "finish"
+        ctl.finish_sample()
+        apply_decision(spec, sim, reg, dec)
+    assert ctl.core.initialized and where.count("finish") >= 3  # the refreshes, every 10
+    assert where.count("step") <= 1  # at most the first sample's (nothing prepared yet)
+
+
 def test_te_plan_references_are_evaluated_after_the_move_on_the_sample_grid():
     """finish_sample evaluates the next sample's plan references; a step at that time
     (up to the round-off of another clock) uses them, one off the grid evaluates its

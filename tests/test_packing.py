@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from controller.adaptation import NLSSettings, NormalizedLeastSquares
-from controller.packing import pack_array, unpack_array
+from controller.packing import SPLICE_MIN_CHARS, dumps, pack_array, unpack_array
 
 
 def test_round_trip_is_bit_exact_through_json():
@@ -50,3 +50,19 @@ def test_te_size_estimator_checkpoint_is_packed_and_exact():
     est.update(W, y)
     twin.update(W, y)
     np.testing.assert_array_equal(twin.p, est.p)
+
+
+def test_dumps_is_the_text_of_json_dumps():
+    rng = np.random.default_rng(5)
+    big = pack_array(rng.standard_normal(400))
+    assert len(big["b64"]) >= SPLICE_MIN_CHARS
+    state = {"a": big, "small": pack_array([1.0]), "rings": [{"i": 0, "s": big}, 3.5],
+             "quote \"\\ \u00e9\x00": ["x\x00y", {"k": (1, big)}], 2: None, "t": (big, 1),
+             "nums": [1.0, 2.5e-300], "e": {}, "l": []}
+    assert dumps(state) == json.dumps(state, allow_nan=False)
+    assert unpack_array(json.loads(dumps(state))["rings"][0]["s"]).shape == (400,)
+    assert dumps({"x": 1}) == json.dumps({"x": 1})
+    with pytest.raises(ValueError):
+        dumps({"a": big, "x": [float("nan")]})
+    with pytest.raises(TypeError):
+        dumps({"a": big, "x": object()})

@@ -199,7 +199,9 @@ class DeltaUFormulation:
                   "_Sx_min": np.ascontiguousarray(self.S_x[self.ymin_rows]),
                   "_F_ut": (np.zeros((0, 0)) if self.F_ut is None
                             else np.ascontiguousarray(self.F_ut)),
-                  "_no_dev": np.zeros(0)}
+                  "_no_dev": np.zeros(0),
+                  # np.tile(v, M) of an (nu,) vector as one take (the same copy)
+                  "_tile_M": np.tile(np.arange(s.nu), s.M)}
         for k, v in consts.items():
             object.__setattr__(self, k, v)
         self._warm_kernels()
@@ -322,7 +324,7 @@ class DeltaUFormulation:
         s = self.settings
         if self.F_ut is not None:
             ut = s.u_target if u_target is None else u_target
-            dev = np.tile(np.asarray(u_prev, dtype=float) - ut, s.M)
+            dev = (np.asarray(u_prev, dtype=float) - ut).take(self._tile_M)
         else:
             dev = self._no_dev
         x_a, f, bl, bu = qp_vectors_kernel(

@@ -176,12 +176,12 @@ class SharedStateSource:
             snaps[str(j)] = {"made": made, "theta": pack_array(th)}
             if j in self._decided:
                 snaps[str(j)]["decided"] = self._decided[j]
-        return {"n_prev": None if self.n_prev is None else self.n_prev.tolist(),
+        return {"n_prev": None if self.n_prev is None else pack_array(self.n_prev),
                 "k": self._k, "snapshots": snaps}
 
     def restore(self, state: dict[str, Any]) -> None:
         n = state.get("n_prev")
-        self.n_prev = None if n is None else np.asarray(n, dtype=float)
+        self.n_prev = None if n is None else unpack_array(n)  # packed, or a list
         self._snap.clear()
         self._made.clear()
         self._decided.clear()

@@ -601,10 +601,10 @@ class ControllerNode:
     def _maybe_checkpoint(self, arrived: float, forced: bool) -> None:
         """Checkpoint when the snapshot fits before the next measurement is due.
 
-        Snapshotting a large controller (TE: ~5 ms) on the loop thread must not push the
-        next sample past its deadline at high speed, so a due checkpoint waits for a
-        sample with enough slack; it is forced by a transition state change or after
-        :attr:`CHECKPOINT_MAX_WALL_S`.
+        Snapshotting a large controller (TE: 1-2 ms of CPU with its JSON at load 4-8) on
+        the loop thread must not push the next sample past its deadline at high speed, so
+        a due checkpoint waits for a sample with enough slack; it is forced by a
+        transition state change or after :attr:`CHECKPOINT_MAX_WALL_S`.
         """
         now = time.perf_counter()
         slack = arrived + self.budget.wall_period_s - now

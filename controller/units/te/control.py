@@ -170,6 +170,7 @@ PR_LIMITS = (2500.0, 2950.0)
 #: MPC controlled variables (XMEAS numbers, R7.15).
 CORE_CVS = (7, 11, 13, 16, 18)
 _CORE_CV_INDEX = np.array(CORE_CVS) - 1
+_CORE_CV_NAMES = tuple(f"XMEAS{c}" for c in CORE_CVS)
 #: Reactor temperature set point range, degC (R7.12).
 TR_LIMITS = (110.0, 130.0)
 #: High-pressure override on the A+C feed (production), as in Ricker's (1996)
@@ -567,8 +568,8 @@ class TEController:
             return u_plan, refs
         # the shape of the two-phase unit's report (controller.units.mpc_targets)
         info["targets"] = {"status": res.status,
-                           "mv": dict(zip(CORE_NAMES, map(float, res.u))),
-                           "cv": {f"XMEAS{c}": float(v) for c, v in zip(CORE_CVS, res.y)},
+                           "mv": dict(zip(CORE_NAMES, res.u.tolist())),
+                           "cv": dict(zip(_CORE_CV_NAMES, res.y.tolist())),
                            "relaxed": [{"cv": r.cv, "kind": r.kind, "rank": r.rank,
                                         "limit": float(r.limit), "amount": float(r.amount)}
                                        for r in res.relaxed],
@@ -669,12 +670,16 @@ class TEController:
 
     def finish_sample(self) -> None:
         """The bookkeeping after the move: the core's (see
-        :meth:`controller.multimodel.MultiModelController.finish_sample`) and the plan's
+        :meth:`controller.multimodel.MultiModelController.finish_sample`), the steady state
+        the next sample's targets will refresh (:meth:`CoreTargets.prepare
+        <controller.units.te.targets.CoreTargets.prepare>`) and the plan's
         references of the next sample (at the last sample's time + ``sample_h``; used
         when the next step comes at exactly that time)."""
         finish = getattr(self.core, "finish_sample", None)
         if callable(finish):
             finish()
+        if self.targets is not None and getattr(self.core, "initialized", False):
+            self.targets.prepare(self.core.ssm, self.core.active)  # a refresh due next
         if self._t_last is not None and self._refs_ahead is None:
             t_next = self._t_last + self.sample_h
             self._refs_ahead = (t_next, self.plan, self._plan_refs(t_next), self.plan_lag_h)

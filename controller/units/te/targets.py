@@ -51,15 +51,20 @@ and the targets cannot trade product for cost.
 
 While ``y_plan + d`` meets every limit and no priced handle can move to a cheaper
 value, the plan's point is the answer as it stands (no QP), so the MPC's moves are
-those it makes on the plan itself. The band keeps
-the targets where the models' steady-state gains agree with the plant (see
+those it makes on the plan itself. When a priced handle can move, but every handle's
+own minimizer ``u_ref - c_u / q_u`` lies on or beyond one of its bounds and the CV
+limits hold there by more than the solver's violation tolerance (the economic lift at
+its ramp or ceiling, the usual case once the economics act), the answer is those
+bounds, computed as the solver computes it from its QP's answer (no QP either). The
+band keeps the targets where the models' steady-state gains agree with the plant (see
 :class:`CoreTargetSettings`).
 
 The fixed models' steady states are computed once; the adaptive model's again when
 its parameters changed and :attr:`CoreTargetSettings.refresh_samples` samples have
-passed (one linear solve of the shared state's order). A model whose steady state is
-not finite (a singular ``A``) gives no targets: the plan's values are used and the
-decision says so (``extra["targets"]["status"] == "plan"``).
+passed (one linear solve of the shared state's order), after the previous sample's
+move (:meth:`CoreTargets.prepare`) when the TE controller's bookkeeping runs there.
+A model whose steady state is not finite (a singular ``A``) gives no targets: the
+plan's values are used and the decision says so (``extra["targets"]["status"] == "plan"``).
 
 Measured limits (``tests/test_te_targets.py``): the steady state equals the fixed
 point of the model's ZOH form to 1e-7 relative; a binding pressure limit gives the
@@ -69,6 +74,23 @@ holds the pressure at 2643-2651 kPa over hours 8-16. Solve time: that of
 :class:`controller.target_solver.TargetSolver` (``ssmpc bench targets``: the same
 numbers as :func:`controller.targets.solve_targets`, no problem built per sample)
 when a limit binds; otherwise only the check of the sample's numbers.
+
+Measured (ssmpc, noise off and on with plant seed 1; shared 2-core AMD EPYC at the load
+given; CPU time of the TE controller's targets per sample)::
+
+    quantity                                        measured
+    priced samples answered at the bounds           13,963 of 14,216 (8 runs of 40 h,
+                                                    plans 0->2->3, 0, 2->0, 3->1): u, y,
+                                                    cost and status bit for bit the QP's
+    answered at the bounds, random problems         59 of 120 (tests/test_te_targets.py),
+                                                    all bit for bit the QP's
+    targets per sample, mode 0, economics on        0.322 -> 0.235 ms median of 6 x 12 h
+    (before -> after these two paths, load 2.8-3.4) (best 0.263 -> 0.206 ms)
+    targets / core step, 0->2->3 over 48 h          0.51-0.54 -> 0.40-0.41 (3 alternated
+    (load 4.4-5.3)                                  pairs; the step's part only: the
+                                                    steady state moved after the move)
+    steady states prepared after the move           all 120 of 12 h (0->2->3), none in
+                                                    the step
 """
 
 from __future__ import annotations
@@ -78,8 +100,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.target_solver import TargetSolver
-from controller.targets import TargetProblem, TargetResult
+from controller.finite_kernel import all_finite
+from controller.target_solver import TargetSolver, _cost
+from controller.targets import VIOLATION_TOL, TargetProblem, TargetResult
 
 __all__ = ["CoreTargetSettings", "CoreTargets", "model_steady_state"]
 
@@ -288,10 +311,18 @@ class CoreTargets:
         # the standing fields at the last full check of the solver's numbers (_check)
         self._checked: tuple | None = None
         self._gains: tuple | None = None  # (dt_h, settings, lag gain, offset gain)
+        # (model, sample, theta, steady state) computed after the previous move (prepare)
+        self._ahead: tuple | None = None
 
     def steady_state(self, ssm, j: int):
         """(G, a) of model j, cached while its parameters stand (adaptive models:
         refreshed at most every ``refresh_samples`` samples); None if it has none."""
+        ahead, self._ahead = self._ahead, None
+        if (ahead is not None and ahead[0] == j and ahead[1] == self._n
+                and ssm.model(j).theta is ahead[2]):
+            # what the lines below compute now, from the same parameters (prepare)
+            self._steady[j] = (ahead[2], self._n, ahead[3])
+            return ahead[3]
         cached = self._steady.get(j)
         if cached is not None:
             th, made, ss = cached
@@ -309,6 +340,21 @@ class CoreTargets:
         self._steady[j] = (theta, self._n, ss)
         return ss
 
+    def prepare(self, ssm, j: int) -> None:
+        """After the move: the steady state of model ``j`` (the active one) that the next
+        sample's :meth:`observe` would compute, computed now when it is due (a new model,
+        or an adaptive model's refresh with its parameters moved); off the path from the
+        measurement to the move. The next sample takes it only if ``j`` is still the
+        model and its parameters are the very ones used here."""
+        cached = self._steady.get(j)
+        if (cached is not None and ssm.kinds[j] != "fixed"
+                and self._n + 1 - cached[1] < self.settings.refresh_samples):
+            return
+        theta = ssm.model(j).theta
+        if cached is not None and cached[0] is theta:
+            return
+        self._ahead = (j, self._n + 1, theta, model_steady_state(ssm, j))
+
     def observe(self, ssm, j: int, y, u_applied, y_plan_now, u_plan_now, dt_h: float) -> None:
         """Take in one sample: measured CVs ``y`` (5,) under the applied handles
         ``u_applied`` (5,), and the plan's CVs and handles at the same time
@@ -318,13 +364,15 @@ class CoreTargets:
         are skipped (``d`` holds)."""
         self._n += 1
         self._dt_h = float(dt_h) if math.isfinite(dt_h) and dt_h > 0 else 0.0
-        self._applied_p = float(np.asarray(u_applied, dtype=float).reshape(-1)[_P])
-        self._pressure = float(np.asarray(y, dtype=float).reshape(-1)[0])
+        u_applied = np.asarray(u_applied, dtype=float)
+        y = np.asarray(y, dtype=float)
+        self._applied_p = float(u_applied.reshape(-1)[_P])
+        self._pressure = float(y.reshape(-1)[0])
         ss = self.steady_state(ssm, j)
-        if ss is None or not np.isfinite(np.concatenate((y, u_applied, y_plan_now,
-                                                         u_plan_now))).all():
+        if ss is None or not all_finite(np.concatenate((y, u_applied, y_plan_now,
+                                                        u_plan_now))):
             return
-        du = np.asarray(u_applied, dtype=float) - u_plan_now
+        du = u_applied - u_plan_now
         if self.offset is None:
             self.offset = np.zeros(5)  # the plan is the steady state until shown otherwise
             self.du_lagged = np.zeros(5)
@@ -333,7 +381,7 @@ class CoreTargets:
         # part not yet arrived as a disturbance (a slow oscillation of the targets)
         lag, alpha = self._filter_gains(float(dt_h))
         self.du_lagged += lag * (du - self.du_lagged)
-        e = np.asarray(y, dtype=float) - y_plan_now - ss[0] @ self.du_lagged
+        e = y - y_plan_now - ss[0] @ self.du_lagged
         self.offset += alpha * (e - self.offset)
 
     def _filter_gains(self, dt_h: float) -> tuple[float, float]:
@@ -350,7 +398,8 @@ class CoreTargets:
         """The fields of :meth:`problem` (those of :class:`TargetProblem` but the
         names), or None."""
         ss = self.steady_state(ssm, j)
-        if ss is None or not (np.isfinite(u_plan).all() and np.isfinite(y_plan).all()):
+        if ss is None or not (all_finite(np.asarray(u_plan, dtype=float))
+                              and all_finite(np.asarray(y_plan, dtype=float))):
             return None
         u_ref = np.minimum(np.maximum(u_plan, self.u_min), self.u_max)
         d = np.zeros(5) if self.offset is None else self.offset
@@ -449,15 +498,47 @@ class CoreTargets:
         if fields is None:
             self.last = None
             return None
-        if not self.q_y.any() and not _cheaper_within(fields):
-            y_pp = np.asarray(y_plan, dtype=float) + fields["bias"]
-            if np.all(y_pp >= self.y_min) and np.all(y_pp <= self.y_max):
-                self._check(fields)  # the numbers a QP would refuse
-                self.last = TargetResult("optimal", fields["u_ref"].copy(), y_pp, (), 0.0, 0)
-                return self.last
+        if not self.q_y.any():
+            if not _cheaper_within(fields):
+                y_pp = np.asarray(y_plan, dtype=float) + fields["bias"]
+                if (y_pp >= self.y_min).all() and (y_pp <= self.y_max).all():
+                    self._check(fields)  # the numbers a QP would refuse
+                    self.last = TargetResult("optimal", fields["u_ref"].copy(), y_pp, (),
+                                             0.0, 0)
+                    return self.last
+            else:
+                res = self._at_bounds(fields)
+                if res is not None:
+                    self.last = res
+                    return res
         res = self._solver.solve(**fields)
         self.last = None if res.status == "failed" else res
         return self.last
+
+    def _at_bounds(self, fields: dict) -> TargetResult | None:
+        """The answer of a priced problem without its QP when it is one of the box: every
+        handle's own minimizer ``u_ref - c_u / q_u`` (no CV weights) lies on or beyond
+        one of its bounds, and the CV limits hold at those bounds by more than the
+        solver's violation tolerance (so no limit is active and none is relaxed). The
+        optimum is then those bounds, and u, y and the cost are computed as
+        :meth:`TargetSolver.solve` computes them from its QP's answer (the same numbers
+        bit for bit: random problems in ``tests/test_te_targets.py``, eight TE runs in
+        the module's table). None: the QP decides."""
+        self._check(fields)  # the numbers a QP would refuse (q_u > 0 among them)
+        c, q, r = fields["cost_u"], fields["q_u"], fields["u_ref"]
+        lo, hi = fields["u_min"], fields["u_max"]
+        x = -(c - q * r) / q  # the solver's linear term f = c_u - q_u u_ref, x = -f / q_u
+        up, down = x >= hi, x <= lo
+        if not (up | down).all():
+            return None
+        u = np.where(up, hi, lo)
+        G = fields["gain"]
+        y = (fields["y0"] + fields["bias"]) - G @ fields["u0"] + G @ u
+        tol = VIOLATION_TOL * self.y_scale
+        if not ((y <= self.y_max - tol).all() and (y >= self.y_min + tol).all()):
+            return None
+        return TargetResult("optimal", u, y, (),
+                            _cost(u, y, q, r, fields["y_ref"], c, None, None), 0)
 
     def _check(self, fields: dict) -> None:
         """:meth:`TargetSolver.check` of the sample's fields (ValueError on numbers a QP
@@ -474,7 +555,7 @@ class CoreTargets:
         lo, hi = fields["u_min"], fields["u_max"]
         moving = np.concatenate((fields["gain"].ravel(), fields["u0"], fields["y0"],
                                  fields["bias"], lo, hi))
-        if not (np.isfinite(moving).all() and (lo <= hi).all()):
+        if not (all_finite(moving) and (lo <= hi).all()):
             self._solver.check(**fields)  # raises, naming the field
 
     def checkpoint(self) -> dict:
