@@ -129,6 +129,11 @@ class FeedOverrides:
         self._last: tuple[float, float] | None = None
 
     @property
+    def last_a_valve(self) -> float:
+        """The A valve (%) applied at the previous sample (0 before any)."""
+        return 0.0 if self._last is None else self._last[0]
+
+    @property
     def active(self) -> bool:
         """Whether any override acts (False: the cascade runs as without them)."""
         return self.a_lost or self.ac_short
@@ -179,7 +184,7 @@ class FeedOverrides:
         out = []
         if self.a_lost and self.r_a is not None:
             out.append(f"A feed lost: it delivers {100 * self.r_a:.0f} % of its valve's "
-                       f"flow; the A-in-feed trim held (production not lowered)")
+                       f"flow; the A-in-feed trim held")
         if self.ac_short and self.r_ac is not None:
             out.append(f"A+C feed delivers {100 * self.r_ac:.0f} % of its valve's flow: "
                        f"the valve makes it up")
