@@ -28,6 +28,10 @@ Layers (seed Fig. 7.2)
        - the feed overrides (:mod:`controller.units.te.overrides`, all strategies but
          "decentralized"): a short A+C feed is made up by its valve, a lost A feed
          raises an alarm and holds the A-in-feed trim;
+       - the production index (:mod:`controller.units.te.production_index`, the same
+         strategies), only while the A feed is lost: the A+C, E and (through the
+         reactor level's set point) D feeds lowered together on the reactor pressure,
+         with an alarm;
        - the transition guards (:class:`TransitionGuards`, all strategies but
          "decentralized"): the E feed at most 5 % above the plan's, the plan held
          while the reactor pressure is near the interlock, P_r* at most 10 kPa above
