@@ -32,6 +32,9 @@ Layers (seed Fig. 7.2)
          strategies), only while the A feed is lost: the A+C, E and (through the
          reactor level's set point) D feeds lowered together on the reactor pressure,
          with an alarm;
+       - MPC strategies, the reactant trim (:mod:`controller.units.te.reactant_trim`):
+         at a steady grade, A+C short in the reactor feed with the D feed at its limit
+         raises the A+C feed's target, with an alarm;
        - the transition guards (:class:`TransitionGuards`, all strategies but
          "decentralized"): the E feed at most 5 % above the plan's, the plan held
          while the reactor pressure is near the interlock, P_r* at most 10 kPa above
@@ -150,6 +153,7 @@ from controller.units.te.overrides import FeedOverrides, FeedOverrideSettings
 from controller.units.te.pi_baseline import PI_BASELINE_LOOPS, PRODUCTION_LOOP, VelocityPI
 from controller.units.te.plan_lookup import SampleReferences
 from controller.units.te.production_index import ProductionIndex, ProductionIndexSettings
+from controller.units.te.reactant_trim import ReactantTrim, ReactantTrimSettings
 from controller.units.te.spec import ALARM_LIMITS, SAMPLE_H, TEControlSpec, alarm_crossings
 from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
 
@@ -349,7 +353,8 @@ class TEController:
                  outer_a_loop: bool = True, production_loop: bool = True,
                  targets=None, guards: TransitionGuards | None = None,
                  feeds: FeedOverrideSettings | None = None,
-                 production: ProductionIndexSettings | None = None) -> None:
+                 production: ProductionIndexSettings | None = None,
+                 reactants: ReactantTrimSettings | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -362,6 +367,7 @@ class TEController:
         self.guards = guards or TransitionGuards()
         self.feeds = FeedOverrides(feeds, self.sample_h)
         self.production = ProductionIndex(production, self.sample_h)
+        self.reactants = ReactantTrim(reactants, self.sample_h)
         #: h the plan's clock is behind real time (the plan hold, TransitionGuards)
         self.plan_lag_h = 0.0
         self._hold_alarm = False
@@ -638,6 +644,10 @@ class TEController:
             if self.production_loop is not None:
                 target[1] = min(max(target[1] + self._production_step(ym, xmeas), 0.0), 100.0)
             target[1] = self.production.ac_valve(target[1])
+            c_trim = self.reactants.step(xmeas, ym, self.plan.hours_since_change(t))
+            if c_trim > 0.0:
+                target[1] = min(target[1] + c_trim, 100.0)
+                alarms.extend(self.reactants.alarms())
             if self.targets is not None:
                 target, refs = self._steady_targets(yc, ym[_CORE_CV_INDEX], ff, target, refs,
                                                     ym_all[-1, _CORE_CV_INDEX], info, alarms)
@@ -722,7 +732,8 @@ class TEController:
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
                 "t_last": self._t_last, "plan_lag_h": self.plan_lag_h,
-                "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint()}
+                "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
+                "reactants": self.reactants.checkpoint()}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
@@ -742,6 +753,7 @@ class TEController:
         self.e_p_prev = state.get("e_p_prev")
         self.feeds.restore(state.get("feeds"))
         self.production.restore(state.get("production"))
+        self.reactants.restore(state.get("reactants"))
 
 
 def _core_limits():
@@ -971,6 +983,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        realtime: bool = True, guards: TransitionGuards | None = None,
                        feeds: FeedOverrideSettings | None = None,
                        production: ProductionIndexSettings | None = None,
+                       reactants: ReactantTrimSettings | None = None,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -1000,6 +1013,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
     production : ProductionIndexSettings, optional
         The production index that lowers every feed together where the A feed is
         lost (:mod:`controller.units.te.production_index`; not for "decentralized").
+    reactants : ReactantTrimSettings, optional
+        MPC strategies: the A+C feed's target raised where A+C is short in the reactor
+        feed with the D feed at its limit (:mod:`controller.units.te.reactant_trim`).
 
     Returns
     -------
@@ -1031,7 +1047,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
     ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon,
                        outer_a_loop, production_loop,
                        targets=targets if strategy in ("fixed", "ssmpc") else None,
-                       guards=guards, feeds=feeds, production=production)
+                       guards=guards, feeds=feeds, production=production,
+                       reactants=reactants)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 
