@@ -48,7 +48,8 @@ ssmpc, IDV(6), modes      as before (mode 2 trips at 13.8-13.95 h); with the
 fixed, pi, plan, IDV(7),  no trip, peak 2802-2815 kPa (before, seed 1: fixed
 mode 3                    6.0 h, plan 22.6 h)
 fixed, pi, plan, IDV(6),  trip as before: fixed 13.8-13.9 h, pi 15.3-15.6 h,
-mode 2                    plan 13.5-13.6 h
+mode 2                    plan 13.5-13.6 h; with the production index no trip
+                          but pi on seed 3 (39.4 h)
 ========================  ===================================================
 """
 

@@ -46,6 +46,11 @@ mode     trip            reactor pressure   level       production, m3/h
 0        none            at most 2838-2845  55-57 %     21.4-21.6 (23.0)
 3        none            at most 2846-2850  65 %        16.7-16.9 (18.0)
 =======  ==============  =================  ==========  ===========================
+
+The baselines at mode 2 (same runs): fixed no trip (before 13.8-13.9 h), peak
+2861-2867 kPa, production 20.1-20.2; plan no trip (before 13.5-13.6 h), 2858-2866 kPa,
+20.1-20.2; pi no trip on seeds 1 and 2 (2860-2875 kPa, 20.3), a trip on seed 3 at
+39.4 h (before 15.3-15.6 h).
 """
 
 from __future__ import annotations
