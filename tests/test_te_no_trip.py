@@ -162,11 +162,12 @@ def test_the_recycle_valve_closes_more_slowly_than_it_opens():
 #: (strategy, start mode, leg mode, IDV, hours): before the guards these tripped on
 #: reactor pressure (noise on, seed 1) at 3.8 h (ssmpc 3 -> 0), 2.9 h (3 -> 1), 2.6 h
 #: (3 -> 2), 3.1 h (1 -> 3), 6.5 h (IDV(7) from 2 h at mode 2) and 4.1 h (plan 3 -> 0),
-#: and before the feed overrides IDV(7) from 2 h at mode 3 at 6.0 h; each runs a little
-#: past that.
+#: before the feed overrides IDV(7) from 2 h at mode 3 at 6.0 h, and before the
+#: production index IDV(6) from 2 h at mode 2 at 13.9 h, before the reactant trim
+#: IDV(8) from 2 h at mode 3 at 6.5 h; each runs a little past that.
 NO_TRIP = [("ssmpc", 3, 0, 0, 5.0), ("ssmpc", 3, 1, 0, 4.0), ("ssmpc", 3, 2, 0, 4.0),
            ("ssmpc", 1, 3, 0, 4.0), ("ssmpc", 2, 2, 7, 7.0), ("plan", 3, 0, 0, 5.0),
-           ("ssmpc", 3, 3, 7, 7.0)]
+           ("ssmpc", 3, 3, 7, 7.0), ("ssmpc", 2, 2, 6, 14.5), ("ssmpc", 3, 3, 8, 7.0)]
 
 
 @pytest.mark.parametrize("strategy, start, to, idv, hours", NO_TRIP,

@@ -28,6 +28,13 @@ Layers (seed Fig. 7.2)
        - the feed overrides (:mod:`controller.units.te.overrides`, all strategies but
          "decentralized"): a short A+C feed is made up by its valve, a lost A feed
          raises an alarm and holds the A-in-feed trim;
+       - the production index (:mod:`controller.units.te.production_index`, the same
+         strategies), only while the A feed is lost: the A+C, E and (through the
+         reactor level's set point) D feeds lowered together on the reactor pressure,
+         with an alarm;
+       - MPC strategies, the reactant trim (:mod:`controller.units.te.reactant_trim`):
+         at a steady grade, A+C short in the reactor feed with the D feed at its limit
+         raises the A+C feed's target, with an alarm;
        - the transition guards (:class:`TransitionGuards`, all strategies but
          "decentralized"): the E feed at most 5 % above the plan's, the plan held
          while the reactor pressure is near the interlock, P_r* at most 10 kPa above
@@ -145,6 +152,8 @@ from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
 from controller.units.te.overrides import FeedOverrides, FeedOverrideSettings
 from controller.units.te.pi_baseline import PI_BASELINE_LOOPS, PRODUCTION_LOOP, VelocityPI
 from controller.units.te.plan_lookup import SampleReferences
+from controller.units.te.production_index import ProductionIndex, ProductionIndexSettings
+from controller.units.te.reactant_trim import ReactantTrim, ReactantTrimSettings
 from controller.units.te.spec import ALARM_LIMITS, SAMPLE_H, TEControlSpec, alarm_crossings
 from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
 
@@ -344,7 +353,9 @@ class TEController:
                  sample_h: float = SAMPLE_H, horizon: int = 10,
                  outer_a_loop: bool = True, production_loop: bool = True,
                  targets=None, guards: TransitionGuards | None = None,
-                 feeds: FeedOverrideSettings | None = None) -> None:
+                 feeds: FeedOverrideSettings | None = None,
+                 production: ProductionIndexSettings | None = None,
+                 reactants: ReactantTrimSettings | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -356,6 +367,8 @@ class TEController:
         self.outer_a_loop = bool(outer_a_loop)
         self.guards = guards or TransitionGuards()
         self.feeds = FeedOverrides(feeds, self.sample_h)
+        self.production = ProductionIndex(production, self.sample_h)
+        self.reactants = ReactantTrim(reactants, self.sample_h)
         #: h the plan's clock is behind real time (the plan hold, TransitionGuards)
         self.plan_lag_h = 0.0
         self._hold_alarm = False
@@ -450,7 +463,8 @@ class TEController:
             e = float(ym[lp.cv - 1]) - y
             if self.e_p_prev is None:
                 self.e_p_prev = e
-            if lp.cv not in self.outer_held:
+            # held by the operator or while the production index lowers the feeds
+            if lp.cv not in self.outer_held and not self.production.active:
                 self.p_trim += lp.gain * ((e - self.e_p_prev) + self.sample_h / lp.ti_h * e)
                 self.p_trim = min(max(self.p_trim, -P_TRIM_MAX), P_TRIM_MAX)
             self.e_p_prev = e
@@ -630,6 +644,11 @@ class TEController:
                 target[0] = min(max(target[0] + self._a_trim_step(ym, xmeas), 0.0), 100.0)
             if self.production_loop is not None:
                 target[1] = min(max(target[1] + self._production_step(ym, xmeas), 0.0), 100.0)
+            target[1] = self.production.ac_valve(target[1])
+            c_trim = self.reactants.step(xmeas, ym, self.plan.hours_since_change(t))
+            if c_trim > 0.0:
+                target[1] = min(target[1] + c_trim, 100.0)
+                alarms.extend(self.reactants.alarms())
             if self.targets is not None:
                 target, refs = self._steady_targets(yc, ym[_CORE_CV_INDEX], ff, target, refs,
                                                     ym_all[-1, _CORE_CV_INDEX], info, alarms)
@@ -656,12 +675,19 @@ class TEController:
             if cut >= 0.05:
                 alarms.append(f"reactor pressure {xmeas[6]:.0f} kPa: high-pressure override "
                               f"cuts the A+C feed by {cut:.1f} % (interlock 3000 kPa)")
+        self.production.update(xmeas, self.feeds.a_lost, u[1], u[3],
+                               self.feeds.last_a_valve, float(ym[26]))
+        if self.production.active:
+            u[1] = self.production.e_valve(u[1])
+            u[3] = self.production.ac_valve(u[3])
+            alarms.extend(self.production.alarms())
         u[3] = self.feeds.ac_valve(u[3])
         self.feeds.applied(u[2], u[3])
         if self.feeds.active:
             alarms.extend(self.feeds.alarms())
         self._hold_step(t_ref, xmeas, alarms)
-        setpoints = np.array([core_u[3], ym[7], ym[11], ym[14], core_u[2]])
+        setpoints = np.array([core_u[3], self.production.level_setpoint(ym[7]), ym[11],
+                              ym[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
         extra.update(info)
         return ControlDecision(u=u, active_model=active, model_names=tuple(names), J=J,
@@ -711,7 +737,8 @@ class TEController:
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
                 "t_last": self._t_last, "plan_lag_h": self.plan_lag_h,
-                "feeds": self.feeds.checkpoint()}
+                "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
+                "reactants": self.reactants.checkpoint()}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
@@ -730,6 +757,8 @@ class TEController:
         self.p_trim = float(state.get("p_trim", 0.0))
         self.e_p_prev = state.get("e_p_prev")
         self.feeds.restore(state.get("feeds"))
+        self.production.restore(state.get("production"))
+        self.reactants.restore(state.get("reactants"))
 
 
 def _core_limits():
@@ -958,6 +987,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        outer_a_loop: bool = True, production_loop: bool = True,
                        realtime: bool = True, guards: TransitionGuards | None = None,
                        feeds: FeedOverrideSettings | None = None,
+                       production: ProductionIndexSettings | None = None,
+                       reactants: ReactantTrimSettings | None = None,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -984,6 +1015,12 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
     feeds : FeedOverrideSettings, optional
         The feed overrides (:mod:`controller.units.te.overrides`; not for
         "decentralized").
+    production : ProductionIndexSettings, optional
+        The production index that lowers every feed together where the A feed is
+        lost (:mod:`controller.units.te.production_index`; not for "decentralized").
+    reactants : ReactantTrimSettings, optional
+        MPC strategies: the A+C feed's target raised where A+C is short in the reactor
+        feed with the D feed at its limit (:mod:`controller.units.te.reactant_trim`).
 
     Returns
     -------
@@ -1015,7 +1052,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
     ctl = TEController(strategy, plan, core, ratio or RatioSettings(), sample_h, horizon,
                        outer_a_loop, production_loop,
                        targets=targets if strategy in ("fixed", "ssmpc") else None,
-                       guards=guards, feeds=feeds)
+                       guards=guards, feeds=feeds, production=production,
+                       reactants=reactants)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 

@@ -18,7 +18,8 @@ Method
     - A feed lost (``r_A < lost_ratio``, back above ``restored_ratio``; IDV(6)): an
       alarm, and the A-in-feed loop holds its trim (on a valve that delivers nothing
       it would wind up to its limit and flood the reactor with A when the feed
-      returns). Production is not lowered here. The balance says it must be: with A
+      returns). Production is lowered by :mod:`controller.units.te.production_index`,
+      not here. The balance says why: with A
       only from the A+C feed (48.5 % A, 51 % C; reactions 1 and 2 take them one for
       one), the purge has to carry C in excess of A at 2.5 % of the A+C feed (0.21
       kscmh at mode 2), which a full purge (0.77 kscmh) does only at y_C - y_A near
@@ -42,12 +43,13 @@ Measured (noise on, plant seeds 1-3, 48 h, disturbance from 2 h):
 ========================  ===================================================
 ssmpc, IDV(7), modes      no trip, reactor pressure at most 2814 kPa (before:
 0, 2, 3                   mode 3 tripped at 5.9-6.0 h)
-ssmpc, IDV(6), modes      as before (mode 2 trips at 13.8-13.95 h)
-0, 2, 3
+ssmpc, IDV(6), modes      as before (mode 2 trips at 13.8-13.95 h); with the
+0, 2, 3                   production index no trip (see that module)
 fixed, pi, plan, IDV(7),  no trip, peak 2802-2815 kPa (before, seed 1: fixed
 mode 3                    6.0 h, plan 22.6 h)
 fixed, pi, plan, IDV(6),  trip as before: fixed 13.8-13.9 h, pi 15.3-15.6 h,
-mode 2                    plan 13.5-13.6 h
+mode 2                    plan 13.5-13.6 h; with the production index no trip
+                          but pi on seed 3 (39.4 h)
 ========================  ===================================================
 """
 
@@ -129,6 +131,11 @@ class FeedOverrides:
         self._last: tuple[float, float] | None = None
 
     @property
+    def last_a_valve(self) -> float:
+        """The A valve (%) applied at the previous sample (0 before any)."""
+        return 0.0 if self._last is None else self._last[0]
+
+    @property
     def active(self) -> bool:
         """Whether any override acts (False: the cascade runs as without them)."""
         return self.a_lost or self.ac_short
@@ -179,7 +186,7 @@ class FeedOverrides:
         out = []
         if self.a_lost and self.r_a is not None:
             out.append(f"A feed lost: it delivers {100 * self.r_a:.0f} % of its valve's "
-                       f"flow; the A-in-feed trim held (production not lowered)")
+                       f"flow; the A-in-feed trim held")
         if self.ac_short and self.r_ac is not None:
             out.append(f"A+C feed delivers {100 * self.r_ac:.0f} % of its valve's flow: "
                        f"the valve makes it up")

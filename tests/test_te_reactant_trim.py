@@ -1,0 +1,60 @@
+"""The TE reactant trim: A+C short in the reactor feed with the D feed at its limit raises
+the A+C feed's target at a steady grade only, returns when the deficit is gone, and
+does nothing otherwise."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from controller.units.te.grades import grade
+from controller.units.te.reactant_trim import D_FULL_KG_H, ReactantTrim, ReactantTrimSettings
+
+
+@pytest.mark.parametrize("kw, field", [({"d_limit": 100.0}, "d_limit"),
+                                       ({"deadband": -1.0}, "deadband"),
+                                       ({"gain": 0.0}, "gain"),
+                                       ({"trim_max": 200.0}, "trim_max"),
+                                       ({"settle_h": float("nan")}, "settle_h"),
+                                       ({"gain": True}, "gain")])
+def test_bad_settings_name_their_field(kw, field):
+    with pytest.raises(ValueError, match=field):
+        ReactantTrimSettings(**kw)
+
+
+def _xmeas(d_pct: float, short: float) -> tuple[np.ndarray, np.ndarray]:
+    ym = np.array(grade(3).xmeas, dtype=float)
+    x = ym.copy()
+    x[1] = d_pct / 100.0 * D_FULL_KG_H
+    x[24] -= short                                   # C in the reactor feed short
+    return x, ym
+
+
+def _run(trim, x, ym, n, since=np.inf):
+    for _ in range(n):
+        out = trim.step(x, ym, since)
+    return out
+
+
+def test_a_short_feed_with_the_d_valve_at_its_limit_raises_the_target_then_it_returns():
+    trim = ReactantTrim(sample_h=0.01)
+    x, ym = _xmeas(97.0, 3.0)
+    assert _run(trim, x, ym, 100) > 5.0              # one hour, 2 mol % beyond the deadband
+    assert any("A+C feed target raised" in a for a in trim.alarms())
+    again = ReactantTrim(sample_h=0.01)
+    again.restore(json.loads(json.dumps(trim.checkpoint())))
+    assert again.trim == trim.trim
+    x, ym = _xmeas(90.0, -2.0)                       # A+C back above the plan's
+    assert _run(trim, x, ym, 300) == 0.0
+    assert trim.alarms() == []
+
+
+@pytest.mark.parametrize("d_pct, short, since", [(80.0, 3.0, np.inf),   # D valve has room
+                                                 (97.0, 0.5, np.inf),   # within the deadband
+                                                 (97.0, 3.0, 5.0)])     # a grade change 5 h ago
+def test_nothing_is_done_otherwise(d_pct, short, since):
+    trim = ReactantTrim(sample_h=0.01)
+    x, ym = _xmeas(d_pct, short)
+    assert _run(trim, x, ym, 200, since) == 0.0 and not trim.active
