@@ -17,8 +17,7 @@ CSTR_BAND = 0.02  # ±2 % of the target (R5.5, R5.7, R5.8)
 def _run(rid, *extra):
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
-        # each study's independent runs in two processes, as `--workers 2` makes them
-        code = main(["reproduce", rid, "--json", "--workers", "2", *extra])
+        code = main(["reproduce", rid, "--json", *extra])
     return code, buf.getvalue().strip().splitlines()[-1]
 
 
@@ -29,32 +28,6 @@ def _reproduce(rid, capsys, *extra):
     doc = json.loads(out)
     assert doc["id"] == rid and set(doc) == {"id", "rows", "verdict", "why", "figures"}
     return doc, {r["name"]: r for r in doc["rows"]}
-
-
-def test_runs_made_ahead_in_worker_processes_are_those_made_here():
-    """`--workers` does not change a study's numbers: runs made ahead in spawned worker
-    processes equal, to the bit, the same runs made in this process."""
-    import numpy as np
-
-    from controller.reference import SetpointSchedule
-    from services.reproduce import ch5
-
-    sched = SetpointSchedule.staircase(1.3, 2.0, 1, 0.5, 1.0)
-    case = ch5._cstr_case("short staircase", "OPI", sched, 1.5, tau=0.0)
-    cases = [case, ch5._single(case, "OPI")]
-    ch5.prefetch(cases, 2)
-    ahead = [ch5.run_case(c) for c in cases]
-    saved = dict(ch5._PREFETCHED)
-    ch5._PREFETCHED.clear()
-    try:
-        here = [ch5.run_case(c) for c in cases]
-    finally:
-        ch5._PREFETCHED.update(saved)
-    for a, b in zip(ahead, here):
-        assert a is not b
-        for field in ("t", "y", "u"):
-            np.testing.assert_array_equal(getattr(a.result, field), getattr(b.result, field))
-        assert a.ise == b.ise
 
 
 def test_r4_1_convergence_small_error_and_bumpless_switching(capsys):

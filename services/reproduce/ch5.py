@@ -54,7 +54,6 @@ the reference model's output y_m).
 from __future__ import annotations
 
 import math
-import pickle
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -81,7 +80,7 @@ from controller.units.siso import (
 )
 from services.reproduce import ReproduceResult, Row, StudyContext
 
-__all__ = ["RESULTS", "Case", "CaseRun", "prefetch", "run_case", "single_threaded_blas"]
+__all__ = ["RESULTS", "Case", "CaseRun", "run_case", "single_threaded_blas"]
 
 BAND = 0.02  # ±2 % settling band of the seed catalogue's checks
 
@@ -170,55 +169,9 @@ def _fixed_spec(plant, op: str, name: str, kind: str = "fixed") -> ModelSpec:
     return ModelSpec(name, spec.theta, spec.bias, kind)
 
 
-#: Runs made ahead in worker processes (:func:`prefetch`), by their pickled arguments.
-_PREFETCHED: dict[bytes, CaseRun] = {}
-
-
-def _key(case: Case, record_params: bool, record_estimates: bool) -> bytes | None:
-    try:  # a case with a local function (a disturbance lambda) is made where asked
-        return pickle.dumps((case, bool(record_params), bool(record_estimates)))
-    except (pickle.PicklingError, AttributeError, TypeError):
-        return None
-
-
-def _run_ahead(args: tuple) -> CaseRun:
-    case, record_params, record_estimates = args
-    return run_case(case, record_params=record_params, record_estimates=record_estimates)
-
-
-def prefetch(cases, workers: int, *, record_params: bool = False) -> None:
-    """Make the runs of ``cases`` in ``workers`` spawned processes ahead of a study, so
-    that :func:`run_case` answers them from memory (``StudyContext.workers``).
-
-    A run is the same deterministic simulation in any process, so a study's numbers
-    do not depend on ``workers``; with 1 nothing is made ahead."""
-    if workers <= 1:
-        return
-    todo: dict[bytes, tuple] = {}
-    for case in cases:
-        key = _key(case, record_params, False)
-        if key is not None and key not in _PREFETCHED:
-            todo[key] = (case, bool(record_params), False)
-    if len(todo) <= 1:
-        return
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    # spawned, not forked: the caller may hold threads (Zenoh, Dask) a fork would copy
-    with ProcessPoolExecutor(max_workers=min(int(workers), len(todo)),
-                             mp_context=multiprocessing.get_context("spawn")) as pool:
-        for key, run in zip(todo, pool.map(_run_ahead, todo.values())):
-            _PREFETCHED[key] = run
-
-
 def run_case(case: Case, *, record_params: bool = False,
              record_estimates: bool = False) -> CaseRun:
-    """Simulate one case (pure computation; ~1 s per CSTR case), or answer it from the
-    runs :func:`prefetch` made."""
-    if _PREFETCHED:
-        key = _key(case, record_params, record_estimates)
-        if key is not None and key in _PREFETCHED:
-            return _PREFETCHED[key]
+    """Simulate one case (pure computation; ~1 s per CSTR case)."""
     from plant_sim.integrate import step
 
     plant = _plant(case.plant, case.plant_options)
@@ -614,45 +567,16 @@ def r5_11(ctx: StudyContext) -> ReproduceResult:
 
 
 # -- R5.12 / R5.13 state-shared vs single model ------------------------------------------------
-#: R5.12's two staircases: (label, start point, the other point, from, to).
-R5_12_STAIRCASES = (("up", "OPI", "OPII", 1.3, 5.0), ("down", "OPII", "OPI", 5.0, 1.3))
-#: R5.12's checks of the lost settings on the up staircase.
-R5_12_RESYNTHESIS = (0.01, 0.05, 0.5)
-R5_12_INDEX = ((0.5, 0.2), (0.5, 0.9), (5.0, 0.2), (5.0, 0.9))  # (min dwell, forgetting)
-
-
-def _staircase_cases(label: str, start: str, far: str, a: float, b: float) -> dict[str, Case]:
-    """Every run R5.12 makes on one staircase, by role."""
-    sched = SetpointSchedule.staircase(a, b, 4, 1.0, 8.0)
-    # the seed's references are raw steps ("staircases (steps)", Fig. 5.21)
-    case = _cstr_case(f"staircase {label}", start, sched, 35.0, tau=0.0)
-    cases = {"ss": case, "single": _single(case, start), "single_far": _single(case, far),
-             "free": replace(case, param_margin=None)}
-    if label == "up":  # lost settings: does any of them change the ordering?
-        for rs in R5_12_RESYNTHESIS:
-            cases[f"resynthesis {rs:g}"] = replace(case, resynthesis=rs)
-        for md, fg in R5_12_INDEX:
-            cases[f"dwell {md:g}, forgetting {fg:g}"] = replace(
-                case, index=replace(INDEX, min_dwell=md, forgetting=fg))
-    # every staircase level with its own fixed linearization and H-inf design
-    levels = np.linspace(a, b, 5)
-    cases["dense"] = replace(case, models=tuple(
-        (f"F{i + 1}", "fixed", f"y={lv:g}") for i, lv in enumerate(levels)))
-    # the same staircase through a first-order filter (tau 2), for the record
-    fcase = replace(case, tau=2.0)
-    cases["filtered ss"], cases["filtered single"] = fcase, _single(fcase, start)
-    return cases
-
-
 def r5_12(ctx: StudyContext) -> ReproduceResult:
     rows, figs, ok, ises, sens = [], [], True, {}, {}
-    stairs = {st[0]: _staircase_cases(*st) for st in R5_12_STAIRCASES}
-    prefetch([c for cases in stairs.values() for c in cases.values()], ctx.workers)
-    for label, start, far, _, _ in R5_12_STAIRCASES:
-        cases = stairs[label]
-        ss, single = run_case(cases["ss"]), run_case(cases["single"])
-        single_far = run_case(cases["single_far"])
-        free = run_case(cases["free"])
+    for label, start, far, a, b in (("up", "OPI", "OPII", 1.3, 5.0),
+                                    ("down", "OPII", "OPI", 5.0, 1.3)):
+        sched = SetpointSchedule.staircase(a, b, 4, 1.0, 8.0)
+        # the seed's references are raw steps ("staircases (steps)", Fig. 5.21)
+        case = _cstr_case(f"staircase {label}", start, sched, 35.0, tau=0.0)
+        ss, single = run_case(case), run_case(_single(case, start))
+        single_far = run_case(_single(case, far))
+        free = run_case(replace(case, param_margin=None))
         ise_single = single.ise if single.result.completed else math.inf
         ise_far = single_far.ise if single_far.result.completed else math.inf
         rows += [Row(f"{label} (steps): ISE state-shared", "-", None, ss.ise),
@@ -665,26 +589,31 @@ def r5_12(ctx: StudyContext) -> ReproduceResult:
                  Row(f"{label} (steps): final |y - target| single model", "-", None,
                      single.final_error)]
         ok = ok and ss.result.completed and ss.ise < ise_single
-        if label == "up":
-            for rs in R5_12_RESYNTHESIS:
-                run = run_case(cases[f"resynthesis {rs:g}"])
+        if label == "up":  # lost settings: does any of them change the ordering?
+            for rs in (0.01, 0.05, 0.5):
+                run = run_case(replace(case, resynthesis=rs))
                 sens[f"re-synthesis {rs:g}"] = run.ise
                 rows.append(Row(f"up (steps): ISE state-shared, re-synthesis at {rs:.0%} "
                                 f"parameter change (ours {RESYNTHESIS:.0%})", "-", None,
                                 run.ise if run.result.completed else math.inf))
-            for md, fg in R5_12_INDEX:
-                run = run_case(cases[f"dwell {md:g}, forgetting {fg:g}"])
+            for md, fg in ((0.5, 0.2), (0.5, 0.9), (5.0, 0.2), (5.0, 0.9)):
+                run = run_case(replace(case, index=replace(INDEX, min_dwell=md, forgetting=fg)))
                 sens[f"dwell {md:g}, forgetting {fg:g}"] = run.ise
                 rows.append(Row(f"up (steps): ISE state-shared, index min dwell {md:g}, "
                                 f"forgetting {fg:g} (ours {INDEX.min_dwell:g}, "
                                 f"{INDEX.forgetting:g})", "-", None,
                                 run.ise if run.result.completed else math.inf))
-        dense = run_case(cases["dense"])
+        # every staircase level with its own fixed linearization and H-inf design
+        levels = np.linspace(a, b, 5)
+        dense = run_case(replace(case, models=tuple(
+            (f"F{i + 1}", "fixed", f"y={lv:g}") for i, lv in enumerate(levels))))
         rows.append(Row(f"{label} (steps): ISE fixed models at all 5 levels (no adaptation)",
                         "-", None, dense.ise if dense.result.completed else math.inf))
         ises[label] = {"ss": ss.ise, start: ise_single, far: ise_far, "free": free.ise,
                        "dense": dense.ise}
-        fss, fsingle = run_case(cases["filtered ss"]), run_case(cases["filtered single"])
+        # the same staircase through a first-order filter (tau 2), for the record
+        fcase = replace(case, tau=2.0)
+        fss, fsingle = run_case(fcase), run_case(_single(fcase, start))
         rows += [Row(f"{label} (filtered, tau 2): ISE state-shared", "-", None, fss.ise),
                  Row(f"{label} (filtered, tau 2): ISE single model ({start})", "-", None,
                      fsingle.ise if fsingle.result.completed else math.inf)]
@@ -826,42 +755,13 @@ def _ise_or_inf(run: CaseRun) -> float:
     return run.ise if run.result.completed else math.inf
 
 
-R5_13_FILTERED = tuple((tau, level) for tau in (1.0, 2.0) for level in ("OPII", 1.0))
-
-
-def _pulse_cases(hi: float) -> dict:
-    """Every run R5.13 makes, by role (``hi``: OPII's x2, g/L)."""
+def r5_13(ctx: StudyContext) -> ReproduceResult:
+    lo, hi = _bio_levels()
     free = (-math.inf, math.inf)
     # the seed's reading: square pulses between its two points, D not limited (Fig. 5.22)
     main = _pulse_case(hi, 0.0, *free)
-    # the same pulses with the physical input range of the other bioreactor cases
-    lim = _pulse_case(hi, 0.0, 0.0, 1.0)
-    # how far below 0 D must be allowed: a little is enough
-    neg = _pulse_case(hi, 0.0, -0.05, math.inf)
-    # the earlier reading: filtered (tau 1 h) pulses, 0 <= D <= 1, and the printed W1
-    old = _pulse_case(hi, 1.0, 0.0, 1.0)
-    cases = {"main": main, "main single": _single(main, "OPI"),
-             "main single OPII": _single(main, "OPII"),
-             "lim": lim, "lim single": _single(lim, "OPI"),
-             "lim single OPII": _single(lim, "OPII"),
-             "neg": neg, "neg single": _single(neg, "OPI"),
-             "old": old, "old single": _single(old, "OPI"),
-             "printed": replace(_single(old, "OPI"), weights=HInfWeights.seed_bioreactor(
-                 c=0.1, eps=3.2, integral=False))}
-    # filtered pulses (first-order reference, as in Figs. 5.18-5.20), D not limited
-    for tau, level in R5_13_FILTERED:
-        c = _pulse_case(hi if level == "OPII" else level, tau, *free)
-        cases[f"filtered {tau:g} {level}"] = c
-        cases[f"filtered {tau:g} {level} single"] = _single(c, "OPI")
-    return cases
-
-
-def r5_13(ctx: StudyContext) -> ReproduceResult:
-    lo, hi = _bio_levels()
-    cases = _pulse_cases(hi)
-    prefetch(cases.values(), ctx.workers)
-    ss, single = run_case(cases["main"]), run_case(cases["main single"])
-    single2 = run_case(cases["main single OPII"])
+    ss, single, single2 = run_case(main), run_case(_single(main, "OPI")), run_case(
+        _single(main, "OPII"))
     track = max(_plateau_errors(ss, PLATEAU_ENDS[1:]))
     band = TRACK_BAND * (hi - lo)
     D_ss, D_single = ss.result.u[:, 0], single.result.u[:, 0]
@@ -891,9 +791,9 @@ def r5_13(ctx: StudyContext) -> ReproduceResult:
             Row("single model (OPII): bounded (1 = yes)", "-", None, float(_bounded(single2))),
             Row("single model (OPII): ISE", "g^2/L^2 h", None, _ise_or_inf(single2))]
     # the same pulses with the physical input range of the other bioreactor cases
-    lim_runs = {"state-shared": run_case(cases["lim"]),
-                "single model": run_case(cases["lim single"]),
-                "single model (OPII)": run_case(cases["lim single OPII"])}
+    lim = _pulse_case(hi, 0.0, 0.0, 1.0)
+    lim_runs = {"state-shared": run_case(lim), "single model": run_case(_single(lim, "OPI")),
+                "single model (OPII)": run_case(_single(lim, "OPII"))}
     for label, run in lim_runs.items():
         rows += [Row(f"0 <= D <= 1: {label}: bounded (1 = yes)", "-", None,
                      float(_bounded(run))),
@@ -902,24 +802,27 @@ def r5_13(ctx: StudyContext) -> ReproduceResult:
                  Row(f"0 <= D <= 1: {label}: max |y - r| at the plateau ends after the first "
                      "pulse", "g/L", None, max(_plateau_errors(run, PLATEAU_ENDS[1:])))]
     # how far below 0 D must be allowed: a little is enough
-    neg_ss, neg_single = run_case(cases["neg"]), run_case(cases["neg single"])
+    neg = _pulse_case(hi, 0.0, -0.05, math.inf)
+    neg_ss, neg_single = run_case(neg), run_case(_single(neg, "OPI"))
     rows += [Row("D >= -0.05: state-shared: bounded (1 = yes)", "-", None,
                  float(_bounded(neg_ss))),
              Row("D >= -0.05: single model: bounded (1 = yes)", "-", None,
                  float(_bounded(neg_single)))]
     # filtered pulses (first-order reference, as in Figs. 5.18-5.20), D not limited
     sweep = []
-    for tau, name in R5_13_FILTERED:
-        level = hi if name == "OPII" else name
-        s_run = run_case(cases[f"filtered {tau:g} {name}"])
-        o_run = run_case(cases[f"filtered {tau:g} {name} single"])
-        sweep.append((tau, level, _bounded(s_run), _bounded(o_run)))
-        rows += [Row(f"filtered (tau {tau:g} h), pulses to {level:.3g} g/L, D free: "
-                     f"{label}: bounded (1 = yes)", "-", None, float(_bounded(run)))
-                 for label, run in (("state-shared", s_run), ("single model", o_run))]
+    for tau in (1.0, 2.0):
+        for level in (hi, 1.0):
+            c = _pulse_case(level, tau, *free)
+            s_run, o_run = run_case(c), run_case(_single(c, "OPI"))
+            sweep.append((tau, level, _bounded(s_run), _bounded(o_run)))
+            rows += [Row(f"filtered (tau {tau:g} h), pulses to {level:.3g} g/L, D free: "
+                         f"{label}: bounded (1 = yes)", "-", None, float(_bounded(run)))
+                     for label, run in (("state-shared", s_run), ("single model", o_run))]
     # the earlier reading: filtered (tau 1 h) pulses, 0 <= D <= 1, and the printed W1
-    old_ss, old_single = run_case(cases["old"]), run_case(cases["old single"])
-    printed = run_case(cases["printed"])
+    old = _pulse_case(hi, 1.0, 0.0, 1.0)
+    old_ss, old_single = run_case(old), run_case(_single(old, "OPI"))
+    printed = run_case(replace(_single(old, "OPI"), weights=HInfWeights.seed_bioreactor(
+        c=0.1, eps=3.2, integral=False)))
     re_opii, re_curve, zeta_curve = _bio_loop_margins("OPI")
     rows += [Row("filtered (tau 1 h), 0 <= D <= 1: state-shared: ISE", "g^2/L^2 h", None,
                  _ise_or_inf(old_ss)),
