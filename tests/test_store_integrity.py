@@ -74,6 +74,14 @@ def _until(cond, timeout=10.0):
     return cond()
 
 
+def _replies(h, action) -> bool:
+    try:
+        h.query(action)
+    except AssertionError:  # no reply (yet)
+        return False
+    return True
+
+
 def test_a_store_that_cannot_commit_answers_503_and_loses_nothing_acknowledged(stack2):
     h, api = stack2
     c = api.client
@@ -160,6 +168,9 @@ def test_a_checkpoint_older_than_the_store_does_not_revive_a_transition(tmp_path
             rec.update(state="failed", detail="plant shut down")
             store.save_transition(rec, event="failed", process_time=rec["started_t"])
         h.start_controller()
+        # the restarted node answers once its queryable has reached the client's session
+        # (a loaded machine takes a while)
+        assert _until(lambda: _replies(h, "status"), timeout=20.0)
         view = h.query("transition", {"op": "get", "id": tid}).data
         assert view["state"] == "failed"
         assert h.query("status").data["transition"]["state"] == "failed"
