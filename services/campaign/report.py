@@ -2,8 +2,10 @@
 
 :func:`write_report` writes ``report.png`` (:func:`services.campaign.figures.plot_matrix`),
 ``table.csv`` (one row per run, the columns of :data:`COLUMNS`) and ``report.html``
-(the figure, the summary and the same table; no script, no external resource),
-each atomically.
+(the figure, the summary, the acceptance verdicts and the same table; no script, no
+external resource), each atomically. A TE campaign with the product strategy
+``ssmpc`` and at least one baseline also gets ``acceptance.json`` and
+``acceptance.md`` (:mod:`services.campaign.acceptance`).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import csv
 import html
 import io
+import json
 from pathlib import Path
 
 from services.output import atomic_output
@@ -65,6 +68,22 @@ def write_report(doc: dict, root: str | Path) -> dict[str, str]:
     csv.writer(buf).writerows(rows)
     with atomic_output(root / "table.csv", "w", field="out") as fh:
         fh.write(buf.getvalue())
+    paths = {"png": png, "csv": str(root / "table.csv"), "html": str(root / "report.html")}
+    verdicts = ""
+    strategies = {r.get("strategy") for r in doc.get("runs", [])}
+    if doc.get("unit", "te") == "te" and "ssmpc" in strategies and len(strategies) > 1:
+        from services.campaign.acceptance import judge, to_markdown
+
+        acc = judge(doc)
+        text = to_markdown(acc)
+        with atomic_output(root / "acceptance.json", "w", field="out") as fh:
+            json.dump(acc.as_dict(), fh, indent=1)
+        with atomic_output(root / "acceptance.md", "w", field="out") as fh:
+            fh.write(text)
+        paths.update(acceptance_json=str(root / "acceptance.json"),
+                     acceptance_md=str(root / "acceptance.md"))
+        verdicts = (f"<h2>acceptance of ssmpc: {'met' if acc.met else 'not met'}</h2>\n"
+                    f"<pre>{html.escape(text)}</pre>")
     s = doc["summary"]
     head = "".join(f"<th>{html.escape(h)}</th>" for h in rows[0])
     body = "\n".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>"
@@ -80,6 +99,7 @@ td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}th{{background:#e
 {s.get('errors', 0)} failed; {doc['workers']} workers, {doc['wall_s']:.1f} s wall
 ({s.get('executed', 0)} run now, {s.get('skipped', 0)} found finished).</p>
 <p><img src="report.png" alt="cases x strategies: time to grade or trip"></p>
+{verdicts}
 <table><thead><tr>{head}</tr></thead><tbody>
 {body}
 </tbody></table>
@@ -87,4 +107,4 @@ td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}th{{background:#e
 """
     with atomic_output(root / "report.html", "w", field="out") as fh:
         fh.write(page)
-    return {"png": png, "csv": str(root / "table.csv"), "html": str(root / "report.html")}
+    return paths
