@@ -63,6 +63,7 @@ import json
 import logging
 import math
 import os
+import queue
 import random
 import secrets
 import signal
@@ -216,23 +217,31 @@ class _NodeProcess:
                                      stderr=err, text=True, env=self.env,
                                      preexec_fn=_pdeathsig)
         err.close()
-        deadline = time.monotonic() + timeout_s
-        import select
+        from services.nodes.supervisor import _lines
 
+        lines = _lines(self.proc)  # read on a thread: select misses buffered lines
+        deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
+            try:
+                line = lines.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            if line is None:  # its output ended: it exited
+                try:
+                    self.proc.wait(timeout=5.0)
+                except subprocess.TimeoutExpired:
+                    self.kill()
                 raise RuntimeError(f"{self.role}: exited with {self.proc.returncode} before "
                                    f"ready; see {self.log_path}")
-            r, _, _ = select.select([self.proc.stdout], [], [], 0.2)
-            if r and self.proc.stdout.readline().startswith("ready"):
-                threading.Thread(target=self._drain, daemon=True).start()
+            if line.startswith("ready"):
+                threading.Thread(target=self._discard, args=(lines,), daemon=True).start()
                 return
         self.kill()
         raise RuntimeError(f"{self.role}: not ready within {timeout_s:g} s")
 
-    def _drain(self) -> None:
-        proc = self.proc
-        for _ in proc.stdout:
+    @staticmethod
+    def _discard(lines) -> None:
+        while lines.get() is not None:
             pass
 
     def alive(self) -> bool:
