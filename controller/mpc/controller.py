@@ -411,10 +411,9 @@ class MPCController:
             if view.Gamma_d is not None and self.d is not None:
                 dd = self.d - self.d_prev
             self.d_prev = self.d
-            stacked = None
             if (dd is None or form.S_d is None) and self.op_limits is None:
-                x_a, vec, stacked = form.sample_qp(view.x, view.x_prev, y_f, self.u, R,
-                                                   self.u_target)
+                x_a, vec = form.sample_vectors(view.x, view.x_prev, y_f, self.u, R,
+                                               self.u_target)
             else:
                 x_a = np.concatenate([np.asarray(view.x) - np.asarray(view.x_prev), y_f])
                 vec = form.qp_vectors(x_a, self.u, R, dd, self.u_target, self.op_limits)
@@ -423,8 +422,7 @@ class MPCController:
                                        np.zeros(form.nz - form.n_moves, dtype=bool)])
                 vec = replace(vec, lb=np.where(held, 0.0, vec.lb),
                               ub=np.where(held, 0.0, vec.ub))
-                stacked = None  # the bounds changed: stacked again by the solver
-            res = solver.solve(vec, stacked=stacked)
+            res = solver.solve(vec)
             self.last_result = res
             # The budget covers the sample's work except a one-off (re)build of a
             # model's matrices, which prepare() can do ahead of time.

@@ -29,12 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.mpc.settings import MPCSettings
-from controller.mpc.vector_kernel import (
-    clip_move,
-    qp_sample_kernel,
-    qp_vectors_kernel,
-    stacked_bounds,
-)
+from controller.mpc.vector_kernel import clip_move, qp_vectors_kernel, stacked_bounds
 
 #: What the QP solvers read as no bound (DAQP's DAQP_INF).
 _OPEN = 1e30
@@ -339,33 +334,6 @@ class DeltaUFormulation:
             float(s.slack_linear), self.has_slack, self._bl0, self._bu0, self._in_idx,
             np.ascontiguousarray(u_prev, dtype=float), self._Sx_max, self._Sx_min)
         return x_a, QPVectors(f=f, lb=self.lb0, ub=self.ub0, bl=bl, bu=bu)
-
-    def sample_qp(self, x, x_prev, y, u_prev, reference, u_target=None):
-        """:meth:`sample_vectors` with the solver's stacked bounds, in one compiled call
-        (:func:`controller.mpc.vector_kernel.qp_sample_kernel`; the same numbers).
-
-        Returns
-        -------
-        x_a : ndarray, shape (n + ny,)
-        vectors : QPVectors
-        stacked : tuple
-            ``(clean, upper, lower)`` for :meth:`controller.mpc.qp.QPSolver.solve`.
-        """
-        s = self.settings
-        if self.F_ut is not None:
-            ut = s.u_target if u_target is None else u_target
-            dev = (np.asarray(u_prev, dtype=float) - ut).take(self._tile_M)
-        else:
-            dev = self._no_dev
-        asc = np.ascontiguousarray
-        u_prev = asc(u_prev, dtype=float)
-        x_a, f, bl, bu, clean, upper, lower = qp_sample_kernel(
-            asc(x, dtype=float), asc(x_prev, dtype=float), asc(y, dtype=float), self.F_x,
-            self.F_r, asc(reference, dtype=float).reshape(-1), self._F_ut, dev,
-            float(s.slack_linear), self.has_slack, self._bl0, self._bu0, self._in_idx,
-            u_prev, self._Sx_max, self._Sx_min, self.lb0, self.ub0)
-        return (x_a, QPVectors(f=f, lb=self.lb0, ub=self.ub0, bl=bl, bu=bu),
-                (clean, upper, lower))
 
     def predict(self, x_a, dU, dd=None) -> np.ndarray:
         """Predicted outputs ``y(k+1) … y(k+P)`` for the moves ``dU``, shape (P, ny)."""

@@ -40,8 +40,6 @@ __all__ = ["QPResult", "QPSolver", "DAQPBackend", "ProxsuiteBackend", "make_solv
 #: (:meth:`QPSolver.setup_ahead`) and set up in the solve: round-off of its update path.
 SETUP_AHEAD_ATOL = 1e-12
 
-_F8 = np.dtype(np.float64)
-
 # Finite stand-in for "no limit" where a backend wants finite numbers.
 _BIG = 1.0e20
 
@@ -113,23 +111,14 @@ class QPSolver(ABC):
     def m(self) -> int:
         return self.A.shape[0]
 
-    def solve(self, v: QPVectors, *, warm: bool | None = None,
-              stacked: tuple[bool, np.ndarray, np.ndarray] | None = None) -> QPResult:
-        """Solve with the vectors ``v``; ``warm`` overrides :attr:`warm_start` once.
-
-        ``stacked``: ``(clean, upper, lower)`` of ``v`` as
-        :func:`controller.mpc.vector_kernel.stacked_bounds` gives them, when the caller
-        made them with the vectors (:meth:`DeltaUFormulation.sample_qp
-        <controller.mpc.formulation.DeltaUFormulation.sample_qp>`); else made here.
-        """
+    def solve(self, v: QPVectors, *, warm: bool | None = None) -> QPResult:
+        """Solve with the vectors ``v``; ``warm`` overrides :attr:`warm_start` once."""
         warm = self.warm_start if warm is None else warm
         t0 = time.perf_counter()
-        if stacked is None:
-            asc = np.ascontiguousarray  # no copy of the kernels' own vectors
-            stacked = stacked_bounds(  # the check and [ub; bu], [lb; bl] in one call
-                asc(v.f, dtype=float), asc(v.lb, dtype=float), asc(v.ub, dtype=float),
-                asc(v.bl, dtype=float), asc(v.bu, dtype=float))
-        clean, upper, lower = stacked
+        asc = np.ascontiguousarray  # no copy of the kernels' own vectors
+        clean, upper, lower = stacked_bounds(  # the check and [ub; bu], [lb; bl] in one call
+            asc(v.f, dtype=float), asc(v.lb, dtype=float), asc(v.ub, dtype=float),
+            asc(v.bl, dtype=float), asc(v.bu, dtype=float))
         if not clean:
             return QPResult("nan", None, 0, (time.perf_counter() - t0) * 1e3, float("nan"),
                             self.name, "non-finite QP data")
@@ -207,10 +196,7 @@ class DAQPBackend(QPSolver):
 
     def _solve(self, v: QPVectors, warm: bool, upper: np.ndarray, lower: np.ndarray):
         bu, bl = upper, lower
-        f = v.f
-        if not (type(f) is np.ndarray and f.dtype == _F8 and f.flags.c_contiguous
-                and f.flags.writeable):  # the bindings take only writable float64 buffers
-            f = np.array(f, dtype=float)
+        f = np.array(v.f, dtype=float)
         if self._model is None:
             model = self._daqp.Model()
             model.settings = {"iter_limit": self.max_iter, "primal_tol": self.primal_tol}

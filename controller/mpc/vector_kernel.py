@@ -27,7 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["clip_move", "qp_sample_kernel", "qp_vectors_kernel", "stacked_bounds"]
+__all__ = ["clip_move", "qp_vectors_kernel", "stacked_bounds"]
 
 
 @njit(cache=True)
@@ -136,30 +136,6 @@ def stacked_bounds(f, lb, ub, bl, bu):
         if math.isnan(upper[i]) or math.isnan(lower[i]):
             clean = False
     return clean, upper, lower
-
-
-@njit(cache=True)
-def qp_sample_kernel(x, x_prev, y, F_x, F_r, r, F_ut, ut_dev, slack_linear, has_slack,
-                     bl0, bu0, in_idx, u_prev, Sx_max, Sx_min, lb0, ub0):
-    """:func:`qp_vectors_kernel` and :func:`stacked_bounds` of its vectors in one call.
-
-    Parameters are those of :func:`qp_vectors_kernel`, and ``lb0``, ``ub0`` (shape
-    (nz,)) the variables' bounds.
-
-    Returns
-    -------
-    x_a, f, bl, bu : ndarray
-        As :func:`qp_vectors_kernel`.
-    clean : bool
-        ``f`` finite and no bound NaN (:func:`stacked_bounds`).
-    upper, lower : ndarray, shape (nz + rows,)
-        ``[ub0; bu]`` and ``[lb0; bl]``.
-    """
-    x_a, f, bl, bu = qp_vectors_kernel(x, x_prev, y, F_x, F_r, r, F_ut, ut_dev,
-                                       slack_linear, has_slack, bl0, bu0, in_idx, u_prev,
-                                       Sx_max, Sx_min)
-    clean, upper, lower = stacked_bounds(f, lb0, ub0, bl, bu)
-    return x_a, f, bl, bu, clean, upper, lower
 
 
 @njit(cache=True)
