@@ -659,9 +659,9 @@ class MultiModelController:
     def _move_in_force(self, u) -> np.ndarray:
         """``u`` checked (length, finite: else ValueError) and clipped to the input limits."""
         u = np.asarray(u, dtype=float).reshape(-1)
-        if u.shape != self.u_last.shape or not np.isfinite(u).all():
+        if u.shape != self.u_last.shape or not all_finite(u):
             raise ValueError(f"u: expected {self.u_last.size} finite values, got {u!r}")
-        return np.clip(u, self.u_min, self.u_max)
+        return np.minimum(np.maximum(u, self.u_min), self.u_max)  # np.clip, without its overhead
 
     def applied(self, u) -> None:
         """The plant got ``u`` instead of the last step's move (a missed deadline: the

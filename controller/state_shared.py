@@ -659,7 +659,7 @@ class StateSharedModel:
         try:
             uy = np.concatenate((np.asarray(u, dtype=float).reshape(-1),
                                  np.asarray(y, dtype=float).reshape(-1)))
-            fast = uy.size == self.m + self.p and np.isfinite(uy).all()
+            fast = uy.size == self.m + self.p and all_finite(uy)
         except (TypeError, ValueError):
             fast = False
         if fast and np.size(u) == self.m:

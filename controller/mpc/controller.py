@@ -244,7 +244,7 @@ class MPCController:
             arr = np.asarray(u_target, dtype=float).reshape(-1)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"u_target: not a numeric vector ({exc})") from exc
-        if arr.size != self.settings.nu or not np.isfinite(arr).all():
+        if arr.size != self.settings.nu or not all_finite(arr):
             raise ValueError(f"u_target: expected {self.settings.nu} finite values, got "
                              f"{arr.tolist()}")
         self.u_target = arr.copy()
