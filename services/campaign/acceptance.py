@@ -29,8 +29,9 @@ deviations) over seeds no worse than the decentralized structure's, within
 product if the product did not trip there (a trip is worse than any cost); the
 case is *met* when the product never tripped and every measure holds.
 
-Measured limits: this is bookkeeping over at most a few thousand rows (1,110 rows of
-the acceptance matrix in 5 ms).
+Measured limits: bookkeeping only; the 1,110 rows of the acceptance matrix are judged
+and written as Markdown in 4.6-6.6 ms (AMD EPYC, Python 3.11.7). The verdicts of that
+matrix are in ``docs/te_matrix.md``.
 """
 
 from __future__ import annotations
