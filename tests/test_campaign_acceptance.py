@@ -117,3 +117,12 @@ def test_the_report_writes_the_verdicts_beside_the_figure(tmp_path):
 def test_a_campaign_without_the_product_or_baselines_has_no_verdicts(tmp_path):
     write_report(_doc([r for r in ROWS if r["strategy"] == "ssmpc"]), tmp_path)
     assert not (tmp_path / "acceptance.json").exists()
+
+
+def test_a_tie_of_binding_limits_goes_to_the_first_seeds_whatever_the_hash_order():
+    rows = [_row("tie", "ssmpc", 1, ttg=5.0, cost=1.0, share=0.2, limit="XMV6"),
+            _row("tie", "ssmpc", 2, ttg=5.0, cost=1.0, share=0.2, limit="XMV3"),
+            _row("tie", "plan", 1, ttg=9.0, cost=2.0)]
+    assert judge(_doc(rows)).transitions[0].binding_limit == "XMV6"
+    rows[0]["binding_limit"], rows[1]["binding_limit"] = "XMV3", "XMV6"
+    assert judge(_doc(rows)).transitions[0].binding_limit == "XMV3"

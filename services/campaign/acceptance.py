@@ -37,6 +37,7 @@ matrix are in ``docs/te_matrix.md``.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import asdict, dataclass, field
 from statistics import median
 
@@ -175,7 +176,8 @@ def _transition(case, product_rows, baseline_rows: dict) -> TransitionVerdict:
     peak_ok = peak is not None and peak <= PEAK_LIMIT_KPA
     share = _median(r.get("limit_bound_share") for r in product_rows)
     limits = [r.get("binding_limit") for r in product_rows if r.get("binding_limit")]
-    binding = max(set(limits), key=limits.count) if limits else None
+    # the most frequent; a tie goes to the first seed's (a set's order varies by process)
+    binding = Counter(limits).most_common(1)[0][0] if limits else None
     limits_bind = (not faster and not math.isinf(t) and t <= t_best
                    and share is not None and share >= LIMITS_BIND_SHARE)
     met = trips == 0 and peak_ok and cheaper and (faster or limits_bind)
@@ -235,20 +237,14 @@ def judge(doc: dict, product: str = "ssmpc",
     Rows that failed (``error``) are left out. The baselines are every other strategy
     of the document. Cases where the product has no row are left out.
     """
-    cases: list[str] = []
-    groups: dict[tuple[str, str], list[dict]] = {}
-    legs: dict[str, int] = {}
-    for row in doc.get("runs", []):
-        if row.get("error"):
-            continue
-        if row["case"] not in cases:
-            cases.append(row["case"])
-        legs[row["case"]] = max(legs.get(row["case"], 0), int(row.get("legs") or 0))
-        groups.setdefault((row["case"], row["strategy"]), []).append(row)
-    strategies = []
-    for _, s in groups:
-        if s not in strategies:
-            strategies.append(s)
+    from services.campaign.figures import group_runs
+
+    cases, strategies, groups = group_runs(r for r in doc.get("runs", []) if not r.get("error"))
+    legs = dict.fromkeys(cases, 0)
+    trips = dict.fromkeys(strategies, 0)
+    for (case, strategy), rows in groups.items():
+        legs[case] = max(legs[case], *(int(r.get("legs") or 0) for r in rows))
+        trips[strategy] += sum(_tripped(r) for r in rows)
     baselines = tuple(s for s in strategies if s != product)
     transitions, disturbances = [], []
     for case in cases:
@@ -260,8 +256,6 @@ def judge(doc: dict, product: str = "ssmpc",
                 case, mine, {b: groups[(case, b)] for b in baselines if (case, b) in groups}))
         elif (case, disturbance_baseline) in groups:
             disturbances.append(_disturbance(case, mine, groups[(case, disturbance_baseline)]))
-    trips = {s: sum(_tripped(r) for (c, st), rows in groups.items() if st == s for r in rows)
-             for s in strategies}
     return Acceptance(product, baselines, transitions, disturbances, trips)
 
 

@@ -21,20 +21,26 @@ import numpy as np
 
 from services.output import atomic_output
 
-__all__ = ["cell_summaries", "plot_matrix"]
+__all__ = ["cell_summaries", "group_runs", "plot_matrix"]
 
 
-def cell_summaries(doc: dict) -> tuple[list[str], list[str], dict]:
-    """Cases, strategies (in document order) and per (case, strategy) a summary dict."""
+def group_runs(rows) -> tuple[list[str], list[str], dict[tuple[str, str], list[dict]]]:
+    """Cases, strategies (in the rows' order) and the rows of each (case, strategy)."""
     cases: list[str] = []
     strategies: list[str] = []
     groups: dict[tuple[str, str], list[dict]] = {}
-    for row in doc["runs"]:
+    for row in rows:
         if row["case"] not in cases:
             cases.append(row["case"])
         if row["strategy"] not in strategies:
             strategies.append(row["strategy"])
         groups.setdefault((row["case"], row["strategy"]), []).append(row)
+    return cases, strategies, groups
+
+
+def cell_summaries(doc: dict) -> tuple[list[str], list[str], dict]:
+    """Cases, strategies (in document order) and per (case, strategy) a summary dict."""
+    cases, strategies, groups = group_runs(doc["runs"])
     cells = {}
     for key, rows in groups.items():
         n = len(rows)
