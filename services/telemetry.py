@@ -134,7 +134,7 @@ def blueprint(unit: str, cv_names: Sequence[str], ref_names: Sequence[str] | Non
                 rrb.TextLogView(name="events", origin=f"/{unit}/events"),
                 rrb.TimeSeriesView(name="timing (ms)", origin=f"/{unit}/timing",
                                    axis_x=whole),
-                row_shares=[3, 2, 2, 2, 1],
+                row_shares=[3, 2, 2, 2, 2],
             ),
             column_shares=[3, 2],
         ),

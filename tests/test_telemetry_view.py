@@ -85,7 +85,7 @@ def test_the_layout_has_key_cvs_left_and_the_rest_right_in_shares():
         ("MVs, % of range", "TimeSeriesView"), ("active model", "TimeSeriesView"),
         ("log10 J (eq. 4.6)", "TimeSeriesView"), ("events", "TextLogView"),
         ("timing (ms)", "TimeSeriesView")]
-    tops = [0.0, 0.3, 0.5, 0.7, 0.9, 1.0]  # rows 3:2:2:2:1
+    tops = [0.0, 3 / 11, 5 / 11, 7 / 11, 9 / 11, 1.0]  # rows 3:2:2:2:2
     for p, y0, y1 in zip(right, tops[:-1], tops[1:]):
         assert p.box == pytest.approx((0.6, y0, 1.0, y1))
 

@@ -8,7 +8,7 @@ titles into its canvas and exposes no DOM or accessibility node for them, so the
 with OCR (tesseract, services.screen_text): the names and places come from the blueprint
 itself (services.telemetry.blueprint, as the controller node records it, walked by
 services.telemetry_view.panel_layout: one panel per key CV in the left 3/5 column, the
-MVs, active model, log10 J, events and timing on the right in shares 3:2:2:2:1), and each
+MVs, active model, log10 J, events and timing on the right in shares 3:2:2:2:2), and each
 name must be read in its own panel's title bar (check_titles); the key CVs' titles are
 then read top to bottom in the left column in the blueprint's order, the others so in the
 right. Two screens must not pass that check: the viewer's loading page (nothing read),
