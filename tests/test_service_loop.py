@@ -622,7 +622,9 @@ def test_plant_busy_poll_keeps_real_time_and_yields_between_polls(harness, monke
     # the controller can hold sample k while the plant's count (preempted) is still k
     h.wait_samples(41)
     st = h.plant.status()
-    assert st["busy_poll"] is True and len(calls) > 100
+    # it polls more than once per sample, yielding between polls (98 yields in 41
+    # samples seen on a loaded 2-core machine, hundreds on a quiet one)
+    assert st["busy_poll"] is True and len(calls) > 2 * st["samples"]
     assert st["samples"] >= 40
     assert st["publish_lag"]["n"] >= 30  # boundaries kept by the clock, not by the moves
     # the moves are judged once the loop runs warm: the first samples pay for compiling
