@@ -145,6 +145,17 @@ def test_checkpoint_restore_is_bumpless(strategy):
         apply_decision(spec, sim, reg, d1)
 
 
+@pytest.fixture
+def slow_a_loop(monkeypatch):
+    """The MPC strategies' A loop at its grade-change tuning at a steady grade too: with
+    it IDV(1) takes the reactor pressure to the override (about 2905 kPa); the
+    steady-grade tuning corrects the A shortfall before that (peak about 2889 kPa)."""
+    import controller.units.te.control as te_control
+
+    monkeypatch.setattr(te_control, "A_FEED_LOOP_STEADY", te_control.A_FEED_LOOP)
+
+
+@pytest.mark.usefixtures("slow_a_loop")
 def test_idv1_drives_pressure_up_alarms_before_the_interlock():
     # IDV(1) (A/C ratio step) from mode 0: the pressure rises toward the interlock; the
     # override alarms and acts, the plant keeps running
@@ -157,6 +168,7 @@ def test_idv1_drives_pressure_up_alarms_before_the_interlock():
 SLACK_ACTIVE = 1e-6  # slack (units of output_scale, 20 kPa) counted as acting
 
 
+@pytest.mark.usefixtures("slow_a_loop")
 def test_idv1_from_mode3_the_soft_pressure_constraint_acts_before_the_interlock():
     # IDV(1) from mode 3 drives the reactor pressure toward the 3000 kPa interlock (to
     # about 2905 kPa here): the high-pressure alarms come, the MPC's soft pressure limit
