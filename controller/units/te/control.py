@@ -23,7 +23,10 @@ Layers (seed Fig. 7.2)
          the grade plan's feedforward alone (the five handles follow the plan's
          values, no feedback core), the reference a feedback core has to beat. The MPC's
          input targets follow the grade plan (:class:`TEMPCOptions`), trimmed by an
-         outer production loop (XMEAS 17 -> A+C feed);
+         outer production loop (XMEAS 17 -> A+C feed) and an outer A-in-feed loop
+         (XMEAS 23 -> A feed: :data:`A_FEED_LOOP` through a grade change,
+         :data:`A_FEED_LOOP_STEADY` at a steady grade, held through a leg that lowers
+         the A in the reactor feed, :class:`TransitionGuards`);
        - a high-pressure override cuts the A+C feed above 2900 kPa (all strategies);
        - the feed overrides (:mod:`controller.units.te.overrides`, all strategies but
          "decentralized"): a short A+C feed is made up by its valve, a lost A feed
