@@ -82,25 +82,6 @@ def test_the_plan_waits_while_the_pressure_is_at_the_full_hold_and_goes_on_after
     assert again.plan_lag_h == 0.0
 
 
-def test_the_a_feed_loop_holds_its_trim_through_a_grade_change_only():
-    # A in the reactor feed (XMEAS 23) 3 mol % under the plan's: the loop raises the A
-    # feed's target, unless a grade change started less than a_loop_hold_h ago
-    def trim(plan, hold_h):
-        ctl, _ = make_te_controller("fixed", plan, guards=TransitionGuards(a_loop_hold_h=hold_h))
-        x = _xmeas(0, 2705.0)
-        x[22] -= 3.0
-        for k in range(10):
-            ctl.step(k, 1.0 + k * ctl.sample_h, x, None)
-            ctl.finish_sample()
-        return ctl.a_trim
-
-    change = TransitionPlan("mode0", (Leg(1.0, "mode1"),))
-    assert trim(change, 0.0) > 0.0                         # the default: the loop acts
-    assert trim(change, 4.0) == 0.0                        # within 4 h of the change
-    assert trim(change, 0.05) > 0.0                        # past a short hold it acts
-    assert trim(TransitionPlan("mode0"), 4.0) > 0.0        # a steady grade: it acts
-
-
 def _a_trim(plan, start: int, t0: float, n: int = 10, **guards) -> float:
     """The A loop's trim after ``n`` samples from ``t0`` with A in the reactor feed
     (XMEAS 23) 3 mol % under the start grade's."""
@@ -111,6 +92,20 @@ def _a_trim(plan, start: int, t0: float, n: int = 10, **guards) -> float:
         ctl.step(k, t0 + k * ctl.sample_h, x, None)
         ctl.finish_sample()
     return ctl.a_trim
+
+
+def test_the_a_feed_loop_holds_its_trim_through_a_grade_change_only():
+    # A in the reactor feed (XMEAS 23) 3 mol % under the plan's: the loop raises the A
+    # feed's target, unless a grade change started less than a_loop_hold_h ago
+
+    def trim(plan, hold_h):
+        return _a_trim(plan, 0, 1.0, a_loop_hold_h=hold_h)
+
+    change = TransitionPlan("mode0", (Leg(1.0, "mode1"),))
+    assert trim(change, 0.0) > 0.0                         # the default: the loop acts
+    assert trim(change, 4.0) == 0.0                        # within 4 h of the change
+    assert trim(change, 0.05) > 0.0                        # past a short hold it acts
+    assert trim(TransitionPlan("mode0"), 4.0) > 0.0        # a steady grade: it acts
 
 
 @pytest.mark.parametrize("start, to, falls", [(1, 3, True), (2, 3, True), (0, 3, True),
@@ -216,7 +211,6 @@ def test_no_trip(strategy, start, to, idv, hours):
     assert r.xmeas[:, 6].max() < INTERLOCK_KPA - 50.0
 
 
-
 def test_one_to_three_requested_after_a_steady_day_holds():
     # 1 -> 3 requested at 13 h, after 12 h at mode 1 (noise on, seed 2): tripped at
     # 15.3 h while the A loop raised the A feed to 51 % through the leg (seed 3 at 15.3 h
@@ -226,3 +220,11 @@ def test_one_to_three_requested_after_a_steady_day_holds():
     r = run_te("ssmpc", plan, 16.0, noise=True, seed=2, plant_seed=plant_seed_for(2))
     assert r.shutdown is None, r.shutdown
     assert r.xmeas[:, 6].max() < 2895.0
+
+
+def test_change_at_gives_the_grades_of_the_last_leg_started():
+    plan = TransitionPlan("mode0", (Leg(1.0, "mode2"), Leg(5.0, "mode3")))
+    names = lambda t: tuple(g.name for g in plan.change_at(t))  # noqa: E731
+    assert names(0.5) == ("mode0", "mode0")
+    assert names(1.0) == ("mode0", "mode2") == names(4.9)
+    assert names(5.0) == ("mode2", "mode3") == names(40.0)

@@ -533,29 +533,27 @@ class TEController:
                 self.e_a_prev = e
             # held by the operator, while the A feed is lost (FeedOverrides), or
             # through a grade change (TransitionGuards)
+            since = self.plan.hours_since_change(self._t_last)
             held = (A_FEED_LOOP.cv in self.outer_held or self.feeds.a_lost
-                    or self._a_loop_held_by_change())
+                    or self._a_loop_held_by_change(since))
             if not held:
-                lp = (A_FEED_LOOP_STEADY
-                      if self.plan.hours_since_change(self._t_last) >= A_LOOP_STEADY_AFTER_H
-                      else A_FEED_LOOP)
+                lp = A_FEED_LOOP_STEADY if since >= A_LOOP_STEADY_AFTER_H else A_FEED_LOOP
                 self.a_trim += lp.gain * ((e - self.e_a_prev) + self.sample_h / lp.ti_h * e)
             self.a_trim = min(max(self.a_trim, -A_TRIM_MAX), A_TRIM_MAX)
             self.e_a_prev = e
         return self.a_trim
 
-    def _a_loop_held_by_change(self) -> bool:
-        """Whether a grade change holds the A loop's trim now (:class:`TransitionGuards`
-        ``a_loop_hold_h``, and ``a_loop_hold_falling_h`` for a leg that lowers the A in
-        the reactor feed, XMEAS 23, by more than :data:`A_FALLING_MOL`)."""
+    def _a_loop_held_by_change(self, since: float) -> bool:
+        """Whether the grade change ``since`` h ago holds the A loop's trim now
+        (:class:`TransitionGuards` ``a_loop_hold_h``, and ``a_loop_hold_falling_h`` for a
+        leg that lowers the A in the reactor feed, XMEAS 23, by more than
+        :data:`A_FALLING_MOL`)."""
         g = self.guards
-        since = self.plan.hours_since_change(self._t_last)
         if since < g.a_loop_hold_h:
             return True
         if not since < g.a_loop_hold_falling_h:
             return False
-        t_leg = self._t_last - since
-        before, after = self.plan.grade_at(t_leg - 1e-6), self.plan.grade_at(t_leg)
+        before, after = self.plan.change_at(self._t_last)
         return bool(after.xmeas[22] < before.xmeas[22] - A_FALLING_MOL)
 
     def _e_feed_margin(self, xmeas: np.ndarray) -> float:

@@ -438,6 +438,15 @@ class TransitionPlan:
                 last = lg.t_h
         return float(t) - last
 
+    def change_at(self, t: float) -> tuple[Grade, Grade]:
+        """The grades before and after the last grade change at or before ``t`` (the
+        start grade twice when no leg has started)."""
+        before = after = self._grades[0]
+        for lg, gr in zip(self.legs, self._grades[1:], strict=True):
+            if lg.t_h <= t:
+                before, after = after, gr
+        return before, after
+
     def grade_at(self, t: float) -> Grade:
         """Grade requested at time ``t`` (the target, not where the plant is)."""
         g = self._grades[0]

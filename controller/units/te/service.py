@@ -61,6 +61,11 @@ class HeldPlan:
     def grade_at(self, t):
         return self.plan.grade_at(self.t_h)
 
+    def change_at(self, t):
+        """No leg under way: the grade held, before and after."""
+        g = self.plan.grade_at(self.t_h)
+        return g, g
+
     @property
     def legs(self) -> tuple:
         """None under way: the held references do not move."""
