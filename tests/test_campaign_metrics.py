@@ -216,3 +216,53 @@ def test_te_metrics_report_the_binding_over_the_transition_window_only():
     # a run with no leg has no transition window
     row = metrics.te_metrics(t, x, cost, np.full(12, -1), (), dt, None, None, xmv=u)
     assert row["limit_bound_share"] is None and row["binding_limit"] is None
+
+
+# seed Table 7.3 (R7.3), modes 0 and 1: the same product (G 53.72 / 53.83 mol %, flow
+# 22.95 / 22.89 m3/h) at another operating point (reactor level 75 / 65 %, rows 8;
+# reactor temperature 120.4 / 122.9 degC, rows 9)
+MODE1_G, MODE1_FLOW, MODE1_LEVEL, MODE1_TR = 53.83, 22.89, 65.0, 122.9
+
+
+def test_modes_zero_and_one_make_the_same_product_and_mode_two_another():
+    assert metrics.te_same_product("mode0", "mode1")
+    assert metrics.te_same_product("mode1", "mode0")
+    assert not metrics.te_same_product("mode0", "mode2")
+    assert not metrics.te_same_product("mode1", "mode3")
+
+
+def _same_product_series():
+    """Nine samples 0.5 h apart, the leg 0 -> 1 at 1.0 h: G and flow at mode 1's from
+    the start, the reactor level in mode 1's band from 3.0 h, the temperature from 2.5 h."""
+    t = np.arange(9) * 0.5
+    x = np.zeros((9, 41))
+    x[:, 6] = 2750.0
+    x[:, 39] = MODE1_G
+    x[:, 16] = MODE1_FLOW
+    x[:, 7] = [75, 75, 75, 72, 69, 67, 65, 65, 65]
+    x[:, 8] = [120.4, 120.4, 121.0, 121.6, 122.4, 122.9, 122.9, 122.9, 122.9]
+    return t, x, np.full(9, 100.0), np.full(9, -1)
+
+
+def test_a_leg_that_keeps_the_product_is_at_grade_when_the_operating_point_is():
+    t, x, cost, active = _same_product_series()
+    m = metrics.te_metrics(t, x, cost, active, (), 0.5, (1.0, "mode1"), None,
+                           previous_grade="mode0")
+    # 1 h trailing means (two samples): level (67 + 65) / 2 = 66.0 at 3.0 h, inside
+    # 65 +- 1, (69 + 67) / 2 = 68 at 2.5 h outside; temperature (122.4 + 122.9) / 2 =
+    # 122.65 at 2.5 h inside 122.9 +- 0.5, (121.6 + 122.4) / 2 = 122.0 at 2.0 h outside
+    assert m["time_to_grade_h"] == pytest.approx(2.0)   # 3.0 h - 1.0 h
+    # samples at 1.0, 1.5, 2.0, 2.5 h: 4 x 100 $/h x 0.5 h
+    assert m["transition_cost_usd"] == pytest.approx(200.0)
+    # without the grade before (or from a grade of another product) only the product
+    # signals count, and they were in the band from the leg on
+    m = metrics.te_metrics(t, x, cost, active, (), 0.5, (1.0, "mode1"), None)
+    assert m["time_to_grade_h"] == pytest.approx(0.0)
+
+
+def test_a_leg_that_changes_the_product_is_judged_on_the_product_alone():
+    t, x, cost, active = _te_series()
+    x[:, 7] = 50.0  # reactor level far from every grade's: not a grade signal here
+    m = metrics.te_metrics(t, x, cost, active, ("reinit", "mode0", "mode2"), 0.5,
+                           (1.0, "mode2"), None, previous_grade="mode0")
+    assert m["time_to_grade_h"] == pytest.approx(1.0)  # as without the grade before

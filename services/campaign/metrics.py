@@ -12,7 +12,12 @@ integral is the rectangle sum ``sum_k rate_k dt`` over the samples in the window
   R7.14/R7.16 read the noisy analyzer; a unit plant: its tracked CVs within the
   service's settle band); ``None`` when the last sample is outside, when the run
   tripped, and for cases without legs. 0 when every sample from the leg on is
-  inside.
+  inside. A TE leg between two grades that make the same product (their G and
+  product flow within those bands of each other: modes 0 and 1) changes no product
+  signal; what it changes is the operating point, so its grade signals add the
+  reactor level (XMEAS 8, ±:data:`TE_LEVEL_BAND_PCT`) and the reactor temperature
+  (XMEAS 9, ±:data:`TE_TEMPERATURE_BAND_C`), the set points in which those grades
+  differ (:func:`te_grade_signals`).
 - ``peak_pressure_kpa``: largest reactor pressure (XMEAS 7, kPa gauge) sampled.
 - ``mean_cost_usd_h``: mean operating cost (Downs & Vogel, $/h) over the run;
   ``final_cost_usd_h``: its mean over the last hour of the run (the whole run if
@@ -55,7 +60,8 @@ __all__ = ["trip_record", "time_to_grade_h", "integrate_rate", "active_model_sha
            "final_mean", "te_grade_targets", "te_metrics", "unit_metrics", "product_variability",
            "limit_binding", "te_limits_at_bound",
            "TE_G_BAND_MOL", "TE_FLOW_BAND_REL", "FINAL_WINDOW_H", "TE_GRADE_WINDOW_H",
-           "TE_VALVE_RANGE_TOL", "TE_PRESSURE_LIMIT_KPA", "TE_PRESSURE_BAND_KPA"]
+           "TE_VALVE_RANGE_TOL", "TE_PRESSURE_LIMIT_KPA", "TE_PRESSURE_BAND_KPA",
+           "TE_LEVEL_BAND_PCT", "TE_TEMPERATURE_BAND_C", "te_grade_signals", "te_same_product"]
 
 #: Band on G in product, mol % (XMEAS 40).
 TE_G_BAND_MOL = 1.0
@@ -68,6 +74,11 @@ FINAL_WINDOW_H = 1.0
 #: samples outside the bands late in every run (measured: 15-23 h "to grade" in 24 h
 #: runs of every strategy, where the G analyzer's trailing mean is in band after 5-7 h).
 TE_GRADE_WINDOW_H = 1.0
+#: Band on the reactor level (XMEAS 8), % of range, and on the reactor temperature
+#: (XMEAS 9), degC: the grade signals of a leg that keeps the product (modes 0 and 1:
+#: 75 -> 65 %, 120.4 -> 122.9 degC; a tenth and a fifth of those changes).
+TE_LEVEL_BAND_PCT = 1.0
+TE_TEMPERATURE_BAND_C = 0.5
 #: A valve binds within this of 0 % or 100 % (% of its range).
 TE_VALVE_RANGE_TOL = 1.0
 #: The reactor pressure's limit at the steady-state targets, kPa (Downs & Vogel's
@@ -242,6 +253,32 @@ def te_grade_targets(grade_name: str) -> tuple[np.ndarray, np.ndarray]:
             np.array([TE_G_BAND_MOL, TE_FLOW_BAND_REL * abs(flow)]))
 
 
+def te_same_product(grade_a: str, grade_b: str) -> bool:
+    """Whether two TE grades make the same product: G in product and the product flow
+    of each within the other's bands (:func:`te_grade_targets`)."""
+    ta, bands = te_grade_targets(grade_a)
+    tb, _ = te_grade_targets(grade_b)
+    return bool(np.all(np.abs(ta - tb) <= bands))
+
+
+def te_grade_signals(grade_name: str, previous: str | None = None
+                     ) -> tuple[list[int], np.ndarray, np.ndarray]:
+    """The XMEAS columns (0-based), targets and bands that say a TE leg to
+    ``grade_name`` is done: G in product and the product flow; from a ``previous``
+    grade that makes the same product (:func:`te_same_product`), also the reactor
+    level and temperature of the new grade."""
+    from controller.units.te.grades import grade
+
+    targets, bands = te_grade_targets(grade_name)
+    cols = [39, 16]
+    if previous is not None and te_same_product(previous, grade_name):
+        g = grade(grade_name)
+        cols += [7, 8]
+        targets = np.append(targets, [g.reactor_level, g.reactor_temperature])
+        bands = np.append(bands, [TE_LEVEL_BAND_PCT, TE_TEMPERATURE_BAND_C])
+    return cols, targets, bands
+
+
 def _common(t, dt, cost, last_leg, signals, targets, bands, tripped) -> dict:
     if last_leg is None or tripped:
         ttg = None
@@ -264,7 +301,8 @@ def _common(t, dt, cost, last_leg, signals, targets, bands, tripped) -> dict:
 
 def te_metrics(t, xmeas, cost, active, model_names, dt: float,
                last_leg: tuple[float, str] | None, trip: dict | None,
-               disturbance_on_h: float | None = None, xmv=None) -> dict:
+               disturbance_on_h: float | None = None, xmv=None,
+               previous_grade: str | None = None) -> dict:
     """The metrics of a TE run.
 
     Parameters
@@ -287,6 +325,9 @@ def te_metrics(t, xmeas, cost, active, model_names, dt: float,
         window (None: the whole run).
     xmv : array_like, shape (K, 12), optional
         XMV 1-12 in force, %; without it the valves bind nowhere (the pressure may).
+    previous_grade : str, optional
+        The grade before the last leg; with one that makes the same product the
+        operating point is judged too (:func:`te_grade_signals`).
     """
     x = np.asarray(xmeas, dtype=float).reshape(-1, 41)
     tripped = trip is not None
@@ -294,10 +335,10 @@ def te_metrics(t, xmeas, cost, active, model_names, dt: float,
         sig, targets, bands, t_leg = None, None, None, None
     else:
         t_leg = float(last_leg[0])
-        targets, bands = te_grade_targets(last_leg[1])
+        cols, targets, bands = te_grade_signals(last_leg[1], previous_grade)
         from controller.units.te.grades import trailing_mean
 
-        sig = trailing_mean(x[:, [39, 16]], round(TE_GRADE_WINDOW_H / dt))
+        sig = trailing_mean(x[:, cols], round(TE_GRADE_WINDOW_H / dt))
     out = {"tripped": tripped, "trip": trip,
            "peak_pressure_kpa": float(np.max(x[:, 6])) if x.shape[0] else None}
     out.update(_common(t, dt, np.asarray(cost, dtype=float), t_leg, sig, targets, bands,
