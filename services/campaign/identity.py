@@ -24,13 +24,14 @@ from services.campaign.spec import CampaignSpec, Case
 __all__ = ["RUN_FORMAT", "RunSpec", "plan_runs", "run_settings"]
 
 #: Version of what a run computes and records (bump when runs.py or metrics.py change it).
-RUN_FORMAT = "campaign-run-2"
+RUN_FORMAT = "campaign-run-3"
 
 
 @lru_cache(maxsize=8)
 def _settings_json(unit: str) -> str:
     if unit == "te":
         from controller.units.te.control import (
+            RATIO_MPC,
             SAMPLE_H,
             RatioSettings,
             TEMPCOptions,
@@ -39,7 +40,8 @@ def _settings_json(unit: str) -> str:
         from controller.units.te.grades import TAU_DEFAULT_H
 
         s = {"sample_h": SAMPLE_H, "plant_dt_s": 1.8, "mpc": asdict(TEMPCOptions()),
-             "ratio": asdict(RatioSettings()), "tau_h": dict(TAU_DEFAULT_H),
+             "ratio": asdict(RatioSettings()), "ratio_mpc": asdict(RATIO_MPC),
+             "tau_h": dict(TAU_DEFAULT_H),
              "guards": asdict(TransitionGuards())}
     else:
         from services.registry import get_unit
