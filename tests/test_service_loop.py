@@ -88,6 +88,19 @@ class Harness:
         th = threading.Thread(target=self.ctrl.run, args=(self.stop_ctrl,), daemon=True)
         th.start()
         self.ctrl_thread = th
+        self.wait_answering()
+
+    def wait_answering(self, timeout=10.0):
+        """Return once the controller node answers a query from the client's session.
+        Its queryable is declared when the node is made, but another session learns of a
+        declaration only some milliseconds later (more on a loaded machine), and a query
+        sent before that gets no reply at all."""
+        t_end = time.monotonic() + timeout
+        while not list(self.s_client.get(keys.cmd(self.cfg.unit, "status"),
+                                         payload=Request("status", {}).to_bytes(),
+                                         timeout=0.5)):
+            assert time.monotonic() < t_end, "the controller node never answered a query"
+            time.sleep(0.02)
 
     def stop_controller(self):
         self.stop_ctrl.set()
