@@ -68,8 +68,8 @@ def _run_te(run: RunSpec, hours: float | None = None) -> RunOutcome:
     sd = r.shutdown
     trip = None if sd is None else metrics.trip_record(sd.time_h, sd.reason)
     last_leg = None if not case.legs else (case.legs[-1].at_h, case.legs[-1].grade)
-    before = None if not case.legs else (case.legs[-2].grade if len(case.legs) > 1
-                                         else case.start)
+    grades = (case.start, *(lg.grade for lg in case.legs))
+    before = grades[-2] if case.legs else None  # the grade the last leg leaves
     onset = min((e.on_h for e in case.idvs), default=None)
     row = metrics.te_metrics(r.t, r.xmeas, r.cost, r.active, r.model_names,
                              r.meta["sample_h"], last_leg, trip, disturbance_on_h=onset,

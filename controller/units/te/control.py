@@ -255,22 +255,18 @@ class RatioSettings:
     steady_ti_h: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("gain", "steady_gain"):
+        for name, is_time in (("gain", False), ("ti_h", True),
+                              ("steady_gain", False), ("steady_ti_h", True)):
             v = getattr(self, name)
-            if v is None and name == "steady_gain":
-                continue
-            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name}: must be finite and >= 0, got {v!r}")
-        for name in ("ti_h", "steady_ti_h"):
-            v = getattr(self, name)
-            if v is None and name == "steady_ti_h":
-                continue
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: must be > 0 h, got {v!r}")
+            if v is None and name.startswith("steady_"):
+                continue  # the steady-grade tuning is optional
+            if not (isinstance(v, int | float) and math.isfinite(v)
+                    and (v > 0 if is_time else v >= 0)):
+                raise ValueError(f"{name}: must be > 0 h, got {v!r}" if is_time
+                                 else f"{name}: must be finite and >= 0, got {v!r}")
         if not 0 < self.s_min < self.s_max < 1:
             raise ValueError(f"s_min/s_max: need 0 < s_min < s_max < 1, got "
                              f"{self.s_min}, {self.s_max}")
-
 
     def tuning(self, steady: bool) -> tuple[float, float]:
         """(gain, integral time in h) in force: the steady-grade tuning when ``steady``
@@ -484,6 +480,7 @@ class TEController:
         self.production_loop = PRODUCTION_LOOP if production_loop else None
         self.e_a_prev: float | None = None
         self._t_last: float | None = None
+        self._since = math.inf  # h since the last grade change, at _t_last (step)
         # the plan's references of the next sample, evaluated after the move
         # (finish_sample): (t, plan, refs) or None
         self._refs_ahead: tuple | None = None
@@ -579,7 +576,7 @@ class TEController:
                 self.e_a_prev = e
             # held by the operator, while the A feed is lost (FeedOverrides), or
             # through a grade change (TransitionGuards)
-            since = self.plan.hours_since_change(self._t_last)
+            since = self._since
             held = (A_FEED_LOOP.cv in self.outer_held or self.feeds.a_lost
                     or self._a_loop_held_by_change(since))
             if not held:
@@ -660,8 +657,7 @@ class TEController:
             if self.e_g_prev is None:
                 self.e_g_prev = e
             if 40 not in self.outer_held:
-                steady = self.plan.hours_since_change(self._t_last) >= RATIO_STEADY_AFTER_H
-                gain, ti_h = self.ratio.tuning(steady)
+                gain, ti_h = self.ratio.tuning(self._since >= RATIO_STEADY_AFTER_H)
                 s += gain * ((e - self.e_g_prev) + self.sample_h / ti_h * e)
             self.e_g_prev = e
         self.s = min(max(s, self.ratio.s_min), self.ratio.s_max)
@@ -687,7 +683,7 @@ class TEController:
                              self.sample_h)
         t = self._t_last
         cost = None  # the economics wait for a grade change's path to settle
-        if self.plan.hours_since_change(t) >= self.targets.settings.economic_settle_h:
+        if self._since >= self.targets.settings.economic_settle_h:
             cost = cost_gradient(self.plan.grade_at(t).name)
         res = self.targets.solve(core.ssm, core.active, u_plan, y_plan, cost)
         if res is None:
@@ -733,6 +729,9 @@ class TEController:
         else:
             ym_all, xv_all, ff = self._plan_refs(t_ref)
         self._t_last = t
+        # the hours since the last grade change, read once a sample by the outer loops,
+        # the reactant trim and the targets' economics
+        self._since = self.plan.hours_since_change(t)
         self.feeds.observe(xmeas)
         xv, ym = xv_all[0], ym_all[0]
         s = self._ratio_step(ff, ym, xmeas)
@@ -758,7 +757,7 @@ class TEController:
             if self.production_loop is not None:
                 target[1] = min(max(target[1] + self._production_step(ym, xmeas), 0.0), 100.0)
             target[1] = self.production.ac_valve(target[1])
-            c_trim = self.reactants.step(xmeas, ym, self.plan.hours_since_change(t))
+            c_trim = self.reactants.step(xmeas, ym, self._since)
             if c_trim > 0.0:
                 target[1] = min(target[1] + c_trim, 100.0)
                 alarms.extend(self.reactants.alarms())
