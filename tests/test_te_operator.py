@@ -96,21 +96,24 @@ def test_an_mv_in_manual_holds_exactly_and_the_other_handles_take_up_the_work():
     assert abs(held.written[-1][tr] - value) <= du_max
 
 
-def test_a_cv_switched_off_leaves_the_objective():
+# XMEAS 18, the stripper temperature, is a CV of the MPC only; XMEAS 11, the separator
+# temperature, also trims the condenser's input target at a steady grade, and off holds
+# that trim too
+@pytest.mark.parametrize("cv", ["XMEAS18", "XMEAS11"])
+def test_a_cv_switched_off_leaves_the_objective(cv):
     lp = Loop()
     lp.samples(40)
     state = lp.op.inner.checkpoint()
     y = lp.run.y()
     y_hot = y.copy()
-    y_hot[17] += 2.0  # XMEAS 18, stripper temperature, 2 degC higher
+    y_hot[int(cv[5:]) - 1] += 2.0  # 2 degC hotter
     moves = {}
     for off in (False, True):
         a, b = make(), make()
         for c in (a, b):
             c.inner.restore(state)
             if off:
-                c.set_state(c.state.command("XMEAS18", VariableCommand(mode="off"),
-                                            lp.t_h, None))
+                c.set_state(c.state.command(cv, VariableCommand(mode="off"), lp.t_h, None))
         moves[off] = (a.step(40, lp.run.t, y, REF, lp.run.u).u,
                       b.step(40, lp.run.t, y_hot, REF, lp.run.u).u)
     # on: the MPC answers the stripper temperature; off: it does not see it at all.

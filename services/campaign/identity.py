@@ -3,7 +3,8 @@
 A run is (unit, case contents, strategy, seed, hours, noise) plus the settings of
 the code that runs it: for TE the supervisory sample, the plant's Euler step, the
 MPC tuning (:class:`controller.units.te.control.TEMPCOptions`), the ratio loop
-(:class:`~controller.units.te.control.RatioSettings`), the transition guards
+(:class:`~controller.units.te.control.RatioSettings`), the separator-temperature loop
+(:data:`~controller.units.te.control.SEPARATOR_LOOP`), the transition guards
 (:class:`~controller.units.te.control.TransitionGuards`) and the grade references'
 time constants; for a unit plant its registry configuration
 (:class:`controller.units.config.UnitConfig`). :data:`RUN_FORMAT` names the run
@@ -33,6 +34,9 @@ def _settings_json(unit: str) -> str:
         from controller.units.te.control import (
             RATIO_MPC,
             SAMPLE_H,
+            SEP_TRIM_LIMITS,
+            SEPARATOR_LOOP,
+            SEPARATOR_LOOP_STEADY_AFTER_H,
             RatioSettings,
             TEMPCOptions,
             TransitionGuards,
@@ -42,7 +46,9 @@ def _settings_json(unit: str) -> str:
         s = {"sample_h": SAMPLE_H, "plant_dt_s": 1.8, "mpc": asdict(TEMPCOptions()),
              "ratio": asdict(RatioSettings()), "ratio_mpc": asdict(RATIO_MPC),
              "tau_h": dict(TAU_DEFAULT_H),
-             "guards": asdict(TransitionGuards())}
+             "guards": asdict(TransitionGuards()),
+             "separator_loop": {**asdict(SEPARATOR_LOOP), "trim": list(SEP_TRIM_LIMITS),
+                                "after_h": SEPARATOR_LOOP_STEADY_AFTER_H}}
     else:
         from services.registry import get_unit
 

@@ -37,6 +37,8 @@ Layers (seed Fig. 7.2)
          strategies), only while the A feed is lost: the A+C, E and (through the
          reactor level's set point) D feeds lowered together on the reactor pressure,
          with an alarm;
+       - MPC strategies at a steady grade, the separator temperature (XMEAS 11)
+         opens the condenser's input target (XMV 11, :data:`SEPARATOR_LOOP`);
        - MPC strategies, the reactant trim (:mod:`controller.units.te.reactant_trim`):
          at a steady grade, A+C short in the reactor feed with the D feed at its limit
          raises the A+C feed's target, with an alarm;
@@ -198,10 +200,45 @@ A_FEED_LOOP_STEADY = PILoopSpec("A in reactor feed -> A feed (steady grade)", cv
 #: Hours after a grade change from which the MPC strategies' A loop takes
 #: :data:`A_FEED_LOOP_STEADY`.
 A_LOOP_STEADY_AFTER_H = 12.0
+#: MPC strategies at a steady grade: the separator temperature (XMEAS 11) trims the
+#: condenser's input target (XMV 11). The MPC's target weight pins the condenser to its
+#: target (its models' gain from the condenser to the reactor pressure has the wrong
+#: sign, :class:`TEMPCOptions` ``target_weight``), so without this loop a disturbance
+#: that needs more or less condenser cooling is taken up by the purge: under IDV(5)
+#: (condenser cooling water inlet temperature) the decentralized structure opened the
+#: condenser 18 -> 21 % at mode 0 and 12.9 -> 14.5 % at mode 2 while the MPC held it on
+#: the plan and purged 49-55 % instead of 40-44 %. Mostly integral action (a 0.2 h
+#: integral time, a small proportional part: the separator temperature is noisy); its
+#: reference is the plan's separator temperature moved as the steady-state targets
+#: move it (without that shift the loop undid the targets' mode-0 economics, 137 ->
+#: 174 $/h). Held while the A feed is lost or the production index lowers the feeds
+#: (without that hold IDV(6) at mode 2 tripped on seed 3 at 47.9 h), through a grade
+#: change (:data:`SEPARATOR_LOOP_STEADY_AFTER_H`), and by the operator (XMEAS 11 off).
+#: It only opens the condenser (:data:`SEP_TRIM_LIMITS`). Measured: see
+#: :class:`TEController` (``separator_loop``). Tried (IDV 1, 5, 8, 11, 12, 13, 17, 18,
+#: 20 at modes 0 and 2, seeds 1-3): gains of 0.1 and 0.2 %/degC, or Ti 0.1 h, lowered
+#: the mean cost of those 18 cases by 0.4-1.0 $/h and raised IDV(8)'s G standard
+#: deviation at mode 2 from 0.653 to 0.69-0.76 mol %.
+SEPARATOR_LOOP = PILoopSpec("separator temperature -> condenser target (steady grade)",
+                            cv=11, output=4, gain=-0.05, ti_h=0.2)
+#: Hours after a grade change from which the separator-temperature loop acts (and
+#: throughout a run without one); held before.
+SEPARATOR_LOOP_STEADY_AFTER_H = 24.0
+#: Range (%) of the condenser target's trim by :data:`SEPARATOR_LOOP`: it only opens
+#: the condenser. Its cooling water costs nothing in the operating cost, and a
+#: separator hotter than its reference sends more vapour to the recycle and the purge;
+#: a trim that closed the condenser below the plan raised the purge. Measured (ssmpc,
+#: noise on, seeds 1-3, 48 h, onset 2 h; run-mean $/h, the trim in -20..20 % against
+#: 0..20 %): IDV(1) at mode 0 229.3 against 212.0 (212.0 without the loop), IDV(20)
+#: at mode 0 228.5 against 196.9 (198.1), IDV(8) at mode 2 215.6 against 210.0
+#: (206.8), and IDV(6) at mode 2 tripped on seed 3 at 47.9 h against no trip; the mean
+#: of the 40 cases at modes 0 and 2 183.7 against 181.5 (186.9).
+SEP_TRIM_LIMITS = (0.0, 20.0)
 
 __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec",
            "TEController", "make_te_controller", "make_mpc_core", "TEMPCOptions", "TERun",
            "run_te", "plant_seed_for", "RatioSettings", "RATIO_MPC", "TransitionGuards",
+           "SEPARATOR_LOOP", "SEPARATOR_LOOP_STEADY_AFTER_H", "SEP_TRIM_LIMITS",
            "TR_LIMITS",
            "PR_LIMITS",
            "PRESSURE_LOOP", "ALARM_LIMITS"]
@@ -436,6 +473,17 @@ class TEController:
         along the plan) trim the A+C-feed input target (:data:`PRODUCTION_LOOP`,
         the PI baseline has the same loop). Under IDV(6) it keeps the production,
         as the seed's MPC did by raising the A+C feed.
+    separator_loop : bool
+        MPC strategies: let the separator temperature open the condenser's input
+        target at a steady grade (:data:`SEPARATOR_LOOP`). Measured (ssmpc, noise on,
+        seeds 1-3, 48 h, onset 2 h; run-mean $/h without -> with it, the decentralized
+        structure's in brackets): IDV(5) at mode 0 191.7 -> 141.2 (170.6), at mode 2
+        204.3 -> 182.2 (181.2); IDV(18) at mode 0 248.6 -> 179.3; IDV(8) at mode 0
+        197.1 -> 180.4 (174.6); IDV(12) at mode 0 184.9 -> 170.7 (171.2); dearer
+        IDV(8) at mode 2 206.8 -> 210.0 (G std 0.608 -> 0.653 mol %), IDV(13) at mode
+        2 220.9 -> 224.7, IDV(1) at mode 2 209.0 -> 211.6; the mean of the 40 cases
+        at modes 0 and 2 186.9 -> 181.5 $/h; IDV 1-20 at mode 3 within 0.2 $/h, no
+        trip anywhere.
     guards : TransitionGuards, optional
         The E-feed limit, the plan hold and the pressure set point's tracking
         (default :class:`TransitionGuards`).
@@ -449,7 +497,8 @@ class TEController:
                  targets=None, guards: TransitionGuards | None = None,
                  feeds: FeedOverrideSettings | None = None,
                  production: ProductionIndexSettings | None = None,
-                 reactants: ReactantTrimSettings | None = None) -> None:
+                 reactants: ReactantTrimSettings | None = None,
+                 separator_loop: bool = True) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -479,6 +528,9 @@ class TEController:
         self.e_p_prev: float | None = None
         self.production_loop = PRODUCTION_LOOP if production_loop else None
         self.e_a_prev: float | None = None
+        self.separator_loop = SEPARATOR_LOOP if separator_loop else None
+        self.sep_trim = 0.0
+        self.e_sep_prev: float | None = None
         self._t_last: float | None = None
         self._since = math.inf  # h since the last grade change, at _t_last (step)
         # the plan's references of the next sample, evaluated after the move
@@ -496,9 +548,10 @@ class TEController:
         self._hold_alarm = False
 
     # -- operator hooks (controller.units.te.operator) ------------------------------------
-    #: The outer loops by their CV (XMEAS number): production (17), A in feed (23),
-    #: G in product on the D share (40).
-    OUTER_LOOP_CVS = (17, 23, 40)
+    #: The outer loops by their CV (XMEAS number): separator temperature on the
+    #: condenser's target (11), production (17), A in feed (23), G in product on the
+    #: D share (40).
+    OUTER_LOOP_CVS = (11, 17, 23, 40)
 
     def hold_outer_loops(self, cvs) -> None:
         """Hold the outer loops of these CVs (XMEAS numbers of :data:`OUTER_LOOP_CVS`):
@@ -586,6 +639,24 @@ class TEController:
             self.e_a_prev = e
         return self.a_trim
 
+    def _separator_trim_step(self, xmeas: np.ndarray, reference: float) -> float:
+        """Separator temperature (XMEAS 11) -> the condenser's input target (XMV 11) at
+        a steady grade (:data:`SEPARATOR_LOOP`); ``reference``: the plan's separator
+        temperature moved by the steady-state targets, degC."""
+        lp = self.separator_loop
+        y = float(xmeas[lp.cv - 1])
+        if math.isfinite(y) and math.isfinite(reference):
+            e = reference - y
+            if self.e_sep_prev is None:
+                self.e_sep_prev = e
+            held = (lp.cv in self.outer_held or self.feeds.a_lost or self.production.active
+                    or self._since < SEPARATOR_LOOP_STEADY_AFTER_H)
+            if not held:
+                self.sep_trim += lp.gain * ((e - self.e_sep_prev) + self.sample_h / lp.ti_h * e)
+                self.sep_trim = min(max(self.sep_trim, SEP_TRIM_LIMITS[0]), SEP_TRIM_LIMITS[1])
+            self.e_sep_prev = e
+        return self.sep_trim
+
     def _a_loop_held_by_change(self, since: float) -> bool:
         """Whether the grade change ``since`` h ago holds the A loop's trim now
         (:class:`TransitionGuards` ``a_loop_hold_h``, and ``a_loop_hold_falling_h`` for a
@@ -671,12 +742,14 @@ class TEController:
 
     def _steady_targets(self, yc, y_now, u_now, u_plan, refs, y_plan, info, alarms):
         """The MPC's input targets and CV references from the steady-state targets of
-        the active model (:mod:`controller.units.te.targets`): the handles' targets, and
-        the plan's CV trajectory shifted onto the CV targets. The plan's values when the
-        model has none (before the first sample, a model without a steady state)."""
+        the active model (:mod:`controller.units.te.targets`): the handles' targets, the
+        plan's CV trajectory shifted onto the CV targets, and that shift (5,). The
+        plan's values (no shift) when the model has none (before the first sample, a
+        model without a steady state)."""
         core = self.core
+        no_shift = np.zeros(len(CORE_CVS))
         if not getattr(core, "initialized", False) and self.targets.offset is None:
-            return u_plan, refs  # the first sample: nothing observed yet
+            return u_plan, refs, no_shift  # the first sample: nothing observed yet
         # (after a take-over the core re-initializes its dynamics but keeps its models,
         # and the targets go on: their economic lift tracks the handle held meanwhile)
         self.targets.observe(core.ssm, core.active, yc, core.u_last, y_now, u_now,
@@ -688,7 +761,7 @@ class TEController:
         res = self.targets.solve(core.ssm, core.active, u_plan, y_plan, cost)
         if res is None:
             info["targets"] = {"status": "plan"}
-            return u_plan, refs
+            return u_plan, refs, no_shift
         # the shape of the two-phase unit's report (controller.units.mpc_targets)
         info["targets"] = {"status": res.status,
                            "mv": dict(zip(CORE_NAMES, res.u.tolist())),
@@ -702,7 +775,8 @@ class TEController:
                           f"relaxed by {r.amount:.3g} (rank {r.rank})")
         # the CV references move by what the targets' change of the handles moves them
         offset = self.targets.offset if self.targets.offset is not None else 0.0
-        return res.u, refs + (res.y - y_plan - offset)
+        shift = res.y - y_plan - offset
+        return res.u, refs + shift, shift
 
     @staticmethod
     def _core_ff(xv: np.ndarray, ym: np.ndarray) -> np.ndarray:
@@ -761,9 +835,16 @@ class TEController:
             if c_trim > 0.0:
                 target[1] = min(target[1] + c_trim, 100.0)
                 alarms.extend(self.reactants.alarms())
+            shift = None
             if self.targets is not None:
-                target, refs = self._steady_targets(yc, ym[_CORE_CV_INDEX], ff, target, refs,
-                                                    ym_all[-1, _CORE_CV_INDEX], info, alarms)
+                target, refs, shift = self._steady_targets(
+                    yc, ym[_CORE_CV_INDEX], ff, target, refs, ym_all[-1, _CORE_CV_INDEX],
+                    info, alarms)
+            if self.separator_loop is not None:
+                r_sep = float(ym[10]) + (0.0 if shift is None else float(shift[1]))
+                target = np.array(target, dtype=float)
+                target[4] = min(max(target[4] + self._separator_trim_step(xmeas, r_sep),
+                                    0.0), 100.0)
             self._set_input_target(target)
             dec = self.core.step(k, t, yc, refs)
             core_u, status, fallback = dec.u, dec.status, dec.fallback
@@ -824,12 +905,12 @@ class TEController:
 
     def take_over(self) -> None:
         """Before the first sample after a take-over of a running plant (a restart from a
-        checkpoint): the velocity-form outer loops (the G loop on the D share, the A-feed
-        and production trims) forget their previous errors, which are those of the
+        checkpoint): the velocity-form outer loops (the G loop on the D share, the A-feed,
+        production and condenser trims) forget their previous errors, which are those of the
         checkpoint's sample; the first sample then adds no proportional kick from the
         error's change over the outage (the PI baseline's ``align`` does the same). The
         integral parts and the trims reached are kept."""
-        self.e_g_prev = self.e_a_prev = self.e_p_prev = None
+        self.e_g_prev = self.e_a_prev = self.e_p_prev = self.e_sep_prev = None
         self._refs_ahead = None
 
     def applied(self, core_u) -> None:
@@ -845,6 +926,7 @@ class TEController:
         return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,
                 "override": self.override, "a_trim": self.a_trim, "e_a_prev": self.e_a_prev,
                 "p_trim": self.p_trim, "e_p_prev": self.e_p_prev,
+                "sep_trim": self.sep_trim, "e_sep_prev": self.e_sep_prev,
                 "core": None if self.core is None else self.core.checkpoint(),
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
@@ -868,6 +950,8 @@ class TEController:
         self.e_a_prev = state.get("e_a_prev")
         self.p_trim = float(state.get("p_trim", 0.0))
         self.e_p_prev = state.get("e_p_prev")
+        self.sep_trim = float(state.get("sep_trim", 0.0))
+        self.e_sep_prev = state.get("e_sep_prev")
         self.feeds.restore(state.get("feeds"))
         self.production.restore(state.get("production"))
         self.reactants.restore(state.get("reactants"))
@@ -1101,6 +1185,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        feeds: FeedOverrideSettings | None = None,
                        production: ProductionIndexSettings | None = None,
                        reactants: ReactantTrimSettings | None = None,
+                       separator_loop: bool = True,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -1117,7 +1202,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         The plant's Euler step, s.
     mpc : TEMPCOptions, optional
         MPC tuning (strategies "fixed" and "ssmpc").
-    outer_a_loop, production_loop : bool
+    outer_a_loop, production_loop, separator_loop : bool
         See :class:`TEController`.
     realtime : bool
         Keep the MPC's wall-clock budget (:func:`make_mpc_core`); False for offline
@@ -1167,7 +1252,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        outer_a_loop, production_loop,
                        targets=targets if strategy in ("fixed", "ssmpc") else None,
                        guards=guards, feeds=feeds, production=production,
-                       reactants=reactants)
+                       reactants=reactants, separator_loop=separator_loop)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 

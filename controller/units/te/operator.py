@@ -23,7 +23,8 @@ What each kind of variable offers (:meth:`TEOperatorLayer.capabilities`):
   :class:`~controller.units.te.targets.CoreTargetSettings`);
 - the outer loops' CVs (XMEAS 17 production, 23 A in feed, 40 G in product): ``off``
   holds that loop's integral (:meth:`~controller.units.te.control.TEController.
-  hold_outer_loops`); no operator limits (no constraint acts on them);
+  hold_outer_loops`); no operator limits (no constraint acts on them); XMEAS 11 off
+  also holds the separator-temperature trim of the condenser's target;
 - every other XMEAS is measured only (a 422 says so).
 
 In warm mode every outer loop holds its integral (its output is not written, so it
@@ -57,6 +58,9 @@ TARGET_LIMIT_NOTE = ("operator limits act on the steady-state targets (rank 1): 
                      "pressure set point's target moves so the plant settles within them "
                      "(a slow layer: about 1 h time constant; the interlock and the high-"
                      "pressure override guard the fast excursions)")
+#: Core CVs that also drive an outer trim (the separator temperature on the
+#: condenser's target): switched off, that trim holds too.
+TRIMMING_CORE_CVS = ("XMEAS11",)
 _OUTER = {"XMEAS17": "production loop (XMEAS 17 -> A+C feed target)",
           "XMEAS23": "A-in-feed loop (XMEAS 23 -> A feed target)",
           "XMEAS40": "G-in-product loop (XMEAS 40 -> D share of the D+E feed)"}
@@ -120,7 +124,7 @@ class TEOperatorLayer:
         if view is not self._last_view:
             self._last_view = view
             cv_index = {n: i for i, n in enumerate(cv_names)}
-            held = {int(n[5:]) for n in _OUTER
+            held = {int(n[5:]) for n in (*_OUTER, *TRIMMING_CORE_CVS)
                     if n in cv_index and not view.cv_on[cv_index[n]]}
             if view.mode == "warm":
                 held = set(getattr(self.ctl, "OUTER_LOOP_CVS", ()))
