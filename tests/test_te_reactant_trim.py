@@ -1,6 +1,6 @@
 """The TE reactant trim: A+C short in the reactor feed with the D feed at its limit raises
-the A+C feed's target at a steady grade only, returns when the deficit is gone, and
-does nothing otherwise."""
+the A+C feed's target, A+C in excess lowers it, at a steady grade only; the trim returns
+when the deficit or excess is gone, and does nothing otherwise."""
 
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ from controller.units.te.reactant_trim import D_FULL_KG_H, ReactantTrim, Reactan
                                        ({"gain": 0.0}, "gain"),
                                        ({"trim_max": 200.0}, "trim_max"),
                                        ({"settle_h": float("nan")}, "settle_h"),
+                                       ({"excess_max": -1.0}, "excess_max"),
+                                       ({"excess_max": 101.0}, "excess_max"),
                                        ({"gain": True}, "gain")])
 def test_bad_settings_name_their_field(kw, field):
     with pytest.raises(ValueError, match=field):
@@ -32,9 +34,9 @@ def _xmeas(d_pct: float, short: float) -> tuple[np.ndarray, np.ndarray]:
     return x, ym
 
 
-def _run(trim, x, ym, n, since=np.inf):
+def _run(trim, x, ym, n, since=np.inf, hold_cut=False):
     for _ in range(n):
-        out = trim.step(x, ym, since)
+        out = trim.step(x, ym, since, hold_cut=hold_cut)
     return out
 
 
@@ -46,7 +48,7 @@ def test_a_short_feed_with_the_d_valve_at_its_limit_raises_the_target_then_it_re
     again = ReactantTrim(sample_h=0.01)
     again.restore(json.loads(json.dumps(trim.checkpoint())))
     assert again.trim == trim.trim
-    x, ym = _xmeas(90.0, -2.0)                       # A+C back above the plan's
+    x, ym = _xmeas(90.0, -0.8)                       # A+C back above the plan's
     assert _run(trim, x, ym, 300) == 0.0
     assert trim.alarms() == []
 
@@ -58,3 +60,32 @@ def test_nothing_is_done_otherwise(d_pct, short, since):
     trim = ReactantTrim(sample_h=0.01)
     x, ym = _xmeas(d_pct, short)
     assert _run(trim, x, ym, 200, since) == 0.0 and not trim.active
+
+
+def test_an_excess_lowers_the_target_then_it_returns():
+    trim = ReactantTrim(sample_h=0.01)
+    x, ym = _xmeas(60.0, -3.0)                       # 3 mol % too much A+C, D has room
+    # one hour, 2 mol % beyond the deadband at 5 %/(mol % h): 10 % by hand
+    assert _run(trim, x, ym, 100) == pytest.approx(-10.0, abs=1e-9)
+    assert any("A+C feed target lowered" in a for a in trim.alarms())
+    assert _run(trim, x, ym, 200) == -ReactantTrimSettings().excess_max  # at its limit
+    x, ym = _xmeas(60.0, 2.0)                        # short again, D has room
+    assert _run(trim, x, ym, 300) == 0.0             # back to 0, not past it
+    assert trim.alarms() == []
+
+
+@pytest.mark.parametrize("since, hold_cut, excess_max",
+                         [(5.0, False, 15.0),        # a grade change 5 h ago
+                          (np.inf, True, 15.0),      # held (the A feed lost)
+                          (np.inf, False, 0.0)])     # no cut in the settings
+def test_no_cut_otherwise(since, hold_cut, excess_max):
+    trim = ReactantTrim(ReactantTrimSettings(excess_max=excess_max), sample_h=0.01)
+    x, ym = _xmeas(60.0, -3.0)
+    assert _run(trim, x, ym, 200, since, hold_cut) == 0.0 and not trim.active
+
+
+def test_a_held_cut_stands():
+    trim = ReactantTrim(sample_h=0.01)
+    x, ym = _xmeas(60.0, -3.0)
+    cut = _run(trim, x, ym, 50)
+    assert _run(trim, x, ym, 100, hold_cut=True) == cut < 0.0

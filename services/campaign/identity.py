@@ -42,11 +42,13 @@ def _settings_json(unit: str) -> str:
             TransitionGuards,
         )
         from controller.units.te.grades import TAU_DEFAULT_H
+        from controller.units.te.reactant_trim import ReactantTrimSettings
 
         s = {"sample_h": SAMPLE_H, "plant_dt_s": 1.8, "mpc": asdict(TEMPCOptions()),
              "ratio": asdict(RatioSettings()), "ratio_mpc": asdict(RATIO_MPC),
              "tau_h": dict(TAU_DEFAULT_H),
              "guards": asdict(TransitionGuards()),
+             "reactants": asdict(ReactantTrimSettings()),
              "separator_loop": {**asdict(SEPARATOR_LOOP), "trim": list(SEP_TRIM_LIMITS),
                                 "after_h": SEPARATOR_LOOP_STEADY_AFTER_H}}
     else:

@@ -41,7 +41,7 @@ Layers (seed Fig. 7.2)
          opens the condenser's input target (XMV 11, :data:`SEPARATOR_LOOP`);
        - MPC strategies, the reactant trim (:mod:`controller.units.te.reactant_trim`):
          at a steady grade, A+C short in the reactor feed with the D feed at its limit
-         raises the A+C feed's target, with an alarm;
+         raises the A+C feed's target, A+C in excess lowers it, with an alarm;
        - the transition guards (:class:`TransitionGuards`, all strategies but
          "decentralized"): the E feed at most 5 % above the plan's, the plan held
          while the reactor pressure is near the interlock, P_r* at most 10 kPa above
@@ -831,9 +831,10 @@ class TEController:
             if self.production_loop is not None:
                 target[1] = min(max(target[1] + self._production_step(ym, xmeas), 0.0), 100.0)
             target[1] = self.production.ac_valve(target[1])
-            c_trim = self.reactants.step(xmeas, ym, self._since)
-            if c_trim > 0.0:
-                target[1] = min(target[1] + c_trim, 100.0)
+            c_trim = self.reactants.step(xmeas, ym, self._since,
+                                         hold_cut=self.feeds.a_lost or self.production.active)
+            if c_trim != 0.0:
+                target[1] = min(max(target[1] + c_trim, 0.0), 100.0)
                 alarms.extend(self.reactants.alarms())
             shift = None
             if self.targets is not None:
@@ -1217,7 +1218,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         lost (:mod:`controller.units.te.production_index`; not for "decentralized").
     reactants : ReactantTrimSettings, optional
         MPC strategies: the A+C feed's target raised where A+C is short in the reactor
-        feed with the D feed at its limit (:mod:`controller.units.te.reactant_trim`).
+        feed with the D feed at its limit, lowered where A+C is in excess
+        (:mod:`controller.units.te.reactant_trim`).
 
     Returns
     -------
