@@ -147,12 +147,17 @@ def test_checkpoint_restore_is_bumpless(strategy):
 
 @pytest.fixture
 def slow_a_loop(monkeypatch):
-    """The MPC strategies' A loop at its grade-change tuning at a steady grade too: with
-    it IDV(1) takes the reactor pressure to the override (about 2905 kPa); the
-    steady-grade tuning corrects the A shortfall before that (peak about 2889 kPa)."""
+    """The MPC strategies' A loop at its grade-change tuning at a steady grade too, and
+    no cut of the A+C feed for A+C in excess (the reactant trim raises only): with them
+    IDV(1) takes the reactor pressure to the override (about 2905 kPa); the steady-grade
+    tuning corrects the A shortfall before that (peak about 2889 kPa), and the cut keeps
+    the C the A+C feed brings from gathering in the recycle gas."""
     import controller.units.te.control as te_control
+    import controller.units.te.reactant_trim as te_reactants
 
     monkeypatch.setattr(te_control, "A_FEED_LOOP_STEADY", te_control.A_FEED_LOOP)
+    raise_only = te_reactants.ReactantTrimSettings(excess_max=0.0)
+    monkeypatch.setattr(te_reactants, "ReactantTrimSettings", lambda: raise_only)
 
 
 @pytest.mark.usefixtures("slow_a_loop")

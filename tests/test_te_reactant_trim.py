@@ -89,3 +89,21 @@ def test_a_held_cut_stands():
     x, ym = _xmeas(60.0, -3.0)
     cut = _run(trim, x, ym, 50)
     assert _run(trim, x, ym, 100, hold_cut=True) == cut < 0.0
+
+
+@pytest.mark.timeout(300)
+def test_under_idv1_the_cut_keeps_c_from_gathering():
+    # IDV(1) from 2 h at mode 0, noise off, 16 h: the A loop raises the A feed, and
+    # without the cut C in the reactor feed settled 6.5 mol % above its reference
+    # (32.9 against 26.4) with the purge at 79 % over 12-16 h (measured); the cut
+    # brings C back toward it and the purge down
+    from controller.units.te.control import run_te
+    from controller.units.te.grades import TransitionPlan
+
+    run = run_te("ssmpc", TransitionPlan("mode0"), 16.0, idv={1: 2.0})
+    assert run.shutdown is None
+    assert any("A+C feed target lowered" in a for a in run.alarms)
+    late = run.t > 12.0
+    c_ref = grade("mode0").xmeas[24]
+    assert run.xmeas[late, 24].mean() - c_ref < 3.5      # measured 2.5 mol %
+    assert run.xmv[late, 5].mean() < 65.0                # purge, measured 52 %
