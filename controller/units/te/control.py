@@ -747,9 +747,9 @@ class TEController:
         plan's values (no shift) when the model has none (before the first sample, a
         model without a steady state)."""
         core = self.core
-        no_shift = np.zeros(len(CORE_CVS))
         if not getattr(core, "initialized", False) and self.targets.offset is None:
-            return u_plan, refs, no_shift  # the first sample: nothing observed yet
+            # the first sample: nothing observed yet
+            return u_plan, refs, np.zeros(len(CORE_CVS))
         # (after a take-over the core re-initializes its dynamics but keeps its models,
         # and the targets go on: their economic lift tracks the handle held meanwhile)
         self.targets.observe(core.ssm, core.active, yc, core.u_last, y_now, u_now,
@@ -761,7 +761,7 @@ class TEController:
         res = self.targets.solve(core.ssm, core.active, u_plan, y_plan, cost)
         if res is None:
             info["targets"] = {"status": "plan"}
-            return u_plan, refs, no_shift
+            return u_plan, refs, np.zeros(len(CORE_CVS))
         # the shape of the two-phase unit's report (controller.units.mpc_targets)
         info["targets"] = {"status": res.status,
                            "mv": dict(zip(CORE_NAMES, res.u.tolist())),
