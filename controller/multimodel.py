@@ -50,6 +50,7 @@ import scipy.linalg
 
 from controller.adaptation import AdaptiveKind, NLSSettings, NormalizedLeastSquares
 from controller.finite_kernel import all_finite
+from controller.hold_kernel import hold_advance, hold_errors, hold_estimates, hold_forward
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.state_shared import StateSharedModel
 from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
@@ -222,12 +223,19 @@ class OutputHoldCorrection:
         # (c Fd', c Fd' - y_prev h') of the current c and y_prev, or None: the sample
         # reads them three times (regressor_parts, estimates, advance)
         self._cf: tuple[np.ndarray, np.ndarray] | None = None
+        # the compiled arithmetic (controller.hold_kernel) where numpy's products are
+        # the BLAS dgemm/dgemv that numba's are (no dimension of 1: numpy takes
+        # other calls for a vector), so the numbers are the same to the last bit
+        self._compiled = ssm.p > 1 and n > 1
 
     def _c_forward(self) -> tuple[np.ndarray, np.ndarray]:
         """``(c Fd', c Fd' - y_prev h')``, computed once per (c, y_prev)."""
         if self._cf is None:
-            cF = self.c @ self.Fbd_T
-            self._cf = (cF, cF - self.y_prev[:, None] * self.h[None, :])
+            if self._compiled:  # one call (controller.hold_kernel)
+                self._cf = hold_forward(self.c, self.Fbd_T, self.y_prev, self.h)
+            else:
+                cF = self.c @ self.Fbd_T
+                self._cf = (cF, cF - self.y_prev[:, None] * self.h[None, :])
         return self._cf
 
     def reset(self, y) -> None:
@@ -245,6 +253,10 @@ class OutputHoldCorrection:
         est = self.ssm.estimates()
         t2 = self._theta2()
         cF, free = self._c_forward()  # free: (p, n)
+        if self._compiled and t2.shape[0] > 1:
+            # (est + theta2 free') / (1 - theta2 h), or est + theta2 cF' where that is ~0
+            # (no slope over the sample): one compiled call (controller.hold_kernel)
+            return hold_estimates(est, t2, cF, free, self.h)
         num = est + t2 @ free.T  # (k, p)
         den = 1.0 - t2 @ self.h  # (k,)
         safe = np.abs(den) > 1e-6
@@ -256,13 +268,19 @@ class OutputHoldCorrection:
 
     def errors(self, y) -> np.ndarray:
         """``y - yhat_j`` for every model, shape (k, p)."""
-        return np.asarray(y, dtype=float).reshape(1, -1) - self.estimates()
+        y = np.asarray(y, dtype=float).reshape(-1)
+        if self._compiled and self.ssm.k > 1 and y.shape == (self.ssm.p,):
+            cF, free = self._c_forward()
+            return hold_errors(y, self.ssm.estimates(), self._theta2(), cF, free, self.h)
+        return y.reshape(1, -1) - self.estimates()
 
     def advance(self, y) -> None:
         """Take in y_k: ``c_k = Fd c_(k-1) + H (y_k - y_(k-1))`` (call after :meth:`errors`)."""
-        y = np.asarray(y, dtype=float).reshape(-1)
-        self.c = self._c_forward()[0] + (y - self.y_prev)[:, None] * self.h[None, :]
-        self.y_prev = y.copy()
+        y = np.array(y, dtype=float).reshape(-1)  # a copy: y_prev
+        if y.shape != self.y_prev.shape:
+            raise ValueError(f"y: expected {self.y_prev.size} outputs, got {y.size}")
+        self.c = hold_advance(self._c_forward()[0], y, self.y_prev, self.h)
+        self.y_prev = y
         self._cf = None
 
     def regressor(self) -> np.ndarray:
