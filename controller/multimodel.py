@@ -227,6 +227,11 @@ class OutputHoldCorrection:
         # the BLAS dgemm/dgemv that numba's are (no dimension of 1: numpy takes
         # other calls for a vector), so the numbers are the same to the last bit
         self._compiled = ssm.p > 1 and n > 1
+        if self._compiled:  # compile or load them now, not in a sample
+            cF, free = hold_forward(self.c, self.Fbd_T, self.y_prev, self.h)
+            t2 = ssm.theta2_all()
+            hold_errors(self.y_prev, np.zeros((t2.shape[0], ssm.p)), t2, cF, free, self.h)
+            hold_advance(cF, self.y_prev, self.y_prev, self.h)
 
     def _c_forward(self) -> tuple[np.ndarray, np.ndarray]:
         """``(c Fd', c Fd' - y_prev h')``, computed once per (c, y_prev)."""

@@ -85,8 +85,10 @@ from controller.shared_basis import (
     hurwitz_coefficients,
     orthonormal_theta,
 )
-from controller.state_kernel import model_errors, write_params
+from controller.state_kernel import advance_state, model_errors, write_params
 from controller.state_kernel import regressor as state_regressor
+
+_F8 = np.dtype(np.float64)
 
 __all__ = [
     "companion_pair",
@@ -439,6 +441,11 @@ class StateSharedModel:
         # single matmul: Z[:, :n] <- Z @ [Fbd^T; gbd^T].
         self._Z = np.zeros((m + p, n + 1))
         self._M = np.vstack((self.Fbd.T, self.gbd[None, :]))
+        # update() in one compiled call where numpy's Z @ M is the BLAS dgemm numba's is
+        # (n > 1; controller.state_kernel.advance_state)
+        self._advance_compiled = n > 1
+        if self._advance_compiled:  # compile or load it now, not in a sample
+            advance_state(self._Z.copy(), self._M, np.zeros(m), np.zeros(p))
         self._slots: list[_Slot] = []
         self._T = np.zeros((0, self.order))  # stacked Theta_j^T, (k p, n(m+p))
         self._Taug = np.zeros((0, (m + p) * (n + 1)))  # the same, zeros at the [u; y] column
@@ -685,7 +692,12 @@ class StateSharedModel:
 
         Raises ValueError (state untouched) for wrong lengths or NaN/inf.
         """
-        uy = self._uy(u, y)
+        if (self._advance_compiled and isinstance(u, np.ndarray) and isinstance(y, np.ndarray)
+                and u.shape == (self.m,) and y.shape == (self.p,)
+                and u.dtype == _F8 and y.dtype == _F8 and u.flags.carray and y.flags.carray
+                and advance_state(self._Z, self._M, u, y)):  # one compiled call
+            return
+        uy = self._uy(u, y)  # raises naming the field
         Z = self._Z
         Z[:, -1] = uy
         Z[:, :-1] = Z @ self._M

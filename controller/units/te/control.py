@@ -157,6 +157,7 @@ from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
 from controller.units.te.overrides import FeedOverrides, FeedOverrideSettings
+from controller.units.te.path_kernel import compile_path_kernels
 from controller.units.te.pi_baseline import (
     PI_BASELINE_LOOPS,
     PRODUCTION_LOOP,
@@ -539,6 +540,7 @@ class TEController:
         self._lookup: SampleReferences | None = None  # the plan's references per sample
         #: XMEAS numbers of outer loops held by the operator (hold_outer_loops)
         self.outer_held: frozenset[int] = frozenset()
+        compile_path_kernels()  # the plan lookup's, not in the first sample
 
     def retarget(self, plan: TransitionPlan) -> None:
         """Follow a new plan from now on (times are absolute, h; the plan hold of the

@@ -42,7 +42,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["path_exponents", "path_values"]
+__all__ = ["compile_path_kernels", "path_exponents", "path_values"]
 
 
 @njit(cache=True)
@@ -139,3 +139,15 @@ def path_values(a, seg, positive, all_positive, start, target, n_xmeas, n_xmv):
             else:
                 d_share = r
     return ym, xv, d_share
+
+
+def compile_path_kernels() -> None:
+    """Compile both kernels (or load them from numba's on-disk cache) now, for the
+    argument types :class:`~controller.units.te.plan_lookup.SampleReferences` passes, so
+    that no sample pays for it. Cheap after the first call in a process."""
+    if path_exponents.signatures and path_values.signatures:
+        return
+    tau = np.ones((1, 2))
+    seg, x = np.zeros(1, dtype=np.int64), np.zeros((1, 2))
+    path_exponents(0.0, np.zeros(1), np.array([-math.inf]), tau, seg, x)
+    path_values(x, seg, np.ones((1, 2), dtype=np.bool_), True, tau, tau, 1, 0)

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from controller.units.te.path_kernel import path_exponents, path_values
+from controller.units.te.path_kernel import compile_path_kernels, path_exponents, path_values
 
 __all__ = ["SampleReferences"]
 
@@ -72,6 +72,7 @@ class SampleReferences:
         self._offsets = float(sample_h) * np.arange(self.horizon + 1)
         self._seg = np.empty(self.horizon + 1, dtype=np.int64)
         self._x = np.empty((self.horizon + 1, self._tau_div.shape[1]))
+        compile_path_kernels()
 
     @classmethod
     def for_plan(cls, plan, sample_h: float, horizon: int) -> SampleReferences | None:

@@ -111,6 +111,7 @@ from controller.units.te.targets_kernel import (
     NO_TARGETS,
     PLAN,
     QP,
+    compile_targets_kernels,
     offset_step,
     target_fields,
 )
@@ -233,10 +234,10 @@ _P = 2  # P_r* among the core handles
 
 
 def _vector(v) -> np.ndarray:
-    """``v`` as a C-contiguous float64 vector (no copy when it is one)."""
+    """``v`` as a C-contiguous, writeable float64 vector (no copy when it is one)."""
     a = np.asarray(v, dtype=float)
-    if a.ndim != 1 or not a.flags.c_contiguous:
-        a = np.ascontiguousarray(a.reshape(-1))
+    if a.ndim != 1 or not a.flags.carray:  # also a read-only one: the kernels' own type
+        a = np.array(a.reshape(-1))
     return a
 
 
@@ -333,6 +334,7 @@ class CoreTargets:
         # (model, sample, theta, steady state) computed after the previous move (prepare)
         self._ahead: tuple | None = None
         self._no_cost = np.zeros(5)  # the kernel's cost argument while unpriced (unread)
+        compile_targets_kernels()  # not in the first sample
         # (read-only gradient, settings, checked gradient or None, it times the weight)
         self._priced: tuple | None = None
         self._tol_cache: tuple | None = None  # (y_scale, VIOLATION_TOL * y_scale)
@@ -645,9 +647,9 @@ class CoreTargets:
 
     def restore(self, state: dict) -> None:
         off = state.get("offset")
-        self.offset = None if off is None else np.asarray(off, dtype=float).reshape(5)
-        self.du_lagged = np.asarray(state.get("du_lagged", np.zeros(5)),
-                                    dtype=float).reshape(5)
+        # copies: the offset filter writes into them
+        self.offset = None if off is None else np.array(off, dtype=float).reshape(5)
+        self.du_lagged = np.array(state.get("du_lagged", np.zeros(5)), dtype=float).reshape(5)
         # the gradient the lift prices comes with the next sample (solve)
         lift = float(state.get("econ_lift", 0.0) or 0.0)
         self.econ_lift = lift if math.isfinite(lift) and lift > 0.0 else 0.0

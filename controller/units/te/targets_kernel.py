@@ -45,7 +45,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["PLAN", "AT_BOUNDS", "QP", "NO_TARGETS", "offset_step", "target_fields"]
+__all__ = ["PLAN", "AT_BOUNDS", "QP", "NO_TARGETS", "compile_targets_kernels", "offset_step",
+           "target_fields"]
 
 #: Outcomes of :func:`target_fields`: the plan's point stands, the box's bounds are the
 #: answer, the QP decides, no targets (the plan's handles or CVs not finite).
@@ -215,3 +216,15 @@ def target_fields(G, u_plan, y_plan, bias, u_min, u_max, band, priced, cost_u, l
         if not (y[i] <= y_max[i] - tol[i] and y[i] >= y_min[i] + tol[i]):
             return QP, cheaper, checked, u_ref, u_lo, u_hi, u, y
     return AT_BOUNDS, cheaper, checked, u_ref, u_lo, u_hi, u, y
+
+
+def compile_targets_kernels() -> None:
+    """Compile both kernels (or load them from numba's on-disk cache) now, for the
+    argument types :class:`~controller.units.te.targets.CoreTargets` passes, so that no
+    sample pays for it. Cheap after the first call in a process."""
+    if offset_step.signatures and target_fields.signatures:
+        return
+    G, v = np.eye(2), np.zeros(2)
+    offset_step(G, v, v, v, v, np.zeros(2), np.zeros(2), 0.5, 0.5)
+    target_fields(G, v, v, v, v, np.ones(2), v, True, v, 0.0, 0, np.ones(2), v - 1.0,
+                  v + 1.0, v)
