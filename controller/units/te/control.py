@@ -826,7 +826,9 @@ class TEController:
             status, fallback, active, J, names = "solved", False, -1, np.zeros(0), ()
         else:
             yc = xmeas[_CORE_CV_INDEX]
-            refs = ym_all[1:, _CORE_CV_INDEX]
+            # C order (ym_all[1:, idx] alone is Fortran-ordered): the core's checks and
+            # the QP's vectors read it as it is, without numpy's slow paths or a copy
+            refs = ym_all[1:, _CORE_CV_INDEX].copy()
             target = self._core_ff(xv_all[-1], ym_all[-1])
             if self.outer_a_loop:
                 target[0] = min(max(target[0] + self._a_trim_step(ym, xmeas), 0.0), 100.0)

@@ -338,6 +338,7 @@ class CoreTargets:
         # (read-only gradient, settings, checked gradient or None, it times the weight)
         self._priced: tuple | None = None
         self._tol_cache: tuple | None = None  # (y_scale, VIOLATION_TOL * y_scale)
+        self._q_y_any: tuple | None = None  # (q_y, any of it)
 
     def steady_state(self, ssm, j: int):
         """(G, a) of model j, cached while its parameters stand (adaptive models:
@@ -529,7 +530,7 @@ class CoreTargets:
         ramped :attr:`econ_lift`."""
         u_plan, y_plan = _vector(u_plan), _vector(y_plan)
         self._ramp_economics(cost_u, float(u_plan[_P]))
-        if self.q_y.any():  # CV weights: always the QP
+        if self._weighs_cvs():  # CV weights: always the QP
             fields = self._fields(ssm, j, u_plan, y_plan)
             if fields is None:
                 self.last = None
@@ -588,6 +589,15 @@ class CoreTargets:
         res = self._solver.solve(**fields)
         self.last = None if res.status == "failed" else res
         return self.last
+
+    def _weighs_cvs(self) -> bool:
+        """Whether any CV has a weight toward the plan (``q_y``), kept while :attr:`q_y` is
+        the same array (a new one is read again; the weights are settings, not written
+        in place)."""
+        cached = self._q_y_any
+        if cached is None or cached[0] is not self.q_y:
+            cached = self._q_y_any = (self.q_y, bool(self.q_y.any()))
+        return cached[1]
 
     def _tol(self) -> np.ndarray:
         """The solver's violation tolerance in CV units (:data:`VIOLATION_TOL` times the
