@@ -54,6 +54,7 @@ from controller.hold_kernel import hold_advance, hold_errors, hold_estimates, ho
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.state_shared import StateSharedModel
 from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
+from controller.switching_kernel import steady_output_errors
 
 __all__ = ["ControlLaw", "HoldLaw", "MultiModelSettings", "MultiModelController",
            "OutputHoldCorrection"]
@@ -404,6 +405,9 @@ class MultiModelController:
         self._detail: tuple | None = None  # (key, text) of _active_detail
         self._deferred: tuple[np.ndarray, np.ndarray, int] | None = None
         self._prepared = False  # the estimators hold products for the current shared state
+        if self.settings.index_errors == "steady_output" and ssm.k > 1:
+            # compile or load the errors' scaling now, not in a sample
+            steady_output_errors(np.zeros((ssm.k, ssm.p)), ssm.theta2_all(), ssm.basis.steady)
 
     # -- helpers -------------------------------------------------------------------------
     @property
@@ -520,7 +524,7 @@ class MultiModelController:
                     self.ssm.set_params(j, est.p)
         # index (eq. 4.6) and switching
         if self.settings.index_errors == "steady_output":
-            errors = errors * self._steady_output_scale()[:, None]
+            errors = self._steady_output_errors(errors)
         J = self.index.update(errors)
         dec = self.switcher.step(J)
         # restart events of the adaptive kinds
@@ -717,6 +721,15 @@ class MultiModelController:
         self.u_last = u.copy()
 
     # -- persistence ---------------------------------------------------------------------
+    def _steady_output_errors(self, errors: np.ndarray) -> np.ndarray:
+        """``errors * _steady_output_scale()[:, None]``; one compiled call
+        (:func:`controller.switching_kernel.steady_output_errors`) where numpy's product
+        is the BLAS dgemv numba's is (more than one model)."""
+        if (self.ssm.k > 1 and isinstance(errors, np.ndarray) and errors.dtype == np.float64
+                and errors.shape == (self.ssm.k, self.ssm.p)):
+            return steady_output_errors(errors, self.ssm.theta2_all(), self.ssm.basis.steady)
+        return errors * self._steady_output_scale()[:, None]
+
     def _steady_output_scale(self) -> np.ndarray:
         """omega(0)/d_j(0) per model (k,): 1 / |1 - theta2_j' n_ss|, n_ss the block's
         steady state for a unit input; 1 where d_j(0) is (numerically) zero."""

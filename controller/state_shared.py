@@ -480,6 +480,10 @@ class StateSharedModel:
     def kinds(self) -> list[str]:
         return [s.kind for s in self._slots]
 
+    def kind(self, j: int) -> str:
+        """Kind of model ``j``: ``kinds[j]`` without building the list (per-sample reads)."""
+        return self._slots[j].kind
+
     def model(self, j: int) -> ModelSpec:
         j = self._index(j)
         slot = self._slots[j]

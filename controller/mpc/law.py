@@ -110,7 +110,7 @@ class SharedStateSource:
         return Phi, Gamma, th.T.copy()
 
     def _form(self, j: int):
-        if self.ssm.kinds[j] != "adaptive":
+        if self.ssm.kind(j) != "adaptive":
             return self.ssm.prediction_form(j)
         if self._decided.get(j) == self._k or not self._stale(j, self._k):
             self._restore_form(j)
@@ -150,7 +150,7 @@ class SharedStateSource:
         build that follows it off the next sample's critical path: that sample uses the
         form decided here, whatever its own adaptation does to Θ.
         """
-        if self.ssm is None or self.ssm.kinds[j] != "adaptive":
+        if self.ssm is None or self.ssm.kind(j) != "adaptive":
             return None
         nxt = self._k + 1
         self._decided[j] = nxt

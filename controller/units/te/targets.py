@@ -355,7 +355,7 @@ class CoreTargets:
             # inside the refresh interval an adaptive model's steady state stands: no need
             # to read its parameters (ssm.model builds them after every adaptation)
             if (self._n - made < self.settings.refresh_samples
-                    and ssm.kinds[j] != "fixed"):
+                    and ssm.kind(j) != "fixed"):
                 return ss
             theta = ssm.model(j).theta
             if th is theta:
@@ -373,7 +373,7 @@ class CoreTargets:
         measurement to the move. The next sample takes it only if ``j`` is still the
         model and its parameters are the very ones used here."""
         cached = self._steady.get(j)
-        if (cached is not None and ssm.kinds[j] != "fixed"
+        if (cached is not None and ssm.kind(j) != "fixed"
                 and self._n + 1 - cached[1] < self.settings.refresh_samples):
             return
         theta = ssm.model(j).theta
