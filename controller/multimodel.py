@@ -403,6 +403,7 @@ class MultiModelController:
         # per re-initialized model: (the fixed model it took its parameters from, sample)
         self.reinit_from: dict[int, tuple[int, int]] = {}
         self._detail: tuple | None = None  # (key, text) of _active_detail
+        self._names_of: tuple | None = None  # (ssm, its k, its names as a tuple)
         self._deferred: tuple[np.ndarray, np.ndarray, int] | None = None
         self._prepared = False  # the estimators hold products for the current shared state
         if self.settings.index_errors == "steady_output" and ssm.k > 1:
@@ -412,7 +413,10 @@ class MultiModelController:
     # -- helpers -------------------------------------------------------------------------
     @property
     def names(self) -> tuple[str, ...]:
-        return tuple(self.ssm.names)
+        ssm, cached = self.ssm, self._names_of  # names change only when a model is added
+        if cached is None or cached[0] is not ssm or cached[1] != ssm.k:
+            cached = self._names_of = (ssm, ssm.k, tuple(ssm.names))
+        return cached[2]
 
     @property
     def active(self) -> int:

@@ -254,6 +254,8 @@ PR_LIMITS = (2500.0, 2950.0)
 CORE_CVS = (7, 11, 13, 16, 18)
 _CORE_CV_INDEX = np.array(CORE_CVS) - 1
 _CORE_CV_NAMES = tuple(f"XMEAS{c}" for c in CORE_CVS)
+_NO_XMVS = np.full(12, np.nan)  # a sample's XMVs before any is written (copied)
+_NO_XMVS.setflags(write=False)
 #: Reactor temperature set point range, degC (R7.12).
 TR_LIMITS = (110.0, 130.0)
 #: High-pressure override on the A+C feed (production), as in Ricker's (1996)
@@ -811,7 +813,7 @@ class TEController:
         self.feeds.observe(xmeas)
         xv, ym = xv_all[0], ym_all[0]
         s = self._ratio_step(ff, ym, xmeas)
-        u = np.full(12, np.nan)
+        u = _NO_XMVS.copy()  # NaN: not written
         d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
         u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0,
                    max(xv[1] + self._e_feed_margin(xmeas), 0.0))
@@ -828,7 +830,7 @@ class TEController:
             yc = xmeas[_CORE_CV_INDEX]
             # C order (ym_all[1:, idx] alone is Fortran-ordered): the core's checks and
             # the QP's vectors read it as it is, without numpy's slow paths or a copy
-            refs = ym_all[1:, _CORE_CV_INDEX].copy()
+            refs = ym_all[1:].take(_CORE_CV_INDEX, axis=1)
             target = self._core_ff(xv_all[-1], ym_all[-1])
             if self.outer_a_loop:
                 target[0] = min(max(target[0] + self._a_trim_step(ym, xmeas), 0.0), 100.0)
