@@ -448,6 +448,7 @@ class StateSharedModel:
             advance_state(self._Z.copy(), self._M, np.zeros(m), np.zeros(p))
         self._slots: list[_Slot] = []
         self._T = np.zeros((0, self.order))  # stacked Theta_j^T, (k p, n(m+p))
+        self._theta2_view: tuple | None = None  # (the stack, theta2_all's view of it)
         self._Taug = np.zeros((0, (m + p) * (n + 1)))  # the same, zeros at the [u; y] column
         self._B = np.zeros((0, p))
         for spec in models or ():
@@ -521,9 +522,13 @@ class StateSharedModel:
         """theta2 (= a - d, eq. 3.16) of every model, shape (k, n): the first output
         block's (all blocks hold the same vector for structured models). A read-only
         view of the stacked parameters, current after :meth:`set_theta`."""
+        cached = self._theta2_view
+        if cached is not None and cached[0] is self._T:  # the same stack: the same view
+            return cached[1]
         nm = self.n_deg * self.m
         view = self._T[:: self.p, nm : nm + self.n_deg]
         view.flags.writeable = False
+        self._theta2_view = (self._T, view)
         return view
 
     def bias(self, j: int) -> np.ndarray:
