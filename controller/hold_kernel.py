@@ -13,7 +13,10 @@ this module does its three per-sample steps in one compiled call each:
       yhat_j = est_j + cF theta2_j                             elsewhere
 
   and, given ``y``, the errors ``y - yhat_j``;
-- :func:`hold_advance`: ``c <- c Fd' + (y - y_prev) h'``.
+- :func:`hold_advance`: ``c <- c Fd' + (y - y_prev) h'``;
+- :func:`hold_regressor_parts`: the next sample's regressor before its output, the
+  shared regressor with ``free`` added in the n2 columns and ``d`` (h in those
+  columns), so that ``W = W_base + y d'``.
 
 The products are the BLAS ``dgemm`` / ``dgemv`` numpy makes (numba's ``@``), the other
 operations the same IEEE operations in the same order as the numpy expressions they
@@ -27,12 +30,12 @@ models' zero-order-hold estimates (output units), ``theta2`` (k, n), ``c``, ``cF
 ``free`` (p, n) in output units, ``Fd_T`` (n, n), ``h`` (n,) dimensionless.
 
 **Measured** (TE: k = 4, p = 5, n = 8; per-call median of 5,000 calls, numpy and
-kernels alternated three times in one process; AMD EPYC 2 vCPU shared with a
-2-process campaign, load 5)::
+kernels alternated three times in one process; AMD EPYC 2 vCPU shared with another
+2-process campaign, load 3.3)::
 
     method                                  numpy          kernels
-    OutputHoldCorrection.errors             16.6-19.1 us   8.1-9.5 us
-    OutputHoldCorrection.regressor_parts    10.0-11.5 us   7.9-8.9 us
+    OutputHoldCorrection.errors             19.7-20.0 us   8.0-8.5 us
+    OutputHoldCorrection.regressor_parts    12.7-12.9 us   6.3-6.7 us
 """
 
 from __future__ import annotations
@@ -40,7 +43,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["hold_advance", "hold_errors", "hold_estimates", "hold_forward"]
+__all__ = ["hold_advance", "hold_errors", "hold_estimates", "hold_forward",
+           "hold_regressor_parts"]
 
 #: Smallest |1 - theta2' h| solved for the estimate over the sample (else no slope).
 DEN_MIN = 1e-6
@@ -116,3 +120,18 @@ def hold_advance(cF, y, y_prev, h):
         for j in range(n):
             c[i, j] = cF[i, j] + dy * h[j]
     return c
+
+
+@njit(cache=True)
+def hold_regressor_parts(W, free, h, start):
+    """Add ``free`` (p, n) to the n2 columns ``start .. start + n - 1`` of the shared
+    regressor ``W`` (p, N), in place, and return ``d`` (N,): ``h`` in those columns,
+    zeros elsewhere."""
+    p, n = free.shape
+    for i in range(p):
+        for c in range(n):
+            W[i, start + c] += free[i, c]
+    d = np.zeros(W.shape[1])
+    for c in range(n):
+        d[start + c] = h[c]
+    return d

@@ -50,7 +50,13 @@ import scipy.linalg
 
 from controller.adaptation import AdaptiveKind, NLSSettings, NormalizedLeastSquares
 from controller.finite_kernel import all_finite
-from controller.hold_kernel import hold_advance, hold_errors, hold_estimates, hold_forward
+from controller.hold_kernel import (
+    hold_advance,
+    hold_errors,
+    hold_estimates,
+    hold_forward,
+    hold_regressor_parts,
+)
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.state_shared import StateSharedModel
 from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
@@ -233,6 +239,7 @@ class OutputHoldCorrection:
             t2 = ssm.theta2_all()
             hold_errors(self.y_prev, np.zeros((t2.shape[0], ssm.p)), t2, cF, free, self.h)
             hold_advance(cF, self.y_prev, self.y_prev, self.h)
+            hold_regressor_parts(np.zeros((ssm.p, n + 1)), free, self.h, 0)
 
     def _c_forward(self) -> tuple[np.ndarray, np.ndarray]:
         """``(c Fd', c Fd' - y_prev h')``, computed once per (c, y_prev)."""
@@ -313,6 +320,8 @@ class OutputHoldCorrection:
         ssm = self.ssm
         W = ssm.regressor()
         start = self.n * ssm.m * ssm.p
+        if self._compiled:  # the n2 columns and d in one call (controller.hold_kernel)
+            return W, hold_regressor_parts(W, self._c_forward()[1], self.h, start)
         cols = slice(start, start + self.n)
         W[:, cols] += self._c_forward()[1]
         d = np.zeros(W.shape[1])

@@ -7,7 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from controller.hold_kernel import hold_advance, hold_errors, hold_estimates, hold_forward
+from controller.hold_kernel import (
+    hold_advance,
+    hold_errors,
+    hold_estimates,
+    hold_forward,
+    hold_regressor_parts,
+)
 
 #: Largest difference allowed between the kernels and numpy (0: bit for bit).
 HOLD_ATOL = 0.0
@@ -92,3 +98,19 @@ def test_nonfinite_values_propagate_as_in_numpy():
         want = _numpy_estimates(est, t2, cF, free, h)
         _same(hold_errors(y, est, t2, cF, free, h), y[None, :] - want)
         _same(hold_advance(cF, y, y_prev, h), cF + (y - y_prev)[:, None] * h[None, :])
+
+
+def test_regressor_parts_equal_numpy():
+    rng = np.random.default_rng(21)
+    for _ in range(100):
+        p, n, start = 5, 8, 200
+        W = rng.normal(size=(p, 213))
+        free, h = rng.normal(size=(p, n)), rng.uniform(0, 0.2, n)
+        want_W = W.copy()
+        want_W[:, start:start + n] += free
+        want_d = np.zeros(213)
+        want_d[start:start + n] = h
+        got_W = W.copy()
+        got_d = hold_regressor_parts(got_W, free, h, start)
+        _same(got_W, want_W)
+        _same(got_d, want_d)
