@@ -535,6 +535,8 @@ class StateSharedModel:
         return self.model(j).bias
 
     def _index(self, j) -> int:
+        if type(j) is int and 0 <= j < len(self._slots):  # the per-sample reads
+            return j
         if isinstance(j, bool) or not isinstance(j, int | np.integer) or not 0 <= j < self.k:
             raise ValueError(f"j: model index must be in 0..{self.k - 1}, got {j!r}")
         return int(j)
