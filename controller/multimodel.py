@@ -283,6 +283,8 @@ class OutputHoldCorrection:
         """``y - yhat_j`` for every model, shape (k, p)."""
         y = np.asarray(y, dtype=float).reshape(-1)
         if self._compiled and self.ssm.k > 1 and y.shape == (self.ssm.p,):
+            if not y.flags.carray:  # the kernel's own type (no compilation in a sample)
+                y = np.array(y)
             cF, free = self._c_forward()
             return hold_errors(y, self.ssm.estimates(), self._theta2(), cF, free, self.h)
         return y.reshape(1, -1) - self.estimates()
