@@ -253,6 +253,8 @@ PR_LIMITS = (2500.0, 2950.0)
 CORE_CVS = (7, 11, 13, 16, 18)
 _CORE_CV_INDEX = np.array(CORE_CVS) - 1
 _CORE_CV_NAMES = tuple(f"XMEAS{c}" for c in CORE_CVS)
+_NO_SHIFT = np.zeros(len(CORE_CVS))  # the targets' shift of the CVs when they have none
+_NO_SHIFT.setflags(write=False)
 #: Reactor temperature set point range, degC (R7.12).
 TR_LIMITS = (110.0, 130.0)
 #: High-pressure override on the A+C feed (production), as in Ricker's (1996)
@@ -747,9 +749,8 @@ class TEController:
         plan's values (no shift) when the model has none (before the first sample, a
         model without a steady state)."""
         core = self.core
-        no_shift = np.zeros(len(CORE_CVS))
         if not getattr(core, "initialized", False) and self.targets.offset is None:
-            return u_plan, refs, no_shift  # the first sample: nothing observed yet
+            return u_plan, refs, _NO_SHIFT  # the first sample: nothing observed yet
         # (after a take-over the core re-initializes its dynamics but keeps its models,
         # and the targets go on: their economic lift tracks the handle held meanwhile)
         self.targets.observe(core.ssm, core.active, yc, core.u_last, y_now, u_now,
@@ -761,7 +762,7 @@ class TEController:
         res = self.targets.solve(core.ssm, core.active, u_plan, y_plan, cost)
         if res is None:
             info["targets"] = {"status": "plan"}
-            return u_plan, refs, no_shift
+            return u_plan, refs, _NO_SHIFT
         # the shape of the two-phase unit's report (controller.units.mpc_targets)
         info["targets"] = {"status": res.status,
                            "mv": dict(zip(CORE_NAMES, res.u.tolist())),
