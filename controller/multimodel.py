@@ -50,9 +50,17 @@ import scipy.linalg
 
 from controller.adaptation import AdaptiveKind, NLSSettings, NormalizedLeastSquares
 from controller.finite_kernel import all_finite
+from controller.hold_kernel import (
+    hold_advance,
+    hold_errors,
+    hold_estimates,
+    hold_forward,
+    hold_regressor_parts,
+)
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.state_shared import StateSharedModel
 from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
+from controller.switching_kernel import steady_output_errors
 
 __all__ = ["ControlLaw", "HoldLaw", "MultiModelSettings", "MultiModelController",
            "OutputHoldCorrection"]
@@ -222,12 +230,25 @@ class OutputHoldCorrection:
         # (c Fd', c Fd' - y_prev h') of the current c and y_prev, or None: the sample
         # reads them three times (regressor_parts, estimates, advance)
         self._cf: tuple[np.ndarray, np.ndarray] | None = None
+        # the compiled arithmetic (controller.hold_kernel) where numpy's products are
+        # the BLAS dgemm/dgemv that numba's are (no dimension of 1: numpy takes
+        # other calls for a vector), so the numbers are the same to the last bit
+        self._compiled = ssm.p > 1 and n > 1
+        if self._compiled:  # compile or load them now, not in a sample
+            cF, free = hold_forward(self.c, self.Fbd_T, self.y_prev, self.h)
+            t2 = ssm.theta2_all()
+            hold_errors(self.y_prev, np.zeros((t2.shape[0], ssm.p)), t2, cF, free, self.h)
+            hold_advance(cF, self.y_prev, self.y_prev, self.h)
+            hold_regressor_parts(np.zeros((ssm.p, n + 1)), free, self.h, 0)
 
     def _c_forward(self) -> tuple[np.ndarray, np.ndarray]:
         """``(c Fd', c Fd' - y_prev h')``, computed once per (c, y_prev)."""
         if self._cf is None:
-            cF = self.c @ self.Fbd_T
-            self._cf = (cF, cF - self.y_prev[:, None] * self.h[None, :])
+            if self._compiled:  # one call (controller.hold_kernel)
+                self._cf = hold_forward(self.c, self.Fbd_T, self.y_prev, self.h)
+            else:
+                cF = self.c @ self.Fbd_T
+                self._cf = (cF, cF - self.y_prev[:, None] * self.h[None, :])
         return self._cf
 
     def reset(self, y) -> None:
@@ -245,6 +266,10 @@ class OutputHoldCorrection:
         est = self.ssm.estimates()
         t2 = self._theta2()
         cF, free = self._c_forward()  # free: (p, n)
+        if self._compiled and t2.shape[0] > 1:
+            # (est + theta2 free') / (1 - theta2 h), or est + theta2 cF' where that is ~0
+            # (no slope over the sample): one compiled call (controller.hold_kernel)
+            return hold_estimates(est, t2, cF, free, self.h)
         num = est + t2 @ free.T  # (k, p)
         den = 1.0 - t2 @ self.h  # (k,)
         safe = np.abs(den) > 1e-6
@@ -256,13 +281,21 @@ class OutputHoldCorrection:
 
     def errors(self, y) -> np.ndarray:
         """``y - yhat_j`` for every model, shape (k, p)."""
-        return np.asarray(y, dtype=float).reshape(1, -1) - self.estimates()
+        y = np.asarray(y, dtype=float).reshape(-1)
+        if self._compiled and self.ssm.k > 1 and y.shape == (self.ssm.p,):
+            if not y.flags.carray:  # the kernel's own type (no compilation in a sample)
+                y = np.array(y)
+            cF, free = self._c_forward()
+            return hold_errors(y, self.ssm.estimates(), self._theta2(), cF, free, self.h)
+        return y.reshape(1, -1) - self.estimates()
 
     def advance(self, y) -> None:
         """Take in y_k: ``c_k = Fd c_(k-1) + H (y_k - y_(k-1))`` (call after :meth:`errors`)."""
-        y = np.asarray(y, dtype=float).reshape(-1)
-        self.c = self._c_forward()[0] + (y - self.y_prev)[:, None] * self.h[None, :]
-        self.y_prev = y.copy()
+        y = np.array(y, dtype=float).reshape(-1)  # a copy: y_prev
+        if y.shape != self.y_prev.shape:
+            raise ValueError(f"y: expected {self.y_prev.size} outputs, got {y.size}")
+        self.c = hold_advance(self._c_forward()[0], y, self.y_prev, self.h)
+        self.y_prev = y
         self._cf = None
 
     def regressor(self) -> np.ndarray:
@@ -289,6 +322,8 @@ class OutputHoldCorrection:
         ssm = self.ssm
         W = ssm.regressor()
         start = self.n * ssm.m * ssm.p
+        if self._compiled:  # the n2 columns and d in one call (controller.hold_kernel)
+            return W, hold_regressor_parts(W, self._c_forward()[1], self.h, start)
         cols = slice(start, start + self.n)
         W[:, cols] += self._c_forward()[1]
         d = np.zeros(W.shape[1])
@@ -379,13 +414,20 @@ class MultiModelController:
         # per re-initialized model: (the fixed model it took its parameters from, sample)
         self.reinit_from: dict[int, tuple[int, int]] = {}
         self._detail: tuple | None = None  # (key, text) of _active_detail
+        self._names_of: tuple | None = None  # (ssm, its k, its names as a tuple)
         self._deferred: tuple[np.ndarray, np.ndarray, int] | None = None
         self._prepared = False  # the estimators hold products for the current shared state
+        if self.settings.index_errors == "steady_output" and ssm.k > 1:
+            # compile or load the errors' scaling now, not in a sample
+            steady_output_errors(np.zeros((ssm.k, ssm.p)), ssm.theta2_all(), ssm.basis.steady)
 
     # -- helpers -------------------------------------------------------------------------
     @property
     def names(self) -> tuple[str, ...]:
-        return tuple(self.ssm.names)
+        ssm, cached = self.ssm, self._names_of  # names change only when a model is added
+        if cached is None or cached[0] is not ssm or cached[1] != ssm.k:
+            cached = self._names_of = (ssm, ssm.k, tuple(ssm.names))
+        return cached[2]
 
     @property
     def active(self) -> int:
@@ -497,7 +539,7 @@ class MultiModelController:
                     self.ssm.set_params(j, est.p)
         # index (eq. 4.6) and switching
         if self.settings.index_errors == "steady_output":
-            errors = errors * self._steady_output_scale()[:, None]
+            errors = self._steady_output_errors(errors)
         J = self.index.update(errors)
         dec = self.switcher.step(J)
         # restart events of the adaptive kinds
@@ -694,6 +736,15 @@ class MultiModelController:
         self.u_last = u.copy()
 
     # -- persistence ---------------------------------------------------------------------
+    def _steady_output_errors(self, errors: np.ndarray) -> np.ndarray:
+        """``errors * _steady_output_scale()[:, None]``; one compiled call
+        (:func:`controller.switching_kernel.steady_output_errors`) where numpy's product
+        is the BLAS dgemv numba's is (more than one model)."""
+        if (self.ssm.k > 1 and isinstance(errors, np.ndarray) and errors.dtype == np.float64
+                and errors.shape == (self.ssm.k, self.ssm.p)):
+            return steady_output_errors(errors, self.ssm.theta2_all(), self.ssm.basis.steady)
+        return errors * self._steady_output_scale()[:, None]
+
     def _steady_output_scale(self) -> np.ndarray:
         """omega(0)/d_j(0) per model (k,): 1 / |1 - theta2_j' n_ss|, n_ss the block's
         steady state for a unit input; 1 where d_j(0) is (numerically) zero."""

@@ -85,8 +85,10 @@ from controller.shared_basis import (
     hurwitz_coefficients,
     orthonormal_theta,
 )
-from controller.state_kernel import model_errors, write_params
+from controller.state_kernel import advance_state, model_errors, write_params
 from controller.state_kernel import regressor as state_regressor
+
+_F8 = np.dtype(np.float64)
 
 __all__ = [
     "companion_pair",
@@ -439,8 +441,14 @@ class StateSharedModel:
         # single matmul: Z[:, :n] <- Z @ [Fbd^T; gbd^T].
         self._Z = np.zeros((m + p, n + 1))
         self._M = np.vstack((self.Fbd.T, self.gbd[None, :]))
+        # update() in one compiled call where numpy's Z @ M is the BLAS dgemm numba's is
+        # (n > 1; controller.state_kernel.advance_state)
+        self._advance_compiled = n > 1
+        if self._advance_compiled:  # compile or load it now, not in a sample
+            advance_state(self._Z.copy(), self._M, np.zeros(m), np.zeros(p))
         self._slots: list[_Slot] = []
         self._T = np.zeros((0, self.order))  # stacked Theta_j^T, (k p, n(m+p))
+        self._theta2_view: tuple | None = None  # (the stack, theta2_all's view of it)
         self._Taug = np.zeros((0, (m + p) * (n + 1)))  # the same, zeros at the [u; y] column
         self._B = np.zeros((0, p))
         for spec in models or ():
@@ -472,6 +480,10 @@ class StateSharedModel:
     @property
     def kinds(self) -> list[str]:
         return [s.kind for s in self._slots]
+
+    def kind(self, j: int) -> str:
+        """Kind of model ``j``: ``kinds[j]`` without building the list (per-sample reads)."""
+        return self._slots[j].kind
 
     def model(self, j: int) -> ModelSpec:
         j = self._index(j)
@@ -510,15 +522,21 @@ class StateSharedModel:
         """theta2 (= a - d, eq. 3.16) of every model, shape (k, n): the first output
         block's (all blocks hold the same vector for structured models). A read-only
         view of the stacked parameters, current after :meth:`set_theta`."""
+        cached = self._theta2_view
+        if cached is not None and cached[0] is self._T:  # the same stack: the same view
+            return cached[1]
         nm = self.n_deg * self.m
         view = self._T[:: self.p, nm : nm + self.n_deg]
         view.flags.writeable = False
+        self._theta2_view = (self._T, view)
         return view
 
     def bias(self, j: int) -> np.ndarray:
         return self.model(j).bias
 
     def _index(self, j) -> int:
+        if type(j) is int and 0 <= j < len(self._slots):  # the per-sample reads
+            return j
         if isinstance(j, bool) or not isinstance(j, int | np.integer) or not 0 <= j < self.k:
             raise ValueError(f"j: model index must be in 0..{self.k - 1}, got {j!r}")
         return int(j)
@@ -685,7 +703,12 @@ class StateSharedModel:
 
         Raises ValueError (state untouched) for wrong lengths or NaN/inf.
         """
-        uy = self._uy(u, y)
+        if (self._advance_compiled and isinstance(u, np.ndarray) and isinstance(y, np.ndarray)
+                and u.shape == (self.m,) and y.shape == (self.p,)
+                and u.dtype == _F8 and y.dtype == _F8 and u.flags.carray and y.flags.carray
+                and advance_state(self._Z, self._M, u, y)):  # one compiled call
+            return
+        uy = self._uy(u, y)  # raises naming the field
         Z = self._Z
         Z[:, -1] = uy
         Z[:, :-1] = Z @ self._M

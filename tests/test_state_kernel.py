@@ -72,3 +72,41 @@ def test_regressor_predicts_every_structured_model(p):
             np.testing.assert_allclose(W @ p_j, ssm.theta(j).T @ n + ssm.bias(j),
                                        rtol=1e-12, atol=1e-14)
         ssm.update(rng.standard_normal(ssm.m), rng.standard_normal(ssm.p))
+
+
+#: Largest difference allowed between advance_state and numpy (0: bit for bit).
+ADVANCE_ATOL = 0.0
+
+
+@pytest.mark.parametrize("shape", [(5, 5, 8), (2, 3, 4), (1, 1, 2)])
+def test_advance_state_equals_numpy(shape):
+    """``Z[:, -1] = [u; y]; Z[:, :-1] = Z @ M`` (n > 1, where numpy's product is dgemm)."""
+    from controller.state_kernel import advance_state
+
+    m, p, n = shape
+    rng = np.random.default_rng(m + 10 * p + 100 * n)
+    for trial in range(200):
+        Z = rng.normal(size=(m + p, n + 1)) * 10.0 ** rng.uniform(-3, 3, (m + p, n + 1))
+        M = rng.normal(size=(n + 1, n)) * 0.5
+        u, y = rng.normal(size=m) * 100.0, rng.normal(size=p) * 1000.0
+        if trial % 20 == 0:
+            (u if trial % 40 else y)[0] = (np.nan, np.inf)[trial % 3 == 0]
+        want = Z.copy()
+        finite = bool(np.isfinite(u).all() and np.isfinite(y).all())
+        if finite:
+            want[:, -1] = np.concatenate((u, y))
+            want[:, :-1] = want @ M
+        got = Z.copy()
+        assert advance_state(got, M, u, y) is finite
+        np.testing.assert_allclose(got, want, rtol=0, atol=ADVANCE_ATOL)
+        assert np.array_equal(got, want)
+
+
+def test_update_rejects_bad_samples_without_touching_the_state():
+    ssm = StateSharedModel(np.array([1.0, 3.0, 2.0]), 2, 0.1)
+    ssm.initialize(np.ones(2), np.ones(2))
+    before = ssm.n.copy()
+    for u, y in ((np.array([np.nan, 1.0]), np.ones(2)), (np.ones(2), np.array([1.0, np.inf]))):
+        with pytest.raises(ValueError):
+            ssm.update(u, y)
+        np.testing.assert_array_equal(ssm.n, before)

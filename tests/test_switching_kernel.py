@@ -1,6 +1,8 @@
 """The compiled index update and smallest-J choice equal the numpy expressions of
 eq. 4.6 and the switch rule, to the last bit."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -71,3 +73,37 @@ def test_switcher_still_holds_for_the_dwell_time_and_excludes_disallowed_models(
     sw2 = ModelSwitcher(3, min_dwell=0.1, dt=0.1, initial=2)
     dec = sw2.step([0.1, 0.5, 2.0], allowed=[False, True, True])
     assert dec.active == 1 and dec.best == 1
+
+
+#: Largest difference allowed between steady_output_errors and numpy (0: bit for bit).
+STEADY_ERRORS_ATOL = 0.0
+
+
+def _numpy_steady_output_errors(errors, theta2, steady):
+    """MultiModelController's steady-output scaling in numpy (before the kernel)."""
+    ratio = (1.0 - theta2 @ steady).tolist()
+    scale = np.array([1.0 / abs(r) if math.isfinite(r) and abs(r) > 1e-12 else 1.0
+                      for r in ratio])
+    return errors * scale[:, None]
+
+
+@pytest.mark.parametrize("k, p, n", [(4, 5, 8), (2, 1, 3), (3, 2, 1)])
+def test_steady_output_errors_equal_numpy(k, p, n):
+    from controller.switching_kernel import steady_output_errors
+
+    rng = np.random.default_rng(k * 100 + p * 10 + n)
+    for trial in range(300):
+        T = rng.normal(size=(k * 2, n + 3)) * 10.0 ** rng.uniform(-3, 1, (k * 2, n + 3))
+        theta2 = T[::2, 1:1 + n]  # strided, as StateSharedModel.theta2_all
+        theta2.flags.writeable = False
+        steady = rng.normal(size=n)
+        errors = rng.normal(size=(k, p)) * 10.0 ** rng.uniform(-6, 2, (k, p))
+        if trial % 25 == 0:  # a model at 1 - theta2' n_ss = 0, or not finite
+            theta2 = np.array(theta2)
+            theta2[0] = 0.0
+            theta2[0, 0] = 1.0 / steady[0] if trial % 50 else np.nan
+        with np.errstate(invalid="ignore"):
+            want = _numpy_steady_output_errors(errors, theta2, steady)
+        got = steady_output_errors(errors, theta2, steady)
+        np.testing.assert_allclose(got, want, rtol=0, atol=STEADY_ERRORS_ATOL)
+        assert np.array_equal(got, want, equal_nan=True)

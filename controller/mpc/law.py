@@ -24,6 +24,9 @@ from controller.packing import pack_array, unpack_array
 
 __all__ = ["MPCLaw", "SharedStateSource", "relative_change"]
 
+_NO_J = np.zeros(0)  # a view's J: the law does not report the index (read only)
+_NO_J.setflags(write=False)
+
 
 class SharedStateSource:
     """:class:`~controller.mpc.controller.StateSource` reading a ``StateSharedModel``.
@@ -96,6 +99,7 @@ class SharedStateSource:
         self._restored: dict[int, np.ndarray] = {}  # Θ of restored snapshots, (2nm, p)
         self._k = 0
         self.refreshes = 0
+        self._names_of: tuple | None = None  # (ssm, its k, its names as a tuple)
 
     def _discrete_form(self, j: int, theta=None):
         ssm = self.ssm
@@ -110,7 +114,7 @@ class SharedStateSource:
         return Phi, Gamma, th.T.copy()
 
     def _form(self, j: int):
-        if self.ssm.kinds[j] != "adaptive":
+        if self.ssm.kind(j) != "adaptive":
             return self.ssm.prediction_form(j)
         if self._decided.get(j) == self._k or not self._stale(j, self._k):
             self._restore_form(j)
@@ -150,7 +154,7 @@ class SharedStateSource:
         build that follows it off the next sample's critical path: that sample uses the
         form decided here, whatever its own adaptation does to Θ.
         """
-        if self.ssm is None or self.ssm.kinds[j] != "adaptive":
+        if self.ssm is None or self.ssm.kind(j) != "adaptive":
             return None
         nxt = self._k + 1
         self._decided[j] = nxt
@@ -162,8 +166,16 @@ class SharedStateSource:
         self.n_prev = n
         self._k += 1
         pf = self._form(self.model)
-        return ModelView(self.model, n, n_prev, pf[0], pf[1], pf[2], index=self.model,
-                         names=tuple(self.ssm.names))
+        return ModelView(self.model, n, n_prev, pf[0], pf[1], pf[2], self.model, _NO_J,
+                         self._names())
+
+    def _names(self) -> tuple[str, ...]:
+        """The models' names, kept while the model set is the same (names change only
+        when a model is added)."""
+        ssm, cached = self.ssm, self._names_of
+        if cached is None or cached[0] is not ssm or cached[1] != ssm.k:
+            cached = self._names_of = (ssm, ssm.k, tuple(ssm.names))
+        return cached[2]
 
     def checkpoint(self) -> dict[str, Any]:
         """Δn memory and the adaptive forms: the sample counter and, per adaptive

@@ -311,7 +311,7 @@ class RegulatoryLayer:
         arr = np.asarray(values, dtype=float).reshape(-1)
         if arr.shape[0] != len(self.loops):
             raise PlantInputError(f"setpoints: expected {len(self.loops)}, got {arr.shape[0]}")
-        if np.isfinite(arr).all():  # every set point given (the supervisory sample's case)
+        if all(map(math.isfinite, arr.tolist())):  # every set point given (the usual case)
             self._sp[:] = arr
             return
         keep = np.zeros(arr.shape[0], dtype=bool)

@@ -157,6 +157,7 @@ from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
 from controller.units.te.overrides import FeedOverrides, FeedOverrideSettings
+from controller.units.te.path_kernel import compile_path_kernels
 from controller.units.te.pi_baseline import (
     PI_BASELINE_LOOPS,
     PRODUCTION_LOOP,
@@ -255,6 +256,8 @@ _CORE_CV_INDEX = np.array(CORE_CVS) - 1
 _CORE_CV_NAMES = tuple(f"XMEAS{c}" for c in CORE_CVS)
 _NO_SHIFT = np.zeros(len(CORE_CVS))  # the targets' shift of the CVs when they have none
 _NO_SHIFT.setflags(write=False)
+_NO_XMVS = np.full(12, np.nan)  # a sample's XMVs before any is written (copied)
+_NO_XMVS.setflags(write=False)
 #: Reactor temperature set point range, degC (R7.12).
 TR_LIMITS = (110.0, 130.0)
 #: High-pressure override on the A+C feed (production), as in Ricker's (1996)
@@ -541,6 +544,7 @@ class TEController:
         self._lookup: SampleReferences | None = None  # the plan's references per sample
         #: XMEAS numbers of outer loops held by the operator (hold_outer_loops)
         self.outer_held: frozenset[int] = frozenset()
+        compile_path_kernels()  # the plan lookup's, not in the first sample
 
     def retarget(self, plan: TransitionPlan) -> None:
         """Follow a new plan from now on (times are absolute, h; the plan hold of the
@@ -810,7 +814,7 @@ class TEController:
         self.feeds.observe(xmeas)
         xv, ym = xv_all[0], ym_all[0]
         s = self._ratio_step(ff, ym, xmeas)
-        u = np.full(12, np.nan)
+        u = _NO_XMVS.copy()  # NaN: not written
         d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
         u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0,
                    max(xv[1] + self._e_feed_margin(xmeas), 0.0))
@@ -825,7 +829,9 @@ class TEController:
             status, fallback, active, J, names = "solved", False, -1, np.zeros(0), ()
         else:
             yc = xmeas[_CORE_CV_INDEX]
-            refs = ym_all[1:, _CORE_CV_INDEX]
+            # C order (ym_all[1:, idx] alone is Fortran-ordered): the core's checks and
+            # the QP's vectors read it as it is, without numpy's slow paths or a copy
+            refs = ym_all[1:].take(_CORE_CV_INDEX, axis=1)
             target = self._core_ff(xv_all[-1], ym_all[-1])
             if self.outer_a_loop:
                 target[0] = min(max(target[0] + self._a_trim_step(ym, xmeas), 0.0), 100.0)

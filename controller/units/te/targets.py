@@ -73,7 +73,10 @@ least violation HiGHS finds, to 1e-4 relative; a 2650 kPa limit at mode 0 (noise
 holds the pressure at 2643-2651 kPa over hours 8-16. Solve time: that of
 :class:`controller.target_solver.TargetSolver` (``ssmpc bench targets``: the same
 numbers as :func:`controller.targets.solve_targets`, no problem built per sample)
-when a limit binds; otherwise only the check of the sample's numbers.
+when a limit binds; otherwise only the check of the sample's numbers. The sample's
+arithmetic on the five handles and CVs (the offset filter, the moving fields, the two
+answers without a QP) is compiled (:mod:`controller.units.te.targets_kernel`, the
+same numbers bit for bit).
 
 Measured (ssmpc, noise off and on with plant seed 1; shared 2-core AMD EPYC at the load
 given; CPU time of the TE controller's targets per sample)::
@@ -103,6 +106,15 @@ import numpy as np
 from controller.finite_kernel import all_finite
 from controller.target_solver import TargetSolver, _cost
 from controller.targets import VIOLATION_TOL, TargetProblem, TargetResult
+from controller.units.te.targets_kernel import (
+    AT_BOUNDS,
+    NO_TARGETS,
+    PLAN,
+    QP,
+    compile_targets_kernels,
+    offset_step,
+    target_fields,
+)
 
 __all__ = ["CoreTargetSettings", "CoreTargets", "model_steady_state"]
 
@@ -221,6 +233,14 @@ class CoreTargetSettings:
 _P = 2  # P_r* among the core handles
 
 
+def _vector(v) -> np.ndarray:
+    """``v`` as a C-contiguous, writeable float64 vector (no copy when it is one)."""
+    a = np.asarray(v, dtype=float)
+    if a.ndim != 1 or not a.flags.carray:  # also a read-only one: the kernels' own type
+        a = np.array(a.reshape(-1))
+    return a
+
+
 def _cheaper_within(fields: dict) -> bool:
     """Whether a priced handle could move from the plan to a cheaper value within its
     range (then the plan is not the answer even when it meets the limits)."""
@@ -313,6 +333,12 @@ class CoreTargets:
         self._gains: tuple | None = None  # (dt_h, settings, lag gain, offset gain)
         # (model, sample, theta, steady state) computed after the previous move (prepare)
         self._ahead: tuple | None = None
+        self._no_cost = np.zeros(5)  # the kernel's cost argument while unpriced (unread)
+        compile_targets_kernels()  # not in the first sample
+        # (read-only gradient, settings, checked gradient or None, it times the weight)
+        self._priced: tuple | None = None
+        self._tol_cache: tuple | None = None  # (y_scale, VIOLATION_TOL * y_scale)
+        self._q_y_any: tuple | None = None  # (q_y, any of it)
 
     def steady_state(self, ssm, j: int):
         """(G, a) of model j, cached while its parameters stand (adaptive models:
@@ -329,7 +355,7 @@ class CoreTargets:
             # inside the refresh interval an adaptive model's steady state stands: no need
             # to read its parameters (ssm.model builds them after every adaptation)
             if (self._n - made < self.settings.refresh_samples
-                    and ssm.kinds[j] != "fixed"):
+                    and ssm.kind(j) != "fixed"):
                 return ss
             theta = ssm.model(j).theta
             if th is theta:
@@ -347,7 +373,7 @@ class CoreTargets:
         measurement to the move. The next sample takes it only if ``j`` is still the
         model and its parameters are the very ones used here."""
         cached = self._steady.get(j)
-        if (cached is not None and ssm.kinds[j] != "fixed"
+        if (cached is not None and ssm.kind(j) != "fixed"
                 and self._n + 1 - cached[1] < self.settings.refresh_samples):
             return
         theta = ssm.model(j).theta
@@ -364,25 +390,26 @@ class CoreTargets:
         are skipped (``d`` holds)."""
         self._n += 1
         self._dt_h = float(dt_h) if math.isfinite(dt_h) and dt_h > 0 else 0.0
-        u_applied = np.asarray(u_applied, dtype=float)
-        y = np.asarray(y, dtype=float)
-        self._applied_p = float(u_applied.reshape(-1)[_P])
-        self._pressure = float(y.reshape(-1)[0])
+        y, u_applied = _vector(y), _vector(u_applied)
+        self._applied_p = float(u_applied[_P])
+        self._pressure = float(y[0])
         ss = self.steady_state(ssm, j)
-        if ss is None or not all_finite(np.concatenate((y, u_applied, y_plan_now,
-                                                        u_plan_now))):
+        if ss is None:
             return
-        du = u_applied - u_plan_now
+        y_plan_now, u_plan_now = _vector(y_plan_now), _vector(u_plan_now)
         if self.offset is None:
+            if not all_finite(np.concatenate((y, u_applied, y_plan_now, u_plan_now))):
+                return
             self.offset = np.zeros(5)  # the plan is the steady state until shown otherwise
             self.du_lagged = np.zeros(5)
         # the plant answers a handle's move from the plan with a lag: the offset compares
         # the measurement with the lagged steady-state answer, else it would count the
-        # part not yet arrived as a disturbance (a slow oscillation of the targets)
+        # part not yet arrived as a disturbance (a slow oscillation of the targets);
+        # one compiled call (controller.units.te.targets_kernel), nothing changed when an
+        # input is not finite
         lag, alpha = self._filter_gains(float(dt_h))
-        self.du_lagged += lag * (du - self.du_lagged)
-        e = y - y_plan_now - ss[0] @ self.du_lagged
-        self.offset += alpha * (e - self.offset)
+        offset_step(ss[0], y, u_applied, y_plan_now, u_plan_now, self.du_lagged,
+                    self.offset, lag, alpha)
 
     def _filter_gains(self, dt_h: float) -> tuple[float, float]:
         """``1 - exp(-dt / tau)`` of the response lag and of the offset filter for a
@@ -428,9 +455,17 @@ class CoreTargets:
         st = self.settings
         c = None
         if st.economics and cost_u is not None:
-            c = np.asarray(cost_u, dtype=float).reshape(5)
-            if not (np.isfinite(c).all() and c[_P] < 0):
-                c = None  # only a cost falling with the pressure is priced
+            known = self._priced
+            if known is not None and known[0] is cost_u and known[1] is st:
+                c = known[2]  # the same read-only gradient as the last sample's
+            else:
+                c = np.asarray(cost_u, dtype=float).reshape(5)
+                if not (np.isfinite(c).all() and c[_P] < 0):
+                    c = None  # only a cost falling with the pressure is priced
+                if isinstance(cost_u, np.ndarray) and not cost_u.flags.writeable:
+                    # cost_gradient's arrays, one per grade: checked and weighted once
+                    self._priced = (cost_u, st, c,
+                                    None if c is None else c * st.economic_weight)
         self._econ_cost = c
         if c is None:  # a grade change's path rules: back to the plan (the MPC's move
             self.econ_lift = 0.0  # weights smooth the way)
@@ -493,27 +528,84 @@ class CoreTargets:
         the economics wait (a grade change settling); used when
         :attr:`CoreTargetSettings.economics` is on, P_r*'s part only, through the
         ramped :attr:`econ_lift`."""
-        self._ramp_economics(cost_u, float(np.asarray(u_plan, dtype=float)[_P]))
-        fields = self._fields(ssm, j, u_plan, y_plan)
-        if fields is None:
+        u_plan, y_plan = _vector(u_plan), _vector(y_plan)
+        self._ramp_economics(cost_u, float(u_plan[_P]))
+        if self._weighs_cvs():  # CV weights: always the QP
+            fields = self._fields(ssm, j, u_plan, y_plan)
+            if fields is None:
+                self.last = None
+                return None
+            return self._solve_qp(fields)
+        ss = self.steady_state(ssm, j)
+        if ss is None:
             self.last = None
             return None
-        if not self.q_y.any():
-            if not _cheaper_within(fields):
-                y_pp = np.asarray(y_plan, dtype=float) + fields["bias"]
-                if (y_pp >= self.y_min).all() and (y_pp <= self.y_max).all():
-                    self._check(fields)  # the numbers a QP would refuse
-                    self.last = TargetResult("optimal", fields["u_ref"].copy(), y_pp, (),
-                                             0.0, 0)
-                    return self.last
-            else:
-                res = self._at_bounds(fields)
-                if res is not None:
-                    self.last = res
-                    return res
+        # the fields that move every sample and the two answers without a QP, in one
+        # compiled call (controller.units.te.targets_kernel; the numbers of _fields,
+        # _cheaper_within and _at_bounds)
+        d = np.zeros(5) if self.offset is None else self.offset
+        c = self._econ_cost
+        priced = c is not None
+        if not priced:
+            cost = self._no_cost
+        elif self._priced is not None and self._priced[2] is c:
+            cost = self._priced[3]  # c * economic_weight, kept with the gradient
+        else:
+            cost = c * self.settings.economic_weight
+        outcome, cheaper, ok, u_ref, u_lo, u_hi, u, y = target_fields(
+            ss[0], u_plan, y_plan, d, self.u_min, self.u_max, self.band, priced, cost,
+            float(self.econ_lift), _P, self.q_u, self.y_min, self.y_max, self._tol())
+        if outcome == NO_TARGETS:
+            self.last = None
+            return None
+        def fields() -> dict:  # the problem's fields (_fields), for a full check or the QP
+            out = dict(gain=ss[0], u0=u_ref, y0=y_plan, bias=d, u_min=u_lo, u_max=u_hi,
+                       q_u=self.q_u, q_y=self.q_y, u_ref=u_ref, y_ref=y_plan,
+                       y_min=self.y_min, y_max=self.y_max, y_rank=self.y_rank,
+                       y_scale=self.y_scale)
+            if priced:
+                out["cost_u"] = cost
+            return out
+
+        if outcome != QP or cheaper:  # the numbers a QP would refuse (_check)
+            standing = (self.q_u, self.q_y, self.y_min, self.y_max, self.y_rank,
+                        self.y_scale)  # the order of _STANDING_FIELDS
+            last = self._checked
+            if last is None or any(a is not b for a, b in zip(standing, last, strict=True)):
+                self._solver.check(**fields())
+                self._checked = standing
+            elif not ok:
+                self._solver.check(**fields())  # raises, naming the field
+        if outcome == PLAN:
+            self.last = TargetResult("optimal", u, y, (), 0.0, 0)
+            return self.last
+        if outcome == AT_BOUNDS:
+            self.last = TargetResult("optimal", u, y, (),
+                                     _cost(u, y, self.q_u, u_ref, y_plan, cost, None, None), 0)
+            return self.last
+        return self._solve_qp(fields())
+
+    def _solve_qp(self, fields: dict) -> TargetResult | None:
         res = self._solver.solve(**fields)
         self.last = None if res.status == "failed" else res
         return self.last
+
+    def _weighs_cvs(self) -> bool:
+        """Whether any CV has a weight toward the plan (``q_y``), kept while :attr:`q_y` is
+        the same array (a new one is read again; the weights are settings, not written
+        in place)."""
+        cached = self._q_y_any
+        if cached is None or cached[0] is not self.q_y:
+            cached = self._q_y_any = (self.q_y, bool(self.q_y.any()))
+        return cached[1]
+
+    def _tol(self) -> np.ndarray:
+        """The solver's violation tolerance in CV units (:data:`VIOLATION_TOL` times the
+        CV scales), kept while the scales stand."""
+        cached = self._tol_cache
+        if cached is None or cached[0] is not self.y_scale:
+            cached = self._tol_cache = (self.y_scale, VIOLATION_TOL * self.y_scale)
+        return cached[1]
 
     def _at_bounds(self, fields: dict) -> TargetResult | None:
         """The answer of a priced problem without its QP when it is one of the box: every
@@ -565,9 +657,9 @@ class CoreTargets:
 
     def restore(self, state: dict) -> None:
         off = state.get("offset")
-        self.offset = None if off is None else np.asarray(off, dtype=float).reshape(5)
-        self.du_lagged = np.asarray(state.get("du_lagged", np.zeros(5)),
-                                    dtype=float).reshape(5)
+        # copies: the offset filter writes into them
+        self.offset = None if off is None else np.array(off, dtype=float).reshape(5)
+        self.du_lagged = np.array(state.get("du_lagged", np.zeros(5)), dtype=float).reshape(5)
         # the gradient the lift prices comes with the next sample (solve)
         lift = float(state.get("econ_lift", 0.0) or 0.0)
         self.econ_lift = lift if math.isfinite(lift) and lift > 0.0 else 0.0
