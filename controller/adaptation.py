@@ -334,12 +334,27 @@ class NormalizedLeastSquares:
         self._prepared: tuple | None = None  # P W' of the next update (prepare())
         self._check_finite = False
         self._set_identity(float(settings.kappa))
-        compile_nls_step()  # not at the first sample
+        self._warm_kernels()
         self.n_updates = 0
         self.n_resets = 0
         self.n_skipped = 0
         self.n_dead_zone = 0
         self.reset_reasons: dict[str, int] = {}
+
+    def _warm_kernels(self) -> None:
+        """Compile the update's kernels (or load them from numba's on-disk cache) now, not
+        at the first sample: :func:`~controller.nls_kernel.nls_step` and, for the
+        implicit (low-rank) covariance, :func:`~controller.definiteness.gram_append` and
+        :func:`~controller.definiteness.cholesky_extend` with the argument types the
+        covariance step passes (C-ordered writeable float64 buffers, Python ints and
+        floats). Scratch arrays of one column: the estimator is not touched."""
+        compile_nls_step()
+        if not self._lowrank:
+            return
+        N = self.p.size
+        V, G, L = np.zeros((N, 1)), np.zeros((1, 1)), np.zeros((1, 1))
+        gram_append(V, G, 0, np.zeros((N, 1)), np.zeros((0, 1)), np.zeros((1, 1)))
+        cholesky_extend(L, G, 0, 1, 1.0)
 
     # -- covariance representation --------------------------------------------------------
     @property

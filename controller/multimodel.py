@@ -188,6 +188,17 @@ class MultiModelSettings:
             raise ValueError("u_min: must not exceed u_max")
 
 
+def _theta2_scratch(ssm: StateSharedModel) -> np.ndarray:
+    """Zeros laid out as :meth:`StateSharedModel.theta2_all` is for two models, shape
+    (2, n): a read-only view of every p-th row of a (2p, order) stack, not C-ordered.
+    The compiled kernels that read theta2 are warmed with it (numba specializes on the
+    layout and the writeability); they run only with more than one model."""
+    nm = ssm.n_deg * ssm.m
+    view = np.zeros((2 * ssm.p, ssm.order))[:: ssm.p, nm : nm + ssm.n_deg]
+    view.flags.writeable = False
+    return view
+
+
 class OutputHoldCorrection:
     """First-order hold of the measured outputs for comparing and identifying models.
 
@@ -234,12 +245,26 @@ class OutputHoldCorrection:
         # the BLAS dgemm/dgemv that numba's are (no dimension of 1: numpy takes
         # other calls for a vector), so the numbers are the same to the last bit
         self._compiled = ssm.p > 1 and n > 1
-        if self._compiled:  # compile or load them now, not in a sample
-            cF, free = hold_forward(self.c, self.Fbd_T, self.y_prev, self.h)
-            t2 = ssm.theta2_all()
-            hold_errors(self.y_prev, np.zeros((t2.shape[0], ssm.p)), t2, cF, free, self.h)
-            hold_advance(cF, self.y_prev, self.y_prev, self.h)
-            hold_regressor_parts(np.zeros((ssm.p, n + 1)), free, self.h, 0)
+        self._warm_kernels()
+
+    def _warm_kernels(self) -> None:
+        """Call the sample's compiled kernels (:mod:`controller.hold_kernel`) once with
+        the argument types a sample passes (C-ordered writeable float64 arrays, theta2 as
+        :meth:`StateSharedModel.theta2_all` gives it for several models), so that their
+        compilation or their load from numba's cache happens when the controller is
+        built, never in a sample. :func:`hold_advance` runs at every sample, the others
+        only where :attr:`_compiled`. Scratch arrays: the correction is not touched."""
+        ssm, n, h = self.ssm, self.n, self.h
+        c, y = np.zeros_like(self.c), np.zeros_like(self.y_prev)  # (p, n), (p,)
+        hold_advance(c, y, y, h)
+        if not self._compiled:
+            return
+        cF, free = hold_forward(c, self.Fbd_T, y, h)
+        t2 = _theta2_scratch(ssm)
+        est = np.zeros((t2.shape[0], ssm.p))
+        hold_estimates(est, t2, cF, free, h)
+        hold_errors(y, est, t2, cF, free, h)
+        hold_regressor_parts(np.zeros((ssm.p, n + 1)), free, h, 0)
 
     def _c_forward(self) -> tuple[np.ndarray, np.ndarray]:
         """``(c Fd', c Fd' - y_prev h')``, computed once per (c, y_prev)."""
@@ -417,9 +442,11 @@ class MultiModelController:
         self._names_of: tuple | None = None  # (ssm, its k, its names as a tuple)
         self._deferred: tuple[np.ndarray, np.ndarray, int] | None = None
         self._prepared = False  # the estimators hold products for the current shared state
-        if self.settings.index_errors == "steady_output" and ssm.k > 1:
-            # compile or load the errors' scaling now, not in a sample
-            steady_output_errors(np.zeros((ssm.k, ssm.p)), ssm.theta2_all(), ssm.basis.steady)
+        if self.settings.index_errors == "steady_output":
+            # compile or load the errors' scaling now, not in a sample (it runs with more
+            # than one model)
+            t2 = _theta2_scratch(ssm)
+            steady_output_errors(np.zeros((t2.shape[0], ssm.p)), t2, ssm.basis.steady)
 
     # -- helpers -------------------------------------------------------------------------
     @property

@@ -444,8 +444,6 @@ class StateSharedModel:
         # update() in one compiled call where numpy's Z @ M is the BLAS dgemm numba's is
         # (n > 1; controller.state_kernel.advance_state)
         self._advance_compiled = n > 1
-        if self._advance_compiled:  # compile or load it now, not in a sample
-            advance_state(self._Z.copy(), self._M, np.zeros(m), np.zeros(p))
         self._slots: list[_Slot] = []
         self._T = np.zeros((0, self.order))  # stacked Theta_j^T, (k p, n(m+p))
         self._theta2_view: tuple | None = None  # (the stack, theta2_all's view of it)
@@ -453,6 +451,24 @@ class StateSharedModel:
         self._B = np.zeros((0, p))
         for spec in models or ():
             self.add_model(spec)
+        self._warm_kernels()
+
+    def _warm_kernels(self) -> None:
+        """Call the sample's compiled kernels (:mod:`controller.state_kernel`) once with
+        the argument types a sample passes: C-ordered writeable float64 arrays of this
+        model's ndim (numba specializes on dtype, ndim, layout and writeability, not on
+        sizes) and Python ints. Their compilation, or their load from numba's on-disk
+        cache (about a second each on a cold cache, 10-50 ms warm), then happens here,
+        when the controller is built, never in a sample. Scratch arrays of one model's
+        shapes: the state and the models are not touched."""
+        n, m, p = self.n_deg, self.m, self.p
+        Z = np.zeros_like(self._Z)  # (m+p, n+1)
+        if self._advance_compiled:
+            advance_state(Z, self._M, np.zeros(m), np.zeros(p))
+        state_regressor(Z, n, m, p, self.n_params + p)
+        T, Taug, B = np.zeros((p, self.order)), np.zeros((p, Z.size)), np.zeros((1, p))
+        model_errors(np.zeros(p), Taug, Z.reshape(-1), B)
+        write_params(T, Taug, B, 0, np.zeros(self.n_params + p), n, m, p)
 
     # -- models ------------------------------------------------------------------
     @property
@@ -572,10 +588,6 @@ class StateSharedModel:
         self._Taug = np.zeros((km, q, n + 1))
         self._Taug[:, :, :n] = self._T.reshape(km, q, n)
         self._Taug = self._Taug.reshape(km, -1)
-        if self._slots:  # compile or load the sample's kernels now, not in a sample
-            model_errors(np.zeros(self.p), self._Taug, self._Z.reshape(-1), self._B)
-            write_params(self._T.copy(), self._Taug.copy(), self._B.copy(), 0,
-                         np.zeros(self.n_params + self.p), n, self.m, self.p)
 
     def set_theta(self, j: int, theta: ArrayLike, bias: ArrayLike | None = None) -> None:
         """Replace model j's Theta (and bias; kept when None). The shared state is untouched."""

@@ -108,11 +108,15 @@ class Harness:
         self.ctrl.close()
         self.store.close()
 
-    def start_plant(self, **kw):
+    def start_plant(self, on_built=None, **kw):
+        """Make the plant node and run it; ``on_built()`` is called in between (the plant
+        node made, before its first sample)."""
         time.sleep(0.3)  # let the sessions see each other's declarations
         kw.setdefault("busy_poll", self.plant_busy_poll)
         self.plant = PlantNode(self.cfg, self.s_plant, speed=self.speed, lockstep=self.lockstep,
                                lockstep_timeout_s=kw.pop("lockstep_timeout_s", 1.0), **kw)
+        if on_built is not None:
+            on_built()
         th = threading.Thread(target=self.plant.run, args=(self.stop_plant,), daemon=True)
         th.start()
         self.plant_thread = th

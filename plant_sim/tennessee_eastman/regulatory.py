@@ -286,6 +286,9 @@ class RegulatoryLayer:
             self.set_setpoints(setpoints)
         self._e_prev = np.zeros(len(self.loops))
         self._started = np.zeros(len(self.loops), dtype=np.bool_)
+        # no step: the loops' compiled run is compiled (or loaded from numba's cache)
+        # now, for the argument types every run passes, not in the plant's first sample
+        self.run_steps(0)
 
     @property
     def setpoints(self) -> np.ndarray:
