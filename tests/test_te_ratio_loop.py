@@ -1,5 +1,5 @@
-"""The G loop on the E/D feed ratio: its settings, and the MPC strategies' steady-grade
-tuning (half the gain, twice the integral time, from 24 h after a grade change)."""
+"""The G loop on the E/D feed ratio: its settings, and the MPC strategies' tuning (half
+the gain, twice the integral time; through a grade change only near the new grade's G)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import pytest
 
 from controller.units.te.control import (
     RATIO_MPC,
+    RATIO_PATH_WINDOW_MOL,
     RATIO_STEADY_AFTER_H,
     RatioSettings,
     make_te_controller,
@@ -61,13 +62,27 @@ def test_at_a_steady_grade_the_g_loop_of_the_mpc_strategies_acts_more_gently():
     # G under its reference: more D share (more G). A constant error gives no
     # proportional step (the first sample is its own previous error) and 10 samples of
     # integral action: 10 x gain x 0.01 h / ti x 2 mol %
-    change = TransitionPlan("mode0", (Leg(1.0, "mode1"),))
-    through = _d_share_moved("fixed", change, 2.0)
-    assert through == pytest.approx(10 * 0.004 * 0.01 / 1.0 * 2.0, rel=0.05)
     steady = _d_share_moved("fixed", TransitionPlan("mode0"), 2.0)
     assert steady == pytest.approx(10 * 0.002 * 0.01 / 2.0 * 2.0, rel=0.05)
+    change = TransitionPlan("mode0", (Leg(1.0, "mode1"),))
     after = _d_share_moved("fixed", change, 1.0 + RATIO_STEADY_AFTER_H + 0.5)
     assert after == pytest.approx(steady, rel=0.05)
-    # the baselines keep one tuning
-    assert _d_share_moved("pi", TransitionPlan("mode0"), 2.0) == pytest.approx(through,
-                                                                               rel=0.05)
+    # the baselines keep one tuning, the grade-change one, throughout
+    assert _d_share_moved("pi", TransitionPlan("mode0"), 2.0) == pytest.approx(
+        10 * 0.004 * 0.01 / 1.0 * 2.0, rel=0.05)
+    assert _d_share_moved("plan", change, 2.0) == pytest.approx(
+        10 * 0.004 * 0.01 / 1.0 * 2.0, rel=0.05)
+
+
+def test_through_a_grade_change_the_mpc_strategies_g_loop_waits_until_g_is_near_the_grade():
+    # modes 0 and 1 make G at 53.8 and 53.9 mol %: 2 mol % under it is inside the
+    # window, and the loop acts on it with its steady-grade tuning
+    change = TransitionPlan("mode0", (Leg(1.0, "mode1"),))
+    g0, g1 = grade("mode0").g_mol, grade("mode1").g_mol
+    assert abs(g1 - g0) < 0.5
+    near = _d_share_moved("ssmpc", change, 2.0)
+    assert near == pytest.approx(10 * 0.002 * 0.01 / 2.0 * 2.0, rel=0.05)
+    # 0 -> 2 (G 53.8 -> 11.7 mol %): G still at mode 0's is far from mode 2's, no move
+    far = TransitionPlan("mode0", (Leg(1.0, "mode2"),))
+    assert abs(grade("mode2").g_mol - g0) > RATIO_PATH_WINDOW_MOL
+    assert _d_share_moved("ssmpc", far, 2.0) == 0.0

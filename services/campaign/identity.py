@@ -41,6 +41,7 @@ def _settings_json(unit: str) -> str:
             TEMPCOptions,
             TransitionGuards,
         )
+        from controller.units.te.d_share_path import DSharePathSettings
         from controller.units.te.grades import TAU_DEFAULT_H
         from controller.units.te.reactant_trim import ReactantTrimSettings
 
@@ -49,6 +50,7 @@ def _settings_json(unit: str) -> str:
              "tau_h": dict(TAU_DEFAULT_H),
              "guards": asdict(TransitionGuards()),
              "reactants": asdict(ReactantTrimSettings()),
+             "d_share_path": asdict(DSharePathSettings()),
              "separator_loop": {**asdict(SEPARATOR_LOOP), "trim": list(SEP_TRIM_LIMITS),
                                 "after_h": SEPARATOR_LOOP_STEADY_AFTER_H}}
     else:

@@ -154,6 +154,7 @@ import numpy as np
 from controller.blas import single_threaded
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.units.te.cost_gradient import cost_gradient
+from controller.units.te.d_share_path import DSharePath, DSharePathSettings
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
 from controller.units.te.overrides import FeedOverrides, FeedOverrideSettings
@@ -331,12 +332,16 @@ class RatioSettings:
 #: ratio's step later); run-mean costs within 0.6 $/h but IDV(13) at mode 0 (190.9 ->
 #: 187.9). 0.001 with 2 h lowered the G std by a little more and raised IDV(1)'s to
 #: 0.558 at mode 0.
-RATIO_MPC = RatioSettings(steady_gain=0.002, steady_ti_h=2.0)
+RATIO_MPC = RatioSettings(gain=0.0, steady_gain=0.002, steady_ti_h=2.0)
 #: Hours after a grade change from which the G loop takes its steady-grade tuning. Not
 #: the A loop's 12 h: G is still settling then, and with the switch at 12 h the 12
 #: transitions (seed 1) came to grade after 23-29 h instead of 9-17 h (0 -> 2: 24.3
 #: against 10.5 h); from 24 h every one is as before to 0.1 h (seeds 1-3).
 RATIO_STEADY_AFTER_H = 24.0
+#: MPC strategies through a grade change (their own D-share path,
+#: :mod:`controller.units.te.d_share_path`): the G loop acts, with its steady-grade
+#: tuning, only while G is within this of the new grade's G (mol %).
+RATIO_PATH_WINDOW_MOL = 3.0
 
 #: The plan-hold alarm clears this far below the hold's start pressure, kPa (an alarm
 #: deadband: a pressure noisy about the start would raise and clear it every sample).
@@ -503,7 +508,8 @@ class TEController:
                  feeds: FeedOverrideSettings | None = None,
                  production: ProductionIndexSettings | None = None,
                  reactants: ReactantTrimSettings | None = None,
-                 separator_loop: bool = True) -> None:
+                 separator_loop: bool = True,
+                 d_share_path: DSharePathSettings | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -517,6 +523,9 @@ class TEController:
         self.feeds = FeedOverrides(feeds, self.sample_h)
         self.production = ProductionIndex(production, self.sample_h)
         self.reactants = ReactantTrim(reactants, self.sample_h)
+        #: MPC strategies: the D share's own path through a grade change (None: the plan's)
+        self.d_path = (DSharePath(d_share_path, self.sample_h)
+                       if strategy in ("fixed", "ssmpc") else None)
         #: h the plan's clock is behind real time (the plan hold, TransitionGuards)
         self.plan_lag_h = 0.0
         self._hold_alarm = False
@@ -723,6 +732,20 @@ class TEController:
             self.override = min(max(self.override, 0.0), OVERRIDE_MAX)
         return self.override
 
+    def _d_share_ff(self, ff: float, t_ref: float, ym: np.ndarray, xmeas: np.ndarray) -> float:
+        """The D share's feedforward: the plan's ``ff``, or for the MPC strategies their
+        own path (:mod:`controller.units.te.d_share_path`), started on the plan's."""
+        path = self.d_path
+        if path is None:
+            return ff
+        if path.value is None:
+            path.start(ff)
+            return ff
+        s_grade = self.plan.grade_at(t_ref - self.plan_lag_h).d_fraction
+        return path.step(s_grade, self.guards.hold_fraction(float(xmeas[6])),
+                         float(xmeas[1]), float(xmeas[7]),
+                         float(self.production.level_setpoint(ym[7])))
+
     def _ratio_step(self, ff: float, ym: np.ndarray, xmeas: np.ndarray) -> float:
         if self.s is None:
             self.s, self.s_ff_prev = ff, ff
@@ -730,13 +753,24 @@ class TEController:
         self.s_ff_prev = ff
         g = float(xmeas[39])
         if math.isfinite(g):
-            e = float(ym[39] - g)
-            if self.e_g_prev is None:
+            steady = self._since >= RATIO_STEADY_AFTER_H
+            if self.d_path is not None and not steady:
+                # the path's own grade change: G against the grade's G, and only near it
+                e = float(self.plan.grade_at(self._t_last - self.plan_lag_h).g_mol - g)
+                if abs(e) > RATIO_PATH_WINDOW_MOL:
+                    self.e_g_prev = None  # no kick on entering the window
+                    e = None
+                else:
+                    gain, ti_h = self.ratio.tuning(True)
+            else:
+                e = float(ym[39] - g)
+                gain, ti_h = self.ratio.tuning(steady)
+            if e is not None:
+                if self.e_g_prev is None:
+                    self.e_g_prev = e
+                if 40 not in self.outer_held:
+                    s += gain * ((e - self.e_g_prev) + self.sample_h / ti_h * e)
                 self.e_g_prev = e
-            if 40 not in self.outer_held:
-                gain, ti_h = self.ratio.tuning(self._since >= RATIO_STEADY_AFTER_H)
-                s += gain * ((e - self.e_g_prev) + self.sample_h / ti_h * e)
-            self.e_g_prev = e
         self.s = min(max(s, self.ratio.s_min), self.ratio.s_max)
         return self.s
 
@@ -813,7 +847,7 @@ class TEController:
         self._since = self.plan.hours_since_change(t)
         self.feeds.observe(xmeas)
         xv, ym = xv_all[0], ym_all[0]
-        s = self._ratio_step(ff, ym, xmeas)
+        s = self._ratio_step(self._d_share_ff(ff, t_ref, ym, xmeas), ym, xmeas)
         u = _NO_XMVS.copy()  # NaN: not written
         d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
         u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0,
@@ -940,7 +974,8 @@ class TEController:
                 "n_samples": self.n_samples,
                 "t_last": self._t_last, "plan_lag_h": self.plan_lag_h,
                 "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
-                "reactants": self.reactants.checkpoint()}
+                "reactants": self.reactants.checkpoint(),
+                "d_path": None if self.d_path is None else self.d_path.checkpoint()}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
@@ -963,6 +998,10 @@ class TEController:
         self.feeds.restore(state.get("feeds"))
         self.production.restore(state.get("production"))
         self.reactants.restore(state.get("reactants"))
+        if self.d_path is not None:
+            self.d_path.restore(state.get("d_path"))
+            if self.d_path.value is None and self.s_ff_prev is not None:
+                self.d_path.start(self.s_ff_prev)  # a checkpoint from before the path
 
 
 def _core_limits():
@@ -1194,6 +1233,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        production: ProductionIndexSettings | None = None,
                        reactants: ReactantTrimSettings | None = None,
                        separator_loop: bool = True,
+                       d_share_path: DSharePathSettings | None = None,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -1261,7 +1301,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        outer_a_loop, production_loop,
                        targets=targets if strategy in ("fixed", "ssmpc") else None,
                        guards=guards, feeds=feeds, production=production,
-                       reactants=reactants, separator_loop=separator_loop)
+                       reactants=reactants, separator_loop=separator_loop,
+                       d_share_path=d_share_path)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 

@@ -1,0 +1,149 @@
+"""The D share's path through a TE grade change, paced by what the plant can follow.
+
+The product's G/H split follows the D share ``s = D / (D + E)`` of the D and E feeds
+(seed §7.7: the E feed is set in ratio to the measured D feed). The grade plan moves
+the share along a first-order path with the plan's valve time constant (3 h,
+:data:`controller.units.te.grades.TAU_DEFAULT_H`), and a PI loop on the product
+analyzer (XMEAS 40: 0.25 h samples, 0.25 h dead time) corrects it. Through a grade
+change that loop integrates the lag between the plan's G reference and the plant's
+G: G overshoots the new grade's band and takes hours to come back (time to grade
+9-19 h where G first entered its band after 7-11 h).
+
+The MPC strategies instead move the share along a faster path of their own,
+``tau ds/dt = s_grade - s`` (:attr:`DSharePathSettings.tau_h`, slower toward a
+higher D share: :attr:`DSharePathSettings.tau_rise_h`), with no G feedback
+until the grade is steady (:data:`controller.units.te.control.RATIO_MPC`), and pace
+it by the plant:
+
+- the path waits (``s`` stays) while the plan is held near the pressure interlock
+  (:class:`controller.units.te.control.TransitionGuards`), in the same share;
+- a rise of the D share waits while the D feed (XMEAS 2) is within
+  :attr:`DSharePathSettings.d_feed_high` of its full flow and the reactor level
+  (XMEAS 8) is more than :attr:`DSharePathSettings.level_low_pct` below its set point:
+  the E feed the ratio takes away would then be liquid the level loop's D valve
+  cannot make up (into mode 3 with a 1 h path and no such wait the level fell from
+  65 to 29 % and the plant tripped on reactor pressure, 1 -> 3, seed 2, 4.2 h).
+
+Measured (ssmpc, noise on, seed 1, 36 h; hours to grade, plan path with the PI
+against this path, 1 h, without the PI; before the D-feed wait):
+
+======  ============  ==========
+case    plan path     this path
+======  ============  ==========
+0 -> 2  10.5          7.6
+0 -> 3  12.9          8.6
+1 -> 2  15.8          8.3
+2 -> 0  9.1           6.9
+3 -> 1  14.0          8.1
+3 -> 2  17.4          10.6
+======  ============  ==========
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+#: Full D feed flow, kg/h (XMEAS 2 at XMV 1 = 100 %).
+D_FULL_KG_H = 5811.0
+
+
+@dataclass(frozen=True)
+class DSharePathSettings:
+    """The D share's own path (MPC strategies).
+
+    Parameters
+    ----------
+    tau_h : float
+        Time constant of the path toward a grade with a lower D share (toward more
+        H), h (> 0).
+    tau_rise_h : float
+        Time constant toward a grade with a higher D share (toward more G, and into
+        mode 3), h (> 0). Slower: with 1 h the 1 -> 3 leg tripped on reactor pressure
+        on seed 2 (3.3 h) even with the D-feed wait below; with 1.5 h none of the 36
+        runs of the 12 transitions on seeds 1-3 tripped.
+    d_feed_high : float
+        Share of the full D flow (:data:`D_FULL_KG_H`) from which the D valve is
+        taken as at its limit, in (0, 1].
+    level_low_pct : float
+        How far below its set point (% of range, >= 0) the reactor level must fall,
+        with the D feed high, for a rise of the D share to wait.
+    """
+
+    tau_h: float = 1.0
+    tau_rise_h: float = 1.5
+    d_feed_high: float = 0.95
+    level_low_pct: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("tau_h", "tau_rise_h"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}: must be a finite number > 0 h, got {v!r}")
+        if not (isinstance(self.d_feed_high, int | float)
+                and 0.0 < self.d_feed_high <= 1.0):
+            raise ValueError(f"d_feed_high: must be in (0, 1], got {self.d_feed_high!r}")
+        if not (isinstance(self.level_low_pct, int | float)
+                and math.isfinite(self.level_low_pct) and self.level_low_pct >= 0):
+            raise ValueError(f"level_low_pct: must be finite and >= 0 %, got "
+                             f"{self.level_low_pct!r}")
+
+
+class DSharePath:
+    """The D share's path, one value per supervisory sample.
+
+    Parameters
+    ----------
+    settings : DSharePathSettings, optional
+    sample_h : float
+        The supervisory sample, h.
+    """
+
+    def __init__(self, settings: DSharePathSettings | None, sample_h: float) -> None:
+        self.settings = settings or DSharePathSettings()
+        self.alpha_fall = 1.0 - math.exp(-float(sample_h) / self.settings.tau_h)
+        self.alpha_rise = 1.0 - math.exp(-float(sample_h) / self.settings.tau_rise_h)
+        #: the path's D share (None before the first sample)
+        self.value: float | None = None
+        #: whether the last sample's rise waited for the D feed
+        self.waiting = False
+
+    def start(self, s: float) -> None:
+        """Start the path at the D share ``s`` (the plan's at the first sample)."""
+        self.value = float(s)
+
+    def step(self, s_grade: float, hold: float, d_feed_kg_h: float, level_pct: float,
+             level_sp_pct: float) -> float:
+        """Advance one sample toward ``s_grade`` and return the path's D share.
+
+        Parameters
+        ----------
+        s_grade : float
+            The D share of the grade in force on the plan's clock.
+        hold : float
+            The share of the sample the plan is held, in [0, 1].
+        d_feed_kg_h : float
+            Measured D feed (XMEAS 2), kg/h.
+        level_pct, level_sp_pct : float
+            Reactor level (XMEAS 8) and its set point, %.
+        """
+        if self.value is None:
+            self.start(s_grade)
+            return self.value
+        st = self.settings
+        gap = s_grade - self.value
+        step = (self.alpha_rise if gap > 0.0 else self.alpha_fall) * gap
+        self.waiting = (step > 0.0 and d_feed_kg_h >= st.d_feed_high * D_FULL_KG_H
+                        and level_pct < level_sp_pct - st.level_low_pct)
+        if not self.waiting:  # NaN measurements compare False: no wait on them
+            self.value += (1.0 - min(max(hold, 0.0), 1.0)) * step
+        return self.value
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {"value": self.value}
+
+    def restore(self, state: dict[str, Any] | None) -> None:
+        value = None if state is None else state.get("value")
+        self.value = None if value is None else float(value)
+        self.waiting = False

@@ -1,0 +1,96 @@
+"""The MPC strategies' own D-share path through a TE grade change
+(:mod:`controller.units.te.d_share_path`): its steps worked by hand, its waits, its
+settings and its checkpoint."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controller.units.te.control import make_te_controller
+from controller.units.te.d_share_path import D_FULL_KG_H, DSharePath, DSharePathSettings
+from controller.units.te.grades import Leg, TransitionPlan, grade
+
+DT = 0.01  # h, the supervisory sample
+FREE = dict(hold=0.0, d_feed_kg_h=3000.0, level_pct=65.0, level_sp_pct=65.0)
+
+
+def test_first_order_steps_toward_the_grade_slower_upward():
+    p = DSharePath(DSharePathSettings(tau_h=1.0, tau_rise_h=2.0), DT)
+    p.start(0.5)
+    assert p.step(0.3, **FREE) == pytest.approx(0.5 - 0.2 * (1 - math.exp(-0.01)), abs=1e-15)
+    p.start(0.5)
+    assert p.step(0.7, **FREE) == pytest.approx(0.5 + 0.2 * (1 - math.exp(-0.005)), abs=1e-15)
+    # 300 samples (3 h = 3 tau) from 0.5 toward 0.3: 95 % of the way
+    p.start(0.5)
+    for _ in range(300):
+        v = p.step(0.3, **FREE)
+    assert v == pytest.approx(0.3 + 0.2 * math.exp(-3.0), rel=1e-9)
+
+
+def test_the_plan_hold_slows_the_path_in_its_share():
+    p = DSharePath(DSharePathSettings(), DT)
+    p.start(0.5)
+    full = 0.5 - p.step(0.3, **FREE)
+    p.start(0.5)
+    half = 0.5 - p.step(0.3, **{**FREE, "hold": 0.5})
+    assert half == pytest.approx(0.5 * full, rel=1e-12)
+    p.start(0.5)
+    assert p.step(0.3, **{**FREE, "hold": 1.0}) == 0.5
+
+
+def test_a_rise_waits_while_the_d_feed_is_at_its_limit_and_the_level_falls():
+    p = DSharePath(DSharePathSettings(d_feed_high=0.95, level_low_pct=2.0), DT)
+    short = {**FREE, "d_feed_kg_h": 0.96 * D_FULL_KG_H, "level_pct": 60.0}
+    p.start(0.5)
+    assert p.step(0.8, **short) == 0.5 and p.waiting
+    # a fall of the D share (more E) does not wait: it gives the level more liquid
+    assert p.step(0.2, **short) < 0.5 and not p.waiting
+    # the level within 2 % of its set point, or the D feed below 95 %: no wait
+    p.start(0.5)
+    assert p.step(0.8, **{**short, "level_pct": 63.5}) > 0.5
+    p.start(0.5)
+    assert p.step(0.8, **{**short, "d_feed_kg_h": 0.9 * D_FULL_KG_H}) > 0.5
+    # a measurement that is not finite does not make it wait
+    p.start(0.5)
+    assert p.step(0.8, **{**short, "level_pct": float("nan")}) > 0.5
+
+
+@pytest.mark.parametrize("kw, field", [({"tau_h": 0.0}, "tau_h"),
+                                       ({"tau_rise_h": float("nan")}, "tau_rise_h"),
+                                       ({"d_feed_high": 1.5}, "d_feed_high"),
+                                       ({"level_low_pct": -1.0}, "level_low_pct")])
+def test_bad_settings_name_their_field(kw, field):
+    with pytest.raises(ValueError, match=field):
+        DSharePathSettings(**kw)
+
+
+def _run(ctl, t0, n, x):
+    out = []
+    for k in range(n):
+        dec = ctl.step(k, t0 + k * ctl.sample_h, x, None)
+        ctl.finish_sample()
+        out.append(float(dec.extra["d_share"]))
+    return out
+
+
+def test_the_mpc_strategies_move_the_d_share_faster_than_the_plan_and_resume_from_a_checkpoint():
+    plan = TransitionPlan("mode0", (Leg(1.0, "mode2"),))
+    x = np.array(grade("mode0").xmeas, dtype=float)  # G far from mode 2's: no G loop
+    s0, s2 = grade("mode0").d_fraction, grade("mode2").d_fraction
+    mpc, _ = make_te_controller("fixed", plan)
+    # 1 h into the change: the path (1 h) has gone 63 % of the way, the plan's (3 h) 28 %
+    s_mpc = _run(mpc, 1.0, 101, x)[-1]
+    assert (s0 - s_mpc) / (s0 - s2) == pytest.approx(1 - math.exp(-1.0), abs=0.01)
+    assert (s0 - plan.d_fraction_ref(2.0)) / (s0 - s2) == pytest.approx(1 - math.exp(-1 / 3),
+                                                                        abs=0.01)
+    # a controller restored from the checkpoint goes on where the first one does
+    state = mpc.checkpoint()
+    again, _ = make_te_controller("fixed", plan)
+    again.restore(state)
+    t1 = 1.0 + 101 * mpc.sample_h
+    assert _run(again, t1, 5, x) == _run(mpc, t1, 5, x)
+    # the baselines keep the plan's path
+    assert make_te_controller("pi", plan)[0].d_path is None
