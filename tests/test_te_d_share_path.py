@@ -94,3 +94,15 @@ def test_the_mpc_strategies_move_the_d_share_faster_than_the_plan_and_resume_fro
     assert _run(again, t1, 5, x) == _run(mpc, t1, 5, x)
     # the baselines keep the plan's path
     assert make_te_controller("pi", plan)[0].d_path is None
+
+
+def test_an_aborted_transition_holds_the_d_share_where_it_is():
+    from controller.units.te.service import HeldPlan
+
+    plan = TransitionPlan("mode0", (Leg(1.0, "mode2"),))
+    x = np.array(grade("mode0").xmeas, dtype=float)
+    ctl, _ = make_te_controller("ssmpc", plan)
+    s = _run(ctl, 1.0, 50, x)[-1]
+    t1 = 1.0 + 50 * ctl.sample_h
+    ctl.retarget(HeldPlan(plan, t1))
+    assert _run(ctl, t1, 20, x) == [pytest.approx(s, abs=1e-15)] * 20

@@ -734,13 +734,16 @@ class TEController:
 
     def _d_share_ff(self, ff: float, t_ref: float, ym: np.ndarray, xmeas: np.ndarray) -> float:
         """The D share's feedforward: the plan's ``ff``, or for the MPC strategies their
-        own path (:mod:`controller.units.te.d_share_path`), started on the plan's."""
+        own path (:mod:`controller.units.te.d_share_path`), started on the plan's and
+        standing where it is under a plan without legs (a held plan: an abort)."""
         path = self.d_path
         if path is None:
             return ff
         if path.value is None:
             path.start(ff)
             return ff
+        if not getattr(self.plan, "legs", ()):  # held (an abort): the share stays
+            return path.value
         s_grade = self.plan.grade_at(t_ref - self.plan_lag_h).d_fraction
         return path.step(s_grade, self.guards.hold_fraction(float(xmeas[6])),
                          float(xmeas[1]), float(xmeas[7]),
