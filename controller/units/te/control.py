@@ -14,9 +14,12 @@ Layers (seed Fig. 7.2)
          toward modes 1-3, §7.7); XMV(12) (agitator) fixed;
        - the E/D feed ratio (§7.7): XMV(2) = ratio x measured D feed (XMEAS 2), the
          D share ``s = D/(D+E)`` from a grade feedforward plus a slow PI on the
-         product analyzer's G mol% (XMEAS 40, 0.25 h sample + 0.25 h dead time; the
-         MPC strategies halve its gain and double its integral time at a steady
-         grade, :data:`RATIO_MPC`);
+         product analyzer's G mol% (XMEAS 40, 0.25 h sample + 0.25 h dead time). The
+         MPC strategies move the feedforward along their own, faster path through a
+         grade change, paced by the plant (:mod:`controller.units.te.d_share_path`),
+         and their G loop acts then only within :data:`RATIO_PATH_WINDOW_MOL` of the
+         new grade's G; with half the gain and twice the integral time
+         (:data:`RATIO_MPC`);
        - the core on five handles, XMV(3), XMV(4), P_r*, T_r*, XMV(11):
          strategy ``"fixed"`` (a): MPC with three fixed models (modes 0, 2, 3)
          switched by the performance index (§7.5-7.6); strategy ``"ssmpc"`` (b):
@@ -332,6 +335,8 @@ class RatioSettings:
 #: ratio's step later); run-mean costs within 0.6 $/h but IDV(13) at mode 0 (190.9 ->
 #: 187.9). 0.001 with 2 h lowered the G std by a little more and raised IDV(1)'s to
 #: 0.558 at mode 0.
+#: Through a grade change (``gain``) the MPC strategies' G loop follows
+#: :data:`RATIO_PATH_WINDOW_MOL` instead (the steady tuning near the new grade's G).
 RATIO_MPC = RatioSettings(gain=0.0, steady_gain=0.002, steady_ti_h=2.0)
 #: Hours after a grade change from which the G loop takes its steady-grade tuning. Not
 #: the A loop's 12 h: G is still settling then, and with the switch at 12 h the 12
