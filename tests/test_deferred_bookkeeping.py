@@ -222,8 +222,9 @@ def test_te_plan_references_are_evaluated_after_the_move_on_the_sample_grid():
     original = ctl._plan_refs
     ctl._plan_refs = lambda t: (seen.append(t), original(t))[1]
     used = []
-    original_ratio = ctl._ratio_step
-    ctl._ratio_step = lambda ff, ym, x: (used.append((ff, ym.copy())), original_ratio(ff, ym, x))[1]
+    original_ff = ctl._d_share_ff  # the plan's D share, before the MPC strategies' path
+    ctl._d_share_ff = lambda ff, t_ref, ym, x: (used.append((ff, ym.copy())),
+                                                original_ff(ff, t_ref, ym, x))[1]
     t = 0.0
     for k in range(12):
         ctl.step(k, t, y, None)
