@@ -172,6 +172,7 @@ from controller.units.te.plan_lookup import SampleReferences
 from controller.units.te.production_index import ProductionIndex, ProductionIndexSettings
 from controller.units.te.reactant_trim import ReactantTrim, ReactantTrimSettings
 from controller.units.te.spec import ALARM_LIMITS, SAMPLE_H, TEControlSpec, alarm_crossings
+from controller.units.te.velocity_trim import VelocityTrim
 from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
 
 #: Largest trim (%) of the A-feed target by the outer A loop (anti-windup).
@@ -542,14 +543,12 @@ class TEController:
         self.last_g: float | None = None
         self.n_samples = 0
         self.override = 0.0
-        self.a_trim = 0.0
-        self.p_trim = 0.0
-        self.e_p_prev: float | None = None
+        # the outer loops' trims of the MPC's input targets: A feed, A+C feed, condenser
+        self._a = VelocityTrim(-A_TRIM_MAX, A_TRIM_MAX)
+        self._p = VelocityTrim(-P_TRIM_MAX, P_TRIM_MAX)
+        self._sep = VelocityTrim(*SEP_TRIM_LIMITS)
         self.production_loop = PRODUCTION_LOOP if production_loop else None
-        self.e_a_prev: float | None = None
         self.separator_loop = SEPARATOR_LOOP if separator_loop else None
-        self.sep_trim = 0.0
-        self.e_sep_prev: float | None = None
         self._t_last: float | None = None
         self._since = math.inf  # h since the last grade change, at _t_last (step)
         # the plan's references of the next sample, evaluated after the move
@@ -621,6 +620,21 @@ class TEController:
         return ym_all, xv_all, self.plan.d_fraction_ref(t)
 
     # -- pieces ---------------------------------------------------------------------------
+    @property
+    def a_trim(self) -> float:
+        """The A-in-feed loop's trim of the A feed's target, %."""
+        return self._a.value
+
+    @property
+    def p_trim(self) -> float:
+        """The production loop's trim of the A+C feed's target, %."""
+        return self._p.value
+
+    @property
+    def sep_trim(self) -> float:
+        """The separator-temperature loop's trim of the condenser's target, %."""
+        return self._sep.value
+
     def _production_step(self, ym: np.ndarray, xmeas: np.ndarray) -> float:
         """Outer production loop of the MPC strategies: product flow (XMEAS 17)
         trims the MPC's input target of the A+C feed (XMV 4). ``ym``: the plan's
@@ -628,15 +642,10 @@ class TEController:
         lp = self.production_loop
         y = float(xmeas[lp.cv - 1])
         if math.isfinite(y):
-            e = float(ym[lp.cv - 1]) - y
-            if self.e_p_prev is None:
-                self.e_p_prev = e
             # held by the operator or while the production index lowers the feeds
-            if lp.cv not in self.outer_held and not self.production.active:
-                self.p_trim += lp.gain * ((e - self.e_p_prev) + self.sample_h / lp.ti_h * e)
-                self.p_trim = min(max(self.p_trim, -P_TRIM_MAX), P_TRIM_MAX)
-            self.e_p_prev = e
-        return self.p_trim
+            held = lp.cv in self.outer_held or self.production.active
+            self._p.step(float(ym[lp.cv - 1]) - y, lp.gain, lp.ti_h, self.sample_h, held)
+        return self._p.value
 
     def _a_trim_step(self, ym: np.ndarray, xmeas: np.ndarray) -> float:
         """Outer composition loop of the MPC strategies: A in the reactor feed
@@ -644,20 +653,15 @@ class TEController:
         PI baseline's loop of the same tuning, :data:`A_FEED_LOOP`)."""
         y = float(xmeas[A_FEED_LOOP.cv - 1])
         if math.isfinite(y):
-            e = float(ym[A_FEED_LOOP.cv - 1]) - y
-            if self.e_a_prev is None:
-                self.e_a_prev = e
             # held by the operator, while the A feed is lost (FeedOverrides), or
             # through a grade change (TransitionGuards)
             since = self._since
             held = (A_FEED_LOOP.cv in self.outer_held or self.feeds.a_lost
                     or self._a_loop_held_by_change(since))
-            if not held:
-                lp = A_FEED_LOOP_STEADY if since >= A_LOOP_STEADY_AFTER_H else A_FEED_LOOP
-                self.a_trim += lp.gain * ((e - self.e_a_prev) + self.sample_h / lp.ti_h * e)
-            self.a_trim = min(max(self.a_trim, -A_TRIM_MAX), A_TRIM_MAX)
-            self.e_a_prev = e
-        return self.a_trim
+            lp = A_FEED_LOOP_STEADY if since >= A_LOOP_STEADY_AFTER_H else A_FEED_LOOP
+            self._a.step(float(ym[A_FEED_LOOP.cv - 1]) - y, lp.gain, lp.ti_h, self.sample_h,
+                         held)
+        return self._a.value
 
     def _separator_trim_step(self, xmeas: np.ndarray, reference: float) -> float:
         """Separator temperature (XMEAS 11) -> the condenser's input target (XMV 11) at
@@ -666,16 +670,10 @@ class TEController:
         lp = self.separator_loop
         y = float(xmeas[lp.cv - 1])
         if math.isfinite(y) and math.isfinite(reference):
-            e = reference - y
-            if self.e_sep_prev is None:
-                self.e_sep_prev = e
             held = (lp.cv in self.outer_held or self.feeds.a_lost or self.production.active
                     or self._since < SEPARATOR_LOOP_STEADY_AFTER_H)
-            if not held:
-                self.sep_trim += lp.gain * ((e - self.e_sep_prev) + self.sample_h / lp.ti_h * e)
-                self.sep_trim = min(max(self.sep_trim, SEP_TRIM_LIMITS[0]), SEP_TRIM_LIMITS[1])
-            self.e_sep_prev = e
-        return self.sep_trim
+            self._sep.step(reference - y, lp.gain, lp.ti_h, self.sample_h, held)
+        return self._sep.value
 
     def _a_loop_held_by_change(self, since: float) -> bool:
         """Whether the grade change ``since`` h ago holds the A loop's trim now
@@ -960,7 +958,7 @@ class TEController:
         checkpoint's sample; the first sample then adds no proportional kick from the
         error's change over the outage (the PI baseline's ``align`` does the same). The
         integral parts and the trims reached are kept."""
-        self.e_g_prev = self.e_a_prev = self.e_p_prev = self.e_sep_prev = None
+        self.e_g_prev = self._a.e_prev = self._p.e_prev = self._sep.e_prev = None
         self._refs_ahead = None
 
     def applied(self, core_u) -> None:
@@ -974,9 +972,9 @@ class TEController:
 
     def checkpoint(self) -> dict[str, Any]:
         return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,
-                "override": self.override, "a_trim": self.a_trim, "e_a_prev": self.e_a_prev,
-                "p_trim": self.p_trim, "e_p_prev": self.e_p_prev,
-                "sep_trim": self.sep_trim, "e_sep_prev": self.e_sep_prev,
+                "override": self.override, "a_trim": self._a.value, "e_a_prev": self._a.e_prev,
+                "p_trim": self._p.value, "e_p_prev": self._p.e_prev,
+                "sep_trim": self._sep.value, "e_sep_prev": self._sep.e_prev,
                 "core": None if self.core is None else self.core.checkpoint(),
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
@@ -997,12 +995,9 @@ class TEController:
         self._refs_ahead = None
         self.override = float(state.get("override", 0.0))
         self.plan_lag_h = float(state.get("plan_lag_h", 0.0))
-        self.a_trim = float(state.get("a_trim", 0.0))
-        self.e_a_prev = state.get("e_a_prev")
-        self.p_trim = float(state.get("p_trim", 0.0))
-        self.e_p_prev = state.get("e_p_prev")
-        self.sep_trim = float(state.get("sep_trim", 0.0))
-        self.e_sep_prev = state.get("e_sep_prev")
+        for trim, key in ((self._a, "a"), (self._p, "p"), (self._sep, "sep")):
+            trim.value = float(state.get(f"{key}_trim", 0.0))
+            trim.e_prev = state.get(f"e_{key}_prev")
         self.feeds.restore(state.get("feeds"))
         self.production.restore(state.get("production"))
         self.reactants.restore(state.get("reactants"))

@@ -1,0 +1,44 @@
+"""A velocity-form PI trim of one MPC input target (the TE cascade's outer loops).
+
+The MPC strategies' outer loops (production, A in the reactor feed, separator
+temperature; :mod:`controller.units.te.control`) each add a trim to one of the core's
+input targets. Each is the velocity form of a PI on ``e = r - y``:
+
+    trim_k = clip(trim_{k-1} + K ((e_k - e_{k-1}) + dt / Ti e_k), lo, hi)
+
+held (trim and integral kept, the error still followed, so a release gives no
+proportional kick) when its loop says so. ``e_{k-1}`` is None after a start or a
+take-over: the first sample is its own previous error.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+class VelocityTrim:
+    """One trim and its previous error.
+
+    Parameters
+    ----------
+    lo, hi : float
+        The trim's range (units of the target it trims: % of valve).
+    """
+
+    def __init__(self, lo: float, hi: float) -> None:
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+            raise ValueError(f"lo/hi: need finite lo <= hi, got {lo!r}, {hi!r}")
+        self.lo, self.hi = float(lo), float(hi)
+        self.value = 0.0
+        self.e_prev: float | None = None
+
+    def step(self, e: float, gain: float, ti_h: float, dt_h: float, held: bool) -> float:
+        """Follow the error ``e`` (finite) for one sample of ``dt_h`` h and return the
+        trim; ``held``: keep the trim."""
+        if self.e_prev is None:
+            self.e_prev = e
+        if not held:
+            self.value += gain * ((e - self.e_prev) + dt_h / ti_h * e)
+            self.value = min(max(self.value, self.lo), self.hi)
+        self.e_prev = e
+        return self.value
