@@ -199,6 +199,12 @@ class DeadlineStats:
         """Budget left over (negative on a miss), ms."""
         return (self.budget_s - elapsed_s) * 1e3
 
+    def keeps(self, elapsed_s: float) -> bool:
+        """Whether :meth:`note_phases` would keep a sample of ``elapsed_s``: the slowest
+        so far or over budget (the caller builds the phase record only then)."""
+        return (self.worst is None or elapsed_s * 1e3 > self.worst["total_ms"]
+                or elapsed_s > self.budget_s)
+
     def note_phases(self, elapsed_s: float, phases_ms: dict) -> None:
         """Keep ``phases_ms`` (name -> ms) if this is the slowest sample so far, and
         among :attr:`missed` if it was over budget: where a miss came from (waiting for

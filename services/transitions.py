@@ -275,10 +275,10 @@ class TransitionManager:
     # -- per sample ----------------------------------------------------------------
     def reference_at(self, t: float, horizon: int = 1) -> np.ndarray:
         """Set points over ``horizon`` samples from ``t``, shape (horizon, ny)."""
-        times = t + self.Ts * np.arange(horizon)
         tr = self.active
         if tr is None or tr.state != "running":
             return np.tile(self.hold, (horizon, 1))
+        times = t + self.Ts * np.arange(horizon)
         r0 = np.asarray(tr.start_ref)
         r1 = np.asarray(tr.target)
         tau = tr.duration_s / 4.0

@@ -125,3 +125,29 @@ def test_request_and_reply():
 def test_hard_payloads_are_message_errors(payload):
     with pytest.raises(MessageError):
         Measurement.from_bytes(payload)
+
+
+def test_decoded_measurement_equals_the_constructed_one_and_is_checked_alike():
+    """A decoded measurement is set field by field without the constructor's second pass:
+    it equals the message built the usual way, and what the constructor refuses the
+    decoder refuses too."""
+    m = Measurement(unit="te", seq=12, t=432.0, y=(1.5, -2.25e-7, 3e300), u=(0.1, 7.0),
+                    mv_seq=-1, shutdown=True, incarnation="x" * 64)
+    back = Measurement.from_bytes(m.to_bytes(), unit="te", ny=3, nu=2)
+    assert back == m and type(back.y) is tuple and type(back.t) is float
+    assert back.to_bytes() == m.to_bytes()
+    for bad in ({"seq": -1}, {"t": 1e400}, {"y": [1.0, None]}, {"incarnation": "y" * 65}):
+        obj = json.loads(m.to_bytes()) | bad
+        with pytest.raises(MessageError):
+            Measurement.from_bytes(json.dumps(obj).encode())
+
+
+def test_mv_bytes_of_a_numpy_move_are_those_of_its_floats():
+    """The controller node hands the move as Python floats (``ndarray.tolist``): the same
+    numbers and bytes as from the array's own scalars."""
+    import numpy as np
+
+    u = np.array([0.1, 1 / 3, 12345.678901234567, -0.0, 5e-324])
+    a = MVMessage(unit="te", seq=5, meas_seq=4, u=tuple(u), sender="c").to_bytes()
+    b = MVMessage(unit="te", seq=5, meas_seq=4, u=tuple(u.tolist()), sender="c").to_bytes()
+    assert a == b

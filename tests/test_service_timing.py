@@ -230,3 +230,15 @@ def test_node_tuning_runs_blas_on_the_calling_thread_only():
     assert after and all(n == 1 for n in after)
     if (os.cpu_count() or 1) > 1:
         assert max(before) > 1  # the default this protects against
+
+
+def test_phase_record_kept_only_when_keeps_says_so():
+    """The node builds a sample's phase record only when ``keeps`` is true: the slowest
+    sample so far, or one over budget; ``note_phases`` keeps exactly those."""
+    stats = DeadlineStats(budget_s=1e-3)
+    for elapsed in (0.5e-3, 0.4e-3, 0.6e-3, 2e-3, 1.5e-3, 0.1e-3):
+        kept = stats.keeps(elapsed)
+        worst, missed = stats.worst, len(stats.missed)
+        stats.note_phases(elapsed, {"cpu_ms": 0.0})
+        assert kept == (stats.worst is not worst or len(stats.missed) > missed)
+    assert stats.worst["total_ms"] == 2.0 and len(stats.missed) == 2

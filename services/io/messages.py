@@ -48,12 +48,21 @@ def _reject_constant(name: str):
     raise MessageError(f"payload: non-finite number {name!r} is not allowed")
 
 
+#: The encoder and decoder of every message, made once: ``json.dumps`` and ``json.loads``
+#: with keyword arguments build a new one per call (a few us of a sample's path each);
+#: these are the same settings, so the text and the checks are the same.
+_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
+
+
 def encode(obj: dict) -> bytes:
     """Compact JSON, refusing NaN/inf (``allow_nan=False``)."""
     try:
-        return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
+        return _ENCODER.encode(obj).encode()
     except ValueError as exc:
         raise MessageError(f"payload: cannot encode ({exc})") from exc
+
+
+_DECODER = json.JSONDecoder(parse_constant=_reject_constant)
 
 
 def decode_object(payload: bytes | bytearray | memoryview | str, kind: str) -> dict:
@@ -70,7 +79,7 @@ def decode_object(payload: bytes | bytearray | memoryview | str, kind: str) -> d
         except UnicodeDecodeError as exc:
             raise MessageError(f"payload: not UTF-8 ({exc})") from exc
     try:
-        obj = json.loads(payload, parse_constant=_reject_constant)
+        obj = _DECODER.decode(payload)
     except json.JSONDecodeError as exc:
         raise MessageError(f"payload: not JSON ({exc})") from exc
     except RecursionError as exc:
@@ -226,16 +235,19 @@ class Measurement:
         shutdown = obj.get("shutdown", False)
         if not isinstance(shutdown, bool):
             raise MessageError("shutdown: expected a boolean")
-        return cls(
-            unit=msg_unit,
-            seq=_int(obj, "seq", minimum=0),
-            t=_float(obj, "t"),
-            y=_vector(obj, "y", ny),
-            u=_vector(obj, "u", nu),
-            mv_seq=_int({"mv_seq": obj.get("mv_seq", -1)}, "mv_seq", minimum=-1),
-            shutdown=shutdown,
-            incarnation=_str(obj, "incarnation"),
-        )
+        fields = (("unit", msg_unit), ("seq", _int(obj, "seq", minimum=0)),
+                  ("t", _float(obj, "t")), ("y", _vector(obj, "y", ny)),
+                  ("u", _vector(obj, "u", nu)),
+                  ("mv_seq", _int({"mv_seq": obj.get("mv_seq", -1)}, "mv_seq", minimum=-1)),
+                  ("shutdown", shutdown), ("incarnation", _str(obj, "incarnation")))
+        if len(fields[-1][1]) > 64:
+            raise MessageError("incarnation: expected a string of 1..64 characters")
+        # every field is checked as __post_init__ checks it (seq >= 0, t and the vectors
+        # finite floats, the incarnation 1..64 characters): set without a second pass
+        msg = object.__new__(cls)
+        for name, value in fields:
+            object.__setattr__(msg, name, value)
+        return msg
 
 
 @dataclass(frozen=True)

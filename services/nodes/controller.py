@@ -70,6 +70,7 @@ from __future__ import annotations
 import copy
 import logging
 import math
+import operator
 import os
 import queue
 import sqlite3
@@ -363,6 +364,7 @@ class ControllerNode:
         self.foreign_measurements = 0
         self._foreign_moves = 0  # samples whose applied move this node did not send
         self.y_lower, self.y_upper = plausible_ranges(cfg, plant, grades)
+        self._plausible_bounds: tuple | None = None  # the ranges as lists (_plausible)
         self.plant_shutdown = False
         self.alarms: deque[str] = deque(maxlen=20)
         self.restored_from: int | None = None
@@ -1134,8 +1136,11 @@ class ControllerNode:
         # Sequence numbers grow across restarts too (µs of the wall clock, or +1): a node
         # restored from an older checkpoint must not look stale to the plant.
         self.mv_seq = max(self.mv_seq + 1, time.time_ns() // 1000)
-        msg = MVMessage(unit=self.cfg.unit, seq=self.mv_seq, meas_seq=meas_seq, u=tuple(u),
-                        sender=self.sender, fallback=fallback)
+        # the move as Python floats: the message's check of them is then one C-level
+        # pass, not a conversion of each numpy scalar (the same numbers, the same bytes)
+        msg = MVMessage(unit=self.cfg.unit, seq=self.mv_seq, meas_seq=meas_seq,
+                        u=tuple(np.asarray(u, float).tolist()), sender=self.sender,
+                        fallback=fallback)
         self._mv_pub.put(msg.to_bytes())
 
     def _align(self, msg: Measurement) -> None:
@@ -1181,10 +1186,10 @@ class ControllerNode:
         mode = self.operated.mode
         writes = mode == "on"  # off/warm: nothing is written this sample
         y = np.asarray(msg.y, float)
-        outside = (y < self.y_lower) | (y > self.y_upper)
-        if np.any(outside):
+        if not self._plausible(msg.y):
             # Physically impossible value (a sensor fault): not acted on. Documented safe
             # action: the last move is held and an alarm raised; nothing else advances.
+            outside = (y < self.y_lower) | (y > self.y_upper)
             names = [self.info.cv_names[i] for i in np.flatnonzero(outside)]
             with self._lock:
                 self.implausible_measurements += 1
@@ -1201,7 +1206,7 @@ class ControllerNode:
             self._watchdog.arm(deadline, lambda: self._publish_mv(msg.seq, hold, True))
         with self._lock:
             self.k, self.t = msg.seq, msg.t
-            self.y = np.asarray(msg.y, float)
+            self.y = y
             ended = False  # a transition ended outside update(): checkpoint at once too
             if msg.shutdown and not self.plant_shutdown:
                 self.plant_shutdown = True
@@ -1254,29 +1259,30 @@ class ControllerNode:
         sw_end = thread_switches()
         with self._lock:
             self.stats.record(elapsed, fallback=fired or (writes and decision.fallback))
-            self.stats.note_phases(elapsed, {
-                "sample": msg.seq, "at_unix_s": time.time() - elapsed,
-                "queue_ms": (t_begin - arrived) * 1e3,
-                # > 0: the loop thread was still on the previous sample when this arrived
-                "previous_busy_ms": (self._busy_until - arrived) * 1e3,
-                "prepare_ms": (t_step - t_begin) * 1e3,
-                "controller_ms": (t_stepped - t_step) * 1e3,
-                "watchdog_ms": (t_disarmed - t_stepped) * 1e3,
-                "publish_ms": (arrived + elapsed - t_disarmed) * 1e3,
-                # this thread's CPU time from the start of processing to the move, and
-                # the rest of that span: waiting for the interpreter lock or a CPU. The
-                # guest counts time the host takes its vCPU away as CPU time (no steal
-                # time here), so a cpu_ms well above the usual one is the host's doing.
-                "cpu_ms": cpu_ms,
-                # context switches of this thread meanwhile: "preempted" (involuntary: a
-                # CPU taken by another thread) and "blocked" (it waited: a lock, the
-                # interpreter lock); they tell the two kinds of waiting apart
-                "preempted": sw_end[1] - sw_begin[1], "blocked": sw_end[0] - sw_begin[0],
-                # the QP's part of controller_ms, when the controller reports it: a slow
-                # sample with a usual QP time and iteration count was slowed down, not
-                # given more work
-                **_qp_work(decision.extra),
-                "waited_ms": (arrived + elapsed - t_begin) * 1e3 - cpu_ms})
+            if self.stats.keeps(elapsed):  # the record only for a sample that is kept
+                self.stats.note_phases(elapsed, {
+                    "sample": msg.seq, "at_unix_s": time.time() - elapsed,
+                    "queue_ms": (t_begin - arrived) * 1e3,
+                    # > 0: the loop thread was still on the previous sample when this arrived
+                    "previous_busy_ms": (self._busy_until - arrived) * 1e3,
+                    "prepare_ms": (t_step - t_begin) * 1e3,
+                    "controller_ms": (t_stepped - t_step) * 1e3,
+                    "watchdog_ms": (t_disarmed - t_stepped) * 1e3,
+                    "publish_ms": (arrived + elapsed - t_disarmed) * 1e3,
+                    # this thread's CPU time from the start of processing to the move, and
+                    # the rest of that span: waiting for the interpreter lock or a CPU. The
+                    # guest counts time the host takes its vCPU away as CPU time (no steal
+                    # time here), so a cpu_ms well above the usual one is the host's doing.
+                    "cpu_ms": cpu_ms,
+                    # context switches of this thread meanwhile: "preempted" (involuntary: a
+                    # CPU taken by another thread) and "blocked" (it waited: a lock, the
+                    # interpreter lock); they tell the two kinds of waiting apart
+                    "preempted": sw_end[1] - sw_begin[1], "blocked": sw_end[0] - sw_begin[0],
+                    # the QP's part of controller_ms, when the controller reports it: a slow
+                    # sample with a usual QP time and iteration count was slowed down, not
+                    # given more work
+                    **_qp_work(decision.extra),
+                    "waited_ms": (arrived + elapsed - t_begin) * 1e3 - cpu_ms})
             self.u_last = np.asarray(u, float)
             self._moves.append(self.u_last)
             self.last_decision = decision
@@ -1329,6 +1335,18 @@ class ControllerNode:
             self._status_due = True
         if self._status_due:
             self._maybe_publish_status(arrived)
+
+    def _plausible(self, y) -> bool:
+        """No value of the measurement ``y`` (finite floats, as decoded) outside its
+        plausible range (:attr:`y_lower`, :attr:`y_upper`): the comparisons on the
+        message's tuple and the ranges as lists (a few numpy calls cost 5 us here hot and
+        several times that on the sample's first touch)."""
+        bounds = self._plausible_bounds
+        if bounds is None or bounds[0] is not self.y_lower or bounds[1] is not self.y_upper:
+            bounds = self._plausible_bounds = (self.y_lower, self.y_upper,
+                                               np.asarray(self.y_lower, float).tolist(),
+                                               np.asarray(self.y_upper, float).tolist())
+        return not (any(map(operator.lt, y, bounds[2])) or any(map(operator.gt, y, bounds[3])))
 
     def _ramp_limited(self, u, hold, seq: int):
         """The move after a resume, limited by the ramp-in (:mod:`services.nodes.ramp_in`);
