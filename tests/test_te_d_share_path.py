@@ -128,3 +128,21 @@ def test_leaving_mode_3_the_mpc_strategies_reach_the_grade_hours_before_the_plan
     plan = _hours_to_grade("plan", 3, 1, 18.0)
     assert mpc is not None and mpc < 10.0
     assert plan is None or plan > mpc + 3.0
+
+
+def test_a_new_grade_request_mid_path_goes_on_from_where_the_path_is():
+    # 0 -> 2 under way, then mode 3 requested: the share turns from its value, no jump
+    plan = TransitionPlan("mode0", (Leg(1.0, "mode2"),))
+    x = np.array(grade("mode0").xmeas, dtype=float)
+    ctl, _ = make_te_controller("ssmpc", plan)
+    s = _run(ctl, 1.0, 60, x)
+    t1 = 1.0 + 60 * ctl.sample_h
+    # requested half a sample before the next one (a leg at the sample's own time may
+    # fall a round-off after the grid time the plan is read at)
+    ctl.retarget(TransitionPlan("mode0", (Leg(1.0, "mode2"), Leg(t1 - 0.5 * ctl.sample_h,
+                                                                  "mode3"))))
+    after = _run(ctl, t1, 3, x)
+    step = s[-1] - s[-2]  # the last step toward mode 2 (down)
+    assert step < 0 and grade("mode3").d_fraction > s[-1]
+    assert 0 < after[0] - s[-1] < 3 * abs(step)  # turned up, by a path's step
+    assert after[0] < after[1] < after[2]
