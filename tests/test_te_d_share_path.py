@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from controller.units.te.control import make_te_controller
-from controller.units.te.d_share_path import D_FULL_KG_H, DSharePath, DSharePathSettings
+from controller.units.te.d_share_path import DSharePath, DSharePathSettings
 from controller.units.te.grades import Leg, TransitionPlan, grade
+from controller.units.te.spec import D_FULL_KG_H
 
 DT = 0.01  # h, the supervisory sample
 FREE = dict(hold=0.0, d_feed_kg_h=3000.0, level_pct=65.0, level_sp_pct=65.0)

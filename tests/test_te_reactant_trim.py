@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from controller.units.te.grades import grade
-from controller.units.te.reactant_trim import D_FULL_KG_H, ReactantTrim, ReactantTrimSettings
+from controller.units.te.reactant_trim import ReactantTrim, ReactantTrimSettings
+from controller.units.te.spec import D_FULL_KG_H
 
 
 @pytest.mark.parametrize("kw, field", [({"d_limit": 100.0}, "d_limit"),

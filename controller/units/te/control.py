@@ -171,7 +171,14 @@ from controller.units.te.pi_baseline import (
 from controller.units.te.plan_lookup import SampleReferences
 from controller.units.te.production_index import ProductionIndex, ProductionIndexSettings
 from controller.units.te.reactant_trim import ReactantTrim, ReactantTrimSettings
-from controller.units.te.spec import ALARM_LIMITS, SAMPLE_H, TEControlSpec, alarm_crossings
+from controller.units.te.spec import (
+    ALARM_LIMITS,
+    D_FULL_KG_H,
+    E_FULL_KG_H,
+    SAMPLE_H,
+    TEControlSpec,
+    alarm_crossings,
+)
 from controller.units.te.velocity_trim import VelocityTrim
 from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
 
@@ -271,8 +278,6 @@ TR_LIMITS = (110.0, 130.0)
 OVERRIDE_PRESSURE = 2900.0
 OVERRIDE_GAIN = 2.0
 OVERRIDE_MAX = 30.0
-_D_FULL_KG_H = 5811.0
-_E_FULL_KG_H = 8354.0
 
 
 @dataclass(frozen=True)
@@ -585,7 +590,7 @@ class TEController:
         not finite or the valve is shut."""
         if not (math.isfinite(xmv2) and math.isfinite(d_meas) and xmv2 > 0 and d_meas > 0):
             return
-        s = d_meas / (d_meas + xmv2 * _E_FULL_KG_H / 100.0)
+        s = d_meas / (d_meas + xmv2 * E_FULL_KG_H / 100.0)
         self.s = min(max(s, self.ratio.s_min), self.ratio.s_max)
 
     #: A sample within this of the previous one + ``sample_h`` is on the grid (h; 3.6 us)
@@ -855,8 +860,8 @@ class TEController:
         xv, ym = xv_all[0], ym_all[0]
         s = self._ratio_step(self._d_share_ff(ff, t_ref, ym, xmeas), ym, xmeas)
         u = _NO_XMVS.copy()  # NaN: not written
-        d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * _D_FULL_KG_H / 100
-        u[1] = min(max(d_meas * (1.0 - s) / s / _E_FULL_KG_H * 100.0, 0.0), 100.0,
+        d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * D_FULL_KG_H / 100
+        u[1] = min(max(d_meas * (1.0 - s) / s / E_FULL_KG_H * 100.0, 0.0), 100.0,
                    max(xv[1] + self._e_feed_margin(xmeas), 0.0))
         u[4], u[8], u[11] = xv[4], xv[8], xv[11]
         ff = self._core_ff(xv, ym)

@@ -45,8 +45,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-#: Full D feed flow, kg/h (XMEAS 2 at XMV 1 = 100 %).
-D_FULL_KG_H = 5811.0
+from controller.units.te.spec import D_FULL_KG_H
 
 
 @dataclass(frozen=True)

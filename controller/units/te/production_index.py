@@ -59,10 +59,10 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any
 
+from controller.units.te.spec import D_FULL_KG_H
+
 __all__ = ["ProductionIndexSettings", "ProductionIndex"]
 
-#: D feed (stream 2) at 100 % of XMV 1, kg/h.
-D_FULL_KG_H = 5811.0
 #: A feed (stream 1) and A+C feed (stream 4) at 100 % of XMV 3 and XMV 4, lb-mol/h.
 A_FULL_LBMOL_H = 100.0
 AC_FULL_LBMOL_H = 1500.0

@@ -88,10 +88,10 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any
 
+from controller.units.te.spec import D_FULL_KG_H
+
 __all__ = ["ReactantTrimSettings", "ReactantTrim"]
 
-#: D feed (stream 2) at 100 % of XMV 1, kg/h.
-D_FULL_KG_H = 5811.0
 
 
 @dataclass(frozen=True)

@@ -14,10 +14,15 @@ from dataclasses import dataclass
 
 from controller.units.te.loops import INNER_LOOPS
 
-__all__ = ["ALARM_LIMITS", "SAMPLE_H", "TEControlSpec", "alarm_crossings"]
+__all__ = ["ALARM_LIMITS", "D_FULL_KG_H", "E_FULL_KG_H", "SAMPLE_H", "TEControlSpec",
+           "alarm_crossings"]
 
 #: Supervisory sample period, h (36 s = 20 Euler steps of 1.8 s).
 SAMPLE_H = 0.01
+#: D feed (stream 2, XMEAS 2) at 100 % of XMV 1, and E feed (stream 3, XMEAS 3) at 100 %
+#: of XMV 2, kg/h (Downs & Vogel's valve ranges).
+D_FULL_KG_H = 5811.0
+E_FULL_KG_H = 8354.0
 #: Alarm limits below the interlocks (XMEAS number -> (low, high), XMEAS units):
 #: reactor pressure 2950 kPa (trip 3000), reactor temperature 170 degC (trip 175),
 #: levels 10-90 % (the liquid-volume trips correspond to reactor -2 % / 114 %,
