@@ -141,6 +141,14 @@ def _str(obj: dict, name: str) -> str:
     return v
 
 
+def _incarnation(v) -> str:
+    """A plant incarnation: a string of 1..64 characters (the constructor's check and the
+    decoder's, one rule)."""
+    if not (isinstance(v, str) and 0 < len(v) <= 64):
+        raise MessageError("incarnation: expected a string of 1..64 characters")
+    return v
+
+
 _FLOAT = {float}
 
 
@@ -207,8 +215,7 @@ class Measurement:
     KIND = "meas"
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.incarnation, str) and 0 < len(self.incarnation) <= 64):
-            raise MessageError("incarnation: expected a string of 1..64 characters")
+        _incarnation(self.incarnation)
         object.__setattr__(self, "y", _finite_tuple(self.y, "y"))
         object.__setattr__(self, "u", _finite_tuple(self.u, "u"))
         if self.seq < 0:
@@ -239,9 +246,8 @@ class Measurement:
                   ("t", _float(obj, "t")), ("y", _vector(obj, "y", ny)),
                   ("u", _vector(obj, "u", nu)),
                   ("mv_seq", _int({"mv_seq": obj.get("mv_seq", -1)}, "mv_seq", minimum=-1)),
-                  ("shutdown", shutdown), ("incarnation", _str(obj, "incarnation")))
-        if len(fields[-1][1]) > 64:
-            raise MessageError("incarnation: expected a string of 1..64 characters")
+                  ("shutdown", shutdown),
+                  ("incarnation", _incarnation(_str(obj, "incarnation"))))
         # every field is checked as __post_init__ checks it (seq >= 0, t and the vectors
         # finite floats, the incarnation 1..64 characters): set without a second pass
         msg = object.__new__(cls)
