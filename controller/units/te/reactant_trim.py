@@ -93,7 +93,6 @@ from controller.units.te.spec import D_FULL_KG_H
 __all__ = ["ReactantTrimSettings", "ReactantTrim"]
 
 
-
 @dataclass(frozen=True)
 class ReactantTrimSettings:
     """Settings of :class:`ReactantTrim` (see the module docstring).
