@@ -32,6 +32,7 @@ RUN_FORMAT = "campaign-run-3"
 def _settings_json(unit: str) -> str:
     if unit == "te":
         from controller.units.te.control import (
+            GUARDS_MPC,
             RATIO_MPC,
             SAMPLE_H,
             SEP_TRIM_LIMITS,
@@ -48,7 +49,7 @@ def _settings_json(unit: str) -> str:
         s = {"sample_h": SAMPLE_H, "plant_dt_s": 1.8, "mpc": asdict(TEMPCOptions()),
              "ratio": asdict(RatioSettings()), "ratio_mpc": asdict(RATIO_MPC),
              "tau_h": dict(TAU_DEFAULT_H),
-             "guards": asdict(TransitionGuards()),
+             "guards": asdict(TransitionGuards()), "guards_mpc": asdict(GUARDS_MPC),
              "reactants": asdict(ReactantTrimSettings()),
              "d_share_path": asdict(DSharePathSettings()),
              "separator_loop": {**asdict(SEPARATOR_LOOP), "trim": list(SEP_TRIM_LIMITS),

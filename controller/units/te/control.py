@@ -160,6 +160,7 @@ from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.d_share_path import DSharePath, DSharePathSettings
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
+from controller.units.te.models import MPC_ORDER
 from controller.units.te.overrides import FeedOverrides, FeedOverrideSettings
 from controller.units.te.path_kernel import compile_path_kernels
 from controller.units.te.pi_baseline import (
@@ -251,6 +252,7 @@ SEP_TRIM_LIMITS = (0.0, 20.0)
 __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec",
            "TEController", "make_te_controller", "make_mpc_core", "TEMPCOptions", "TERun",
            "run_te", "plant_seed_for", "RatioSettings", "RATIO_MPC", "TransitionGuards",
+           "GUARDS_MPC",
            "SEPARATOR_LOOP", "SEPARATOR_LOOP_STEADY_AFTER_H", "SEP_TRIM_LIMITS",
            "TR_LIMITS",
            "PR_LIMITS",
@@ -464,6 +466,18 @@ class TransitionGuards:
             return 0.0
         f = (pressure_kpa - self.hold_start_kpa) / (self.hold_full_kpa - self.hold_start_kpa)
         return min(max(f, 0.0), 1.0)
+
+
+#: MPC strategies: the plan hold from 2850 to 2900 kPa, beneath the MPC's exact soft
+#: limit on the reactor pressure (:attr:`TEMPCOptions.pressure_soft_max`, 2880 kPa).
+#: With the hold from 2880 kPa the exact limit held the pressure at the limit by
+#: cutting the A+C feed while the plan went on swapping E for D, and 3 -> 2 tripped on
+#: reactor pressure at 2.9 h (seed 1): the handles were all at their ranges (A+C feed
+#: 52 -> 6 %, condenser 100 %, T_r* 130 degC, purge 98 %). From 2850 to 2900 kPa every
+#: transition among modes 0-3 held at 2885 kPa or less (seeds 1-3); from 2860 to 2890
+#: kPa 3 -> 0 took 12.5 instead of 9.9 h (seed 1). The baselines keep
+#: :class:`TransitionGuards`' defaults.
+GUARDS_MPC = TransitionGuards(hold_start_kpa=2850.0, hold_full_kpa=2900.0)
 
 
 class TEController:
@@ -1044,7 +1058,23 @@ class TEMPCOptions:
         Rate limits per sample: 50 % for valves, 10 degC for T_r* (R7.12), 20 kPa
         for P_r*.
     pressure_soft_max : float
-        Soft upper limit of the reactor pressure in the MPC, kPa (interlock 3000).
+        Soft upper limit of the reactor pressure in the MPC, kPa (interlock 3000;
+        Downs & Vogel's normal high limit 2895). 2880, below the normal limit, with
+        the plan hold of :data:`GUARDS_MPC` starting beneath it.
+    pressure_slack_linear, pressure_slack_quadratic : float
+        Weights of the soft limit's slack (one unit = ``output_scale[0]`` kPa;
+        :class:`controller.mpc.MPCSettings` ``slack_linear`` / ``slack_quadratic``).
+        1e6 and 1e4: an exact penalty against the input-target weights (1000 per
+        %^2), so the MPC moves its handles off their targets before it lets the
+        predicted pressure through the limit (with 1e4 and 1e2 it did not: the
+        soft limit at 2880 kPa left the peaks of the transitions at 2906-2912 kPa).
+        Measured, 12 transitions among modes 0-3, seeds 1-3, 48 h, noise on, with
+        :data:`GUARDS_MPC` (peak kPa, trips): with the models of order 12 (the
+        default) ``ssmpc`` 2885, none; with order 8 (the DC gains wrong,
+        :mod:`controller.units.te.models`) 1 -> 3 tripped on every seed. With the
+        weights at 1e4 / 1e2 and a limit of 2950 kPa (the previous tuning) the peaks
+        were 2906-2915 kPa on six transitions. Legs out of mode 3 take longer: 3 -> 0
+        from 9.1 to 11.4 h and 3 -> 1 from 8.1 to 9.1 h (medians).
     index_dwell_h : float
         Minimum dwell of a model, h (1 h; see "Switching" above).
     nls_gain : float
@@ -1054,7 +1084,9 @@ class TEMPCOptions:
         orthonormal, the default: omega's roots at the mode-0 model's poles;
         companion: the seed's eq. 3.12-3.13, coefficients up to 1e6-1e8 at n = 8).
     model_order : int
-        Reduced order n of every mode's model.
+        Reduced order n of every mode's model (default
+        :data:`controller.units.te.models.MPC_ORDER`, 12: the order-8 models' DC
+        gains were wrong, see that module).
     index_errors : {"equation", "steady_output"}
         What the switching index compares
         (:attr:`controller.multimodel.MultiModelSettings.index_errors`).
@@ -1072,12 +1104,17 @@ class TEMPCOptions:
         A-in-feed and production loops. 0 = none (the seed's formulation; in this
         port the 0 -> 2 transition then trips on reactor pressure within 2-19 h,
         depending on the weights). Default 1000 on the A feed XMV3, the production
-        handle XMV4, T_r* and the condenser XMV11 (pinned to the plan and the outer
-        loops) and 10 on P_r*. XMV11 is pinned because the models' gain from it to
-        the reactor pressure has the wrong sign (+1.9 kPa/% at mode 0, +0.8 at mode
-        2, where the plant's is negative): with weight 10 a falling pressure made
-        the MPC open the condenser further (IDV(7) at mode 2: XMV11 13 -> 43 % in
-        0.15 h, the pressure 2714 -> 2530 kPa, then the trip at 2.97 h). Measured
+        handle XMV4 and T_r* (pinned to the plan and the outer loops), 10 on P_r*
+        and on the condenser XMV11. With the models of order 8 the condenser was
+        pinned too: their gain from it to the reactor pressure had the wrong sign
+        (+1.9 kPa/% at mode 0, +0.8 at mode 2; the plant's is 0 at steady state
+        with the pressure loop closed and negative before), and with weight 10 a
+        falling pressure made the MPC open the condenser further (IDV(7) at mode 2:
+        XMV11 13 -> 43 % in 0.15 h, the pressure 2714 -> 2530 kPa, then the trip at
+        2.97 h). With the models of order 12 and the exact pressure limit the MPC
+        opens the condenser against a rising pressure (3 -> 2: to 100 % within
+        0.5 h of the plan's closing it) and no IDV 1-20 at modes 0, 2, 3 trips
+        (seed 1); pinned, 3 -> 0 took 36.8 h on seed 2 (free: 11.4 h). Measured
         (noise on, seed 1, 24 h, strategy "fixed"): trips in IDV 1-20 at modes 0, 2,
         3 from 6 of 60 to 3 (IDV 6 at mode 2, IDV 7 at modes 2 and 3); in the 12
         transitions among modes 0-3 from 5 to 4 ("ssmpc": 6 to 4): 1 -> 2 and
@@ -1106,12 +1143,14 @@ class TEMPCOptions:
     output_relative: tuple = (1.0, 1.0, 0.01, 0.01, 1.0)
     move_weight: float = 1.0
     du_max: tuple = (50.0, 50.0, 20.0, 10.0, 50.0)
-    pressure_soft_max: float = 2950.0
+    pressure_soft_max: float = 2880.0
+    pressure_slack_linear: float = 1.0e6
+    pressure_slack_quadratic: float = 1.0e4
     index_dwell_h: float = 1.0
     nls_gain: float = 10.0
-    target_weight: float | tuple = (1000.0, 1000.0, 10.0, 1000.0, 1000.0)
+    target_weight: float | tuple = (1000.0, 1000.0, 10.0, 1000.0, 10.0)
     basis: str = "orthonormal"
-    model_order: int = 8
+    model_order: int = MPC_ORDER
     index_errors: str = "steady_output"
     index_hysteresis: float = 0.2
     index_mu: float = 0.0
@@ -1145,7 +1184,8 @@ class TEMPCOptions:
         if self.target_settings is not None and not isinstance(self.target_settings,
                                                                 CoreTargetSettings):
             raise ValueError("target_settings: must be a CoreTargetSettings")
-        for name in ("output_weight", "move_weight", "index_dwell_h", "nls_gain"):
+        for name in ("output_weight", "move_weight", "index_dwell_h", "nls_gain",
+                     "pressure_slack_linear", "pressure_slack_quadratic"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
@@ -1194,7 +1234,8 @@ def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | No
                            Xi=w * np.asarray(opt.output_relative, dtype=float) / scale ** 2,
                            Lambda=np.full(5, opt.move_weight), u_min=lo, u_max=hi,
                            du_max=np.asarray(opt.du_max, dtype=float), y_max=y_max,
-                           slack_scale=scale,
+                           slack_scale=scale, slack_linear=opt.pressure_slack_linear,
+                           slack_quadratic=opt.pressure_slack_quadratic,
                            budget_ms=REALTIME_BUDGET_MS if realtime else 1e9,
                            u_target=u0,
                            u_target_weight=np.broadcast_to(np.asarray(opt.target_weight,
@@ -1264,7 +1305,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         Keep the MPC's wall-clock budget (:func:`make_mpc_core`); False for offline
         runs, whose moves must not depend on the machine's load.
     guards : TransitionGuards, optional
-        The E-feed limit and the plan hold (not for "decentralized").
+        The E-feed limit and the plan hold (not for "decentralized"; default
+        :data:`GUARDS_MPC` for "fixed" and "ssmpc", :class:`TransitionGuards` for
+        "pi" and "plan").
     feeds : FeedOverrideSettings, optional
         The feed overrides (:mod:`controller.units.te.overrides`; not for
         "decentralized").
@@ -1305,6 +1348,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         targets = core_targets(strategy, mpc or TEMPCOptions())
     if ratio is None:
         ratio = RATIO_MPC if strategy in ("fixed", "ssmpc") else RatioSettings()
+    if guards is None and strategy in ("fixed", "ssmpc"):
+        guards = GUARDS_MPC
     ctl = TEController(strategy, plan, core, ratio, sample_h, horizon,
                        outer_a_loop, production_loop,
                        targets=targets if strategy in ("fixed", "ssmpc") else None,
