@@ -33,8 +33,8 @@ def test_ssmpc_structure():
     ssm = ctl.core.ssm
     assert ssm.names == ["reinit", "mode0", "mode2", "mode3"]
     assert ssm.kinds == ["adaptive", "fixed", "fixed", "fixed"]
-    # R7.15 arithmetic at our order n = 8: 2nm states, n(m^2+1) parameters
-    assert ssm.order == 2 * 8 * 5 and ssm.n_params == 8 * (5 ** 2 + 1)
+    # R7.15 arithmetic at our order n = 10: 2nm states, n(m^2+1) parameters
+    assert ssm.order == 2 * 10 * 5 and ssm.n_params == 10 * (5 ** 2 + 1)
     s = ctl.core.law.settings
     assert (s.P, s.M) == (10, 4)
     fixed, _ = make_te_controller("fixed")
@@ -160,38 +160,46 @@ def slow_a_loop(monkeypatch):
     monkeypatch.setattr(te_reactants, "ReactantTrimSettings", lambda: raise_only)
 
 
+#: How far above its soft limit the MPC lets the reactor pressure go, kPa (measured
+#: 0.7 kPa under IDV(1) at modes 0 and 3; noise off).
+SOFT_LIMIT_OVERSHOOT_KPA = 5.0
+#: The slack weights before the exact penalty (MPCSettings' defaults).
+OLD_SLACK = {"pressure_slack_linear": 1.0e4, "pressure_slack_quadratic": 1.0e2}
+
+
 @pytest.mark.usefixtures("slow_a_loop")
-def test_idv1_drives_pressure_up_alarms_before_the_interlock():
-    # IDV(1) (A/C ratio step) from mode 0: the pressure rises toward the interlock; the
-    # override alarms and acts, the plant keeps running
-    run = run_te("ssmpc", TransitionPlan("mode0"), 24.0, idv={1: 1.0})
+@pytest.mark.parametrize("mode, hours", [("mode0", 24.0), ("mode3", 5.0)])
+def test_idv1_the_mpc_holds_the_pressure_at_its_soft_limit(mode, hours):
+    # IDV(1) (A/C ratio step) with the slow A loop drives the reactor pressure up: the
+    # MPC's exact soft limit holds it there, below the high-pressure override, and the
+    # plant keeps running
+    limit = TEMPCOptions().pressure_soft_max
+    run = run_te("ssmpc", TransitionPlan(mode), hours, idv={1: 1.0})
     assert run.shutdown is None
-    assert run.margins["reactor pressure"]["max"] < 3000.0
-    assert any("high-pressure override" in a for a in run.alarms)
+    assert run.margins["reactor pressure"]["max"] <= limit + SOFT_LIMIT_OVERSHOOT_KPA
+    assert not any("high-pressure override" in a for a in run.alarms)
+    slack = run.constraint_slack
+    assert slack.shape == run.t.shape and not np.any(np.isnan(slack))  # solved every sample
 
 
 SLACK_ACTIVE = 1e-6  # slack (units of output_scale, 20 kPa) counted as acting
 
 
 @pytest.mark.usefixtures("slow_a_loop")
-def test_idv1_from_mode3_the_soft_pressure_constraint_acts_before_the_interlock():
-    # IDV(1) from mode 3 drives the reactor pressure toward the 3000 kPa interlock (to
-    # about 2905 kPa here): the high-pressure alarms come, the MPC's soft pressure limit
-    # acts (its exact-penalty slack becomes non-zero: the MPC predicts the limit cannot
-    # be held with the moves it may make), and the plant keeps running. Before the IDV
-    # the slack is zero. The soft limit is set to 2880 kPa, below the peak, so that it
-    # must act: with the default 2950 kPa the MPC rightly predicts it holds.
+def test_idv1_from_mode3_with_the_old_slack_weights_the_limit_gives_way():
+    # the same run with the slack weights of before (1e4, 1e2): the input targets'
+    # weights win, the MPC lets the pressure through its limit (its slack acts), the
+    # high-pressure override has to cut the A+C feed; before the IDV the slack is zero
     t_idv = 1.0
+    limit = TEMPCOptions().pressure_soft_max
     run = run_te("ssmpc", TransitionPlan("mode3"), 5.0, idv={1: t_idv},
-                 mpc=TEMPCOptions(pressure_soft_max=2880.0))
+                 mpc=TEMPCOptions(**OLD_SLACK))
     assert run.shutdown is None
-    assert run.margins["reactor pressure"]["max"] < 3000.0
+    assert run.margins["reactor pressure"]["max"] > limit + SOFT_LIMIT_OVERSHOOT_KPA
     slack = run.constraint_slack
-    assert slack.shape == run.t.shape and not np.any(np.isnan(slack))  # solved every sample
     assert np.all(slack[run.t < t_idv] <= SLACK_ACTIVE)
-    active = np.flatnonzero(slack > SLACK_ACTIVE)
-    assert active.size > 0
-    assert any("high-pressure override" in a or "XMEAS7" in a for a in run.alarms)
+    assert np.flatnonzero(slack > SLACK_ACTIVE).size > 0
+    assert any("high-pressure override" in a for a in run.alarms)
 
 
 @pytest.mark.usefixtures("no_wall_clock_budget")

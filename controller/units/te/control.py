@@ -468,15 +468,16 @@ class TransitionGuards:
         return min(max(f, 0.0), 1.0)
 
 
-#: MPC strategies: the plan hold from 2850 to 2900 kPa, beneath the MPC's exact soft
-#: limit on the reactor pressure (:attr:`TEMPCOptions.pressure_soft_max`, 2880 kPa).
-#: With the hold from 2880 kPa the exact limit held the pressure at the limit by
-#: cutting the A+C feed while the plan went on swapping E for D, and 3 -> 2 tripped on
-#: reactor pressure at 2.9 h (seed 1): the handles were all at their ranges (A+C feed
-#: 52 -> 6 %, condenser 100 %, T_r* 130 degC, purge 98 %). From 2850 to 2900 kPa every
-#: transition among modes 0-3 held at 2885 kPa or less (seeds 1-3); from 2860 to 2890
-#: kPa 3 -> 0 took 12.5 instead of 9.9 h (seed 1). The baselines keep
-#: :class:`TransitionGuards`' defaults.
+#: MPC strategies: the plan hold from 2850 to 2900 kPa, about the MPC's exact soft
+#: limit on the reactor pressure (:attr:`TEMPCOptions.pressure_soft_max`, 2875 kPa):
+#: the plan slows as the MPC's limit nears and stops above it. With the hold from 2880
+#: kPa (the baselines') the exact limit held the pressure by cutting the A+C feed while
+#: the plan went on swapping E for D, and 3 -> 2 tripped on reactor pressure at 2.9 h
+#: (seed 1; models of order 12, limit 2880 kPa): the handles were all at their ranges
+#: (A+C feed 52 -> 6 %, condenser 100 %, T_r* 130 degC, purge 98 %). A hold from 2820
+#: to 2870 kPa (limit 2870) kept 3 -> 0 off its grade for 48 h on every seed (the plan
+#: held while the purge stood open); from 2860 to 2890 kPa 3 -> 0 took 12.5 instead
+#: of 9.9 h (seed 1, order 12). The baselines keep :class:`TransitionGuards`' defaults.
 GUARDS_MPC = TransitionGuards(hold_start_kpa=2850.0, hold_full_kpa=2900.0)
 
 
@@ -1059,30 +1060,53 @@ class TEMPCOptions:
         for P_r*.
     pressure_soft_max : float
         Soft upper limit of the reactor pressure in the MPC, kPa (interlock 3000;
-        Downs & Vogel's normal high limit 2895). 2880, below the normal limit, with
-        the plan hold of :data:`GUARDS_MPC` starting beneath it.
+        Downs & Vogel's normal high limit 2895). 2875, with the plan hold of
+        :data:`GUARDS_MPC` starting beneath it. Measured (ssmpc, noise on, seeds 1-3,
+        48 h): at 2870 kPa 3 -> 2 tripped on every seed (2.9-3.9 h: the MPC cut the A+C
+        feed to hold the limit while the plan went on); at 2880 kPa 1 -> 2 peaked at
+        2895 kPa and 3 -> 0 sat at the limit with the purge at 100 % for 30 h on seed
+        2 (at grade after 36.8 h); at 2875 kPa neither.
     pressure_slack_linear, pressure_slack_quadratic : float
         Weights of the soft limit's slack (one unit = ``output_scale[0]`` kPa;
         :class:`controller.mpc.MPCSettings` ``slack_linear`` / ``slack_quadratic``).
         1e6 and 1e4: an exact penalty against the input-target weights (1000 per
         %^2), so the MPC moves its handles off their targets before it lets the
-        predicted pressure through the limit (with 1e4 and 1e2 it did not: the
-        soft limit at 2880 kPa left the peaks of the transitions at 2906-2912 kPa).
-        Measured, 12 transitions among modes 0-3, seeds 1-3, 48 h, noise on, with
-        :data:`GUARDS_MPC` (peak kPa, trips): with the models of order 12 (the
-        default) ``ssmpc`` 2885, none; with order 8 (the DC gains wrong,
-        :mod:`controller.units.te.models`) 1 -> 3 tripped on every seed. With the
-        weights at 1e4 / 1e2 and a limit of 2950 kPa (the previous tuning) the peaks
-        were 2906-2915 kPa on six transitions. Legs out of mode 3 take longer: 3 -> 0
-        from 9.1 to 11.4 h and 3 -> 1 from 8.1 to 9.1 h (medians).
+        predicted pressure through the limit. With 1e4 and 1e2 it did not: under
+        IDV(1) at mode 3 (the A loop at its grade-change tuning) the pressure went
+        to 2904 kPa through a 2875 kPa limit and the high-pressure override acted;
+        with the exact penalty it stays at 2875. With the order-8 models (DC gains
+        wrong, :mod:`controller.units.te.models`) the exact limit tripped 1 -> 3 on
+        every seed and took 3 -> 0 to 16.9 h.
     index_dwell_h : float
         Minimum dwell of a model, h (1 h; see "Switching" above).
     nls_gain : float
         Adaptive gain of the normalized least squares (1/h), strategy (b).
     basis : {"companion", "orthonormal"}
         Coordinates of the models' shared state (:mod:`controller.shared_basis`;
-        orthonormal, the default: omega's roots at the mode-0 model's poles;
-        companion: the seed's eq. 3.12-3.13, coefficients up to 1e6-1e8 at n = 8).
+        orthonormal, the default: omega's roots at the poles of ``basis_grade``'s
+        model; companion: the seed's eq. 3.12-3.13, coefficients up to 1e6-1e8 at
+        n = 8).
+    basis_grade : {"mode0", "mode2", "mode3"}
+        Whose model's poles omega holds (orthonormal basis). The shared state is driven
+        by the measured, noisy outputs, and a model whose denominator is far from
+        omega's amplifies that noise in its estimates (the switching index's errors).
+        Median error of each grade's own model at its grade (fixed strategy, noise on,
+        seed 1, hours 2-12; modes 0 / 2 / 3, units of the CV scales):
+
+        ======  ===================  =================  ==================
+        order   omega at mode 0      at mode 2          at mode 3
+        ======  ===================  =================  ==================
+        8       0.21 / 0.06 / 0.02   8.39 / 0.20 / 2.4  2.28 / 0.86 / 0.21
+        10      0.12 / 0.19 / 0.14   -                  -
+        12      0.21 / 3.7 / 240     -                  0.01 / 0.05 / 0.15
+        ======  ===================  =================  ==================
+
+        At order 12 mode 3's model keeps a 45 h mode (pole -0.022 1/h): with omega at
+        mode 0's poles the index chose the mode-0 model at mode 3, and with omega at
+        mode 3's poles the mode-2 model, picked through 1 -> 2, drove the condenser
+        from 13 to 85 % and the plant tripped (3 of 12 transitions tripped with
+        ``fixed``, 5 with ``ssmpc``; seed 1). Default "mode0", with the default
+        order 10.
     model_order : int
         Reduced order n of every mode's model (default
         :data:`controller.units.te.models.MPC_ORDER`, 12: the order-8 models' DC
@@ -1111,10 +1135,10 @@ class TEMPCOptions:
         with the pressure loop closed and negative before), and with weight 10 a
         falling pressure made the MPC open the condenser further (IDV(7) at mode 2:
         XMV11 13 -> 43 % in 0.15 h, the pressure 2714 -> 2530 kPa, then the trip at
-        2.97 h). With the models of order 12 and the exact pressure limit the MPC
+        2.97 h). With the models of order 10 and the exact pressure limit the MPC
         opens the condenser against a rising pressure (3 -> 2: to 100 % within
-        0.5 h of the plan's closing it) and no IDV 1-20 at modes 0, 2, 3 trips
-        (seed 1); pinned, 3 -> 0 took 36.8 h on seed 2 (free: 11.4 h). Measured
+        0.5 h of the plan's closing it); with it pinned and the models of order 12,
+        3 -> 0 took 36.8 h on seed 2 (free: 11.4 h). Measured
         (noise on, seed 1, 24 h, strategy "fixed"): trips in IDV 1-20 at modes 0, 2,
         3 from 6 of 60 to 3 (IDV 6 at mode 2, IDV 7 at modes 2 and 3); in the 12
         transitions among modes 0-3 from 5 to 4 ("ssmpc": 6 to 4): 1 -> 2 and
@@ -1143,13 +1167,14 @@ class TEMPCOptions:
     output_relative: tuple = (1.0, 1.0, 0.01, 0.01, 1.0)
     move_weight: float = 1.0
     du_max: tuple = (50.0, 50.0, 20.0, 10.0, 50.0)
-    pressure_soft_max: float = 2880.0
+    pressure_soft_max: float = 2875.0
     pressure_slack_linear: float = 1.0e6
     pressure_slack_quadratic: float = 1.0e4
     index_dwell_h: float = 1.0
     nls_gain: float = 10.0
     target_weight: float | tuple = (1000.0, 1000.0, 10.0, 1000.0, 10.0)
     basis: str = "orthonormal"
+    basis_grade: str = "mode0"
     model_order: int = MPC_ORDER
     index_errors: str = "steady_output"
     index_hysteresis: float = 0.2
@@ -1164,6 +1189,11 @@ class TEMPCOptions:
 
         if self.basis not in BASES:
             raise ValueError(f"basis: must be one of {BASES}, got {self.basis!r}")
+        from controller.units.te.models import MODEL_GRADES
+
+        if self.basis_grade not in MODEL_GRADES:
+            raise ValueError(f"basis_grade: must be one of {MODEL_GRADES}, got "
+                             f"{self.basis_grade!r}")
         if (isinstance(self.model_order, bool) or not isinstance(self.model_order, int)
                 or not 2 <= self.model_order <= 40):
             raise ValueError(f"model_order: must be an integer in 2..40, got "
@@ -1224,7 +1254,8 @@ def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | No
     if opt.basis == "companion" and opt.model_order == 8:
         ssm = state_shared_model(sample_h, adaptive)  # the tuned default, as it was
     else:
-        ssm = state_shared_model(sample_h, adaptive, opt.model_order, basis=opt.basis)
+        ssm = state_shared_model(sample_h, adaptive, opt.model_order, basis=opt.basis,
+                                 roots_grade=opt.basis_grade)
     scale = np.asarray(opt.output_scale, dtype=float)
     w = opt.output_weight * (0.5 if adaptive else 1.0)
     lo, hi = _core_limits()

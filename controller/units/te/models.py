@@ -19,7 +19,7 @@ module linearizes exactly that, with the chapter-3 tooling:
    separator temperature, separator pressure, stripper pressure, stripper
    temperature (R7.15);
 5. balanced truncation with the DC gain matched (singular perturbation) to
-   n = :data:`MPC_ORDER` = 12 for the MPC, in the orthonormal basis; n = :data:`ORDER`
+   n = :data:`MPC_ORDER` = 10 for the MPC, in the orthonormal basis; n = :data:`ORDER`
    = 8 in the companion basis (as ch3_te: above that the companion coefficients lose
    accuracy); and the state-shared model with the three fixed models (modes 0, 2, 3)
    and, for strategy (b), one re-initialized adaptive model.
@@ -41,7 +41,7 @@ in the MPC). Measured on the three grades (``closed_loop`` against
  n   DC error (max |D|), modes 0/2/3     step-response error, modes 0 / 2 / 3
 ===  ==================================  =======================================
  8   1.94 / 0.96 / 0.99                  10.3 / 5.5 / 3.9  (of 9.4 / 17.9 / 8.3)
- 10  0.44 / 0.60 / 0.42                  -
+ 10  0.44 / 0.60 / 0.42                  1.9 / 7.8 / 3.2
  12  0.22 / 0.15 / 0.13                  2.2 / 1.8 / 1.5
  16  0.06 / 0.09 / 0.04                  0.3 / 0.3 / 0.2
 ===  ==================================  =======================================
@@ -49,11 +49,19 @@ in the MPC). Measured on the three grades (``closed_loop`` against
 Step-response error: the largest deviation over 0.05-100 h from the full cascade's
 response to steps of 10 % (XMV 3, 4, 11), 50 kPa (P_r*) and 1 °C (T_r*), in units of
 the CV scales (20 kPa, 1 °C, 20 kPa, 20 kPa, 1 °C), against the largest response in
-brackets. At n = 12 every DC gain to the reactor pressure is the plant's within 0.15
-kPa per handle unit (at n = 10 within 0.55, at n = 8 within 1.94); the adaptive model
-has 312 parameters instead of 208 and the shared order is 120 instead of 80. In the
-closed loop the MPC holds its pressure limit only with these models (see
-:class:`controller.units.te.control.TEMPCOptions` ``pressure_soft_max``).
+brackets. At n = 10 every DC gain to the reactor pressure is the plant's within 0.55
+kPa per handle unit (0.15 at n = 12, 1.94 at n = 8), with the sign right where it
+matters to the MPC: the condenser's gain to the pressure is 0.08 / -0.11 / 0.00 (n = 8:
++1.94 / +0.79 / -0.02) and to the separator temperature -0.82 / -1.83 / -0.00 °C/%
+(the plant's -0.69 / -1.23 / -0.01). The adaptive model has 260 parameters instead
+of 208 and the shared order is 100 instead of 80. Why not 12: at n = 12 mode 3's model
+keeps a 45 h mode (pole -0.022 1/h) that omega, at mode 0's poles, does not hold; its
+estimates amplify the measurement noise (errors of ~240 CV scales at mode 3) and the
+switching index no longer picks it there, and with omega at mode 3's poles the mode-2
+model drove the condenser from 13 to 85 % in a quarter of an hour in 1 -> 2 and the
+plant tripped (see :class:`controller.units.te.control.TEMPCOptions` ``basis_grade``).
+In the closed loop the MPC holds its pressure limit only with models whose DC gains
+are right (``TEMPCOptions.pressure_soft_max``).
 """
 
 from __future__ import annotations
@@ -73,7 +81,7 @@ MODEL_GRADES = ("mode0", "mode2", "mode3")
 #: The companion basis's order (the seed's coordinates, :data:`DESIGNER_ROOTS`).
 ORDER = 8
 #: The MPC's order (orthonormal basis; see "The order" above).
-MPC_ORDER = 12
+MPC_ORDER = 10
 PRESSURE_FILTER_H = 1.0 / 300.0
 #: roots of the designer polynomial, 1/h: a geometric spread over the retained poles
 DESIGNER_ROOTS = tuple(-np.geomspace(0.05, 20.0, ORDER))
@@ -138,7 +146,8 @@ def reduced(grade: str, order: int = ORDER):
 
 
 def state_shared_model(dt_h: float, adaptive: bool, order: int = ORDER,
-                       roots=None, basis: str = "companion") -> StateSharedModel:
+                       roots=None, basis: str = "companion",
+                       roots_grade: str = "mode0") -> StateSharedModel:
     """State-shared model: fixed modes 0, 2, 3 (+ one adaptive slot "reinit" at mode 0,
     placed first).
 
@@ -152,8 +161,12 @@ def state_shared_model(dt_h: float, adaptive: bool, order: int = ORDER,
         n, the reduced order of every mode.
     roots : sequence of complex, optional
         omega's roots, 1/h. Default: :data:`DESIGNER_ROOTS` (companion basis); the
-        mode-0 model's poles (orthonormal basis,
+        poles of ``roots_grade``'s model (orthonormal basis,
         :func:`controller.shared_basis.roots_from_poles`).
+    roots_grade : str
+        The grade of :data:`MODEL_GRADES` whose model's poles omega holds (orthonormal
+        basis, ``roots`` not given). See :class:`controller.units.te.control.TEMPCOptions`
+        ``basis_grade`` for why the MPC's models at order 12 take mode 3's.
     basis : {"companion", "orthonormal"}
         Coordinates of the shared state (:mod:`controller.shared_basis`).
     """
@@ -164,7 +177,10 @@ def state_shared_model(dt_h: float, adaptive: bool, order: int = ORDER,
         n_roots = a.size
     else:
         if roots is None:
-            roots = roots_from_poles(reduced(MODEL_GRADES[0], order).reduced.poles())
+            if roots_grade not in MODEL_GRADES:
+                raise ValueError(f"roots_grade: must be one of {MODEL_GRADES}, got "
+                                 f"{roots_grade!r}")
+            roots = roots_from_poles(reduced(roots_grade, order).reduced.poles())
         a = SharedBasis.orthonormal(roots)
         n_roots = a.n
     if n_roots != order:
