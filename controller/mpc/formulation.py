@@ -224,7 +224,9 @@ class DeltaUFormulation:
         zero_u = np.zeros(s.nu)
         _, vec = self.sample_vectors(np.zeros(n), np.zeros(n), np.zeros(s.ny), zero_u,
                                      np.zeros((s.P, s.ny)))
-        stacked_bounds(vec.f, vec.lb, vec.ub, vec.bl, vec.bu)
+        n_bounds = vec.lb.size + vec.bl.size
+        stacked_bounds(vec.f, vec.lb, vec.ub, vec.bl, vec.bu, np.empty(n_bounds),
+                       np.empty(n_bounds))
         clip_move(np.zeros(s.nu), s.du_max, zero_u, s.u_min, s.u_max)
 
     @property
