@@ -427,7 +427,7 @@ def _settings_parts(s: MPCSettings) -> _SettingsParts:
         if arr is not None:
             arr.setflags(write=False)
     if len(_PARTS) >= 64:  # settings come and go (retunes): forget the dead ones
-        for key in [k for k, (ref, _) in _PARTS.items() if ref() is None]:
+        for key in [k for k, (ref, _) in list(_PARTS.items()) if ref() is None]:
             del _PARTS[key]
     _PARTS[id(s)] = (weakref.ref(s), parts)
     return parts
