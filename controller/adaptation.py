@@ -332,6 +332,9 @@ class NormalizedLeastSquares:
         self._chol_n = 0
         self._pending: tuple | None = None  # a deferred covariance step (update(defer=True))
         self._prepared: tuple | None = None  # P W' of the next update (prepare())
+        # the compiled step's K, P W' and L^-1, written in place each update and read by
+        # its covariance step (the pending one, until committed)
+        self._out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._check_finite = False
         self._set_identity(float(settings.kappa))
         self._warm_kernels()
@@ -491,8 +494,8 @@ class NormalizedLeastSquares:
         self.reset_covariance("nonfinite")
         return True
 
-    def _products(self, W_base, d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(d, P W_base', P d)``, ``d`` = zeros when None (shapes (N,), (N, m), (N,))."""
+    def _products(self, W_base, d) -> tuple[np.ndarray, np.ndarray]:
+        """``(d, [P W_base', P d])``, ``d`` = zeros when None (shapes (N,), (N, m + 1))."""
         d = np.zeros(self.p.size) if d is None else np.asarray(d, dtype=float).reshape(-1)
         m = W_base.shape[0]
         cols = np.empty((self.p.size, m + 1))  # np.column_stack((W_base.T, d))
@@ -504,7 +507,7 @@ class NormalizedLeastSquares:
             else:
                 V = self._V
                 Pc = self._c * cols - V @ (V.T @ cols)
-        return d, np.ascontiguousarray(Pc[:, :m]), np.ascontiguousarray(Pc[:, m])
+        return d, Pc
 
     @property
     def prepared(self) -> bool:
@@ -524,12 +527,20 @@ class NormalizedLeastSquares:
         """
         if self._prepared is None:
             raise RuntimeError("update_prepared: call prepare() first (or P changed since)")
-        W_base, d, A0, v = self._prepared
+        W_base, d, Pc = self._prepared
         self._prepared = None
-        return self._step(W_base, y, freeze, defer, d, A0, v)
+        return self._step(W_base, y, freeze, defer, d, Pc)
 
-    def _step(self, W, y, freeze: bool, defer: bool, d=None, A0=None, v=None) -> NLSStep:
-        """The step of eq. 4.1 on ``W + y d'``; ``A0``, ``v`` = ``P W'``, ``P d`` when
+    def _outputs(self, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The compiled step's output buffers K, P W' (N, m) and L^-1 (m, m)."""
+        out = self._out
+        if out is None or out[2].shape[0] != m:
+            n = self.p.size
+            out = self._out = (np.zeros((n, m)), np.zeros((n, m)), np.zeros((m, m)))
+        return out
+
+    def _step(self, W, y, freeze: bool, defer: bool, d=None, Pc=None) -> NLSStep:
+        """The step of eq. 4.1 on ``W + y d'``; ``Pc`` = ``[P W_base', P d]`` when
         prepared (else computed here).
 
         The arithmetic is :func:`controller.nls_kernel.nls_step` (one compiled call);
@@ -545,13 +556,16 @@ class NormalizedLeastSquares:
                 Wy = W if d is None else W + np.outer(y, d)  # the kernel's W
                 data_ok = bool(np.isfinite(y - Wy @ self.p).all())
             if data_ok and self._check_outside_covariance():  # invalid data skips first
-                A0 = None
-        if A0 is None:
-            d, A0, v = self._products(W, d)
+                Pc = None
+        if Pc is None:
+            d, Pc = self._products(W, d)
         s = self.settings
-        code, e, p_new, projected, K, PWt, L_inv, trace_dP = nls_step(
-            W, d, A0, v, y, self.p, self.g_d, float(s.rate), self.lower, self.upper,
-            float(s.max_abs_param), float(s.dead_zone), bool(freeze))
+        # the buffers are free: a pending covariance step was committed before the
+        # products (prepare, update)
+        K, PWt, L_inv = self._outputs(m)
+        code, e, p_new, projected, trace_dP = nls_step(
+            W, d, Pc, y, self.p, self.g_d, float(s.rate), self.lower, self.upper,
+            float(s.max_abs_param), float(s.dead_zone), bool(freeze), K, PWt, L_inv)
         if code == INVALID_DATA:
             self.n_skipped += 1
             return NLSStep(np.full(m, np.nan), False, reason="invalid_data")

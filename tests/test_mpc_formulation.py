@@ -292,3 +292,32 @@ def test_soft_output_limits_feasible_from_any_state(x_a, frac, ref):
         _FEAS_FORM.qp_vectors(x_a, u_prev, ref))
     assert res.ok, res.status
     assert res.x[-1] >= -1e-9  # slack
+
+
+def test_settings_shared_parts_leave_each_formulation_as_built_alone(system):
+    """The settings-only arrays made once per settings object: two models under one
+    settings object, and the same settings rebuilt as another object (another input
+    target weight, limits), give the matrices and vectors of formulations built alone."""
+    rng, Phi, Gamma, C = system
+    kw = dict(nu=2, ny=2, P=8, M=3, u_min=[-0.5, -np.inf], u_max=[0.5, np.inf],
+              du_max=[0.2, 0.3], y_min=[-1.0, -np.inf], y_max=[1.0, 2.0],
+              u_target_weight=[0.1, 0.0])
+    s = MPCSettings(**kw)
+    Phi2, Gamma2, C2 = random_stable(rng, 4, 2, 2)
+    shared = [build_formulation(Phi, Gamma, C, s), build_formulation(Phi2, Gamma2, C2, s)]
+    other = MPCSettings(**{**kw, "u_target_weight": [0.0, 0.0], "u_max": [0.4, 1.0]})
+    for form, model in zip(shared, ((Phi, Gamma, C), (Phi2, Gamma2, C2)), strict=True):
+        alone = build_formulation(*model, MPCSettings(**kw))  # its own settings object
+        for name in ("H", "A", "F_x", "F_r", "F_ut", "lb0", "ub0", "input_rows",
+                     "ymax_rows", "ymin_rows"):
+            np.testing.assert_array_equal(getattr(form, name), getattr(alone, name), name)
+        x_a, u_prev = rng.normal(size=6), rng.uniform(-0.5, 0.5, size=2)
+        R = rng.normal(size=(8, 2))
+        a, b = form.qp_vectors(x_a, u_prev, R), alone.qp_vectors(x_a, u_prev, R)
+        for name in ("f", "lb", "ub", "bl", "bu"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), name)
+    changed = build_formulation(Phi, Gamma, C, other)
+    # both inputs limited now: M nu input rows (3 before), 2 P y_max and P y_min rows
+    assert changed.F_ut is None and changed.A.shape[0] == 3 * 2 + 16 + 8
+    assert shared[0].A.shape[0] == 3 + 16 + 8
+    assert not np.array_equal(changed.H, shared[0].H)

@@ -28,8 +28,12 @@ def _run(P, W_base, d, y, p, g_d=0.05, rate=1.0, lower=None, upper=None, max_abs
     n = p.size
     lower = np.full(n, -np.inf) if lower is None else lower
     upper = np.full(n, np.inf) if upper is None else upper
-    return nk.nls_step(W_base, d, P @ W_base.T, P @ d, y, p, g_d, rate, lower, upper,
-                       max_abs, dead_zone, freeze)
+    m = W_base.shape[0]
+    K, PWt, L_inv = np.zeros((n, m)), np.zeros((n, m)), np.zeros((m, m))
+    code, e, p_new, projected, trace = nk.nls_step(
+        W_base, d, np.column_stack((P @ W_base.T, P @ d)), y, p, g_d, rate, lower, upper,
+        max_abs, dead_zone, freeze, K, PWt, L_inv)
+    return code, e, p_new, projected, K, PWt, L_inv, trace
 
 
 @pytest.mark.parametrize("with_d", [True, False])

@@ -77,8 +77,8 @@ def test_stacked_bounds_check_and_order():
 
     f, lb, ub = np.array([1.0, 2.0]), np.array([-1.0, 0.0]), np.array([1.0, np.inf])
     bl, bu = np.array([-np.inf, -3.0]), np.array([4.0, 5.0])
-    clean, upper, lower = stacked_bounds(f, lb, ub, bl, bu)
-    assert clean
+    upper, lower = np.full(4, np.nan), np.full(4, np.nan)
+    assert stacked_bounds(f, lb, ub, bl, bu, upper, lower)
     np.testing.assert_array_equal(upper, np.concatenate([ub, bu]))
     np.testing.assert_array_equal(lower, np.concatenate([lb, bl]))
     for name, arr, bad in (("f", f, np.inf), ("f", f, np.nan), ("lb", lb, np.nan),
@@ -87,7 +87,7 @@ def test_stacked_bounds_check_and_order():
         arr = arr.copy()
         arr[1] = bad
         changed[name] = arr
-        assert not stacked_bounds(*changed.values())[0], name
+        assert not stacked_bounds(*changed.values(), upper, lower), name
 
 
 def test_clip_move_equals_numpy_minimum_maximum():

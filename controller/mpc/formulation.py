@@ -23,6 +23,7 @@ formulation per model so a model switch costs a dictionary look-up.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Hashable
 from dataclasses import dataclass
 
@@ -189,19 +190,27 @@ class DeltaUFormulation:
         # Per-sample constants, so qp_vectors allocates only what changes.
         s = self.settings
         rows = self.input_rows
-        ymax = np.tile(s.y_max, s.P)[self.ymax_rows]
-        ymin = np.tile(s.y_min, s.P)[self.ymin_rows]
         n_in, n_max = rows.size, self.ymax_rows.size
-        bl0 = np.concatenate([np.tile(s.u_min, s.M)[rows], np.full(n_max, -np.inf), ymin])
-        bu0 = np.concatenate([np.tile(s.u_max, s.M)[rows], ymax, np.full(ymin.size, np.inf)])
-        consts = {"_in_idx": rows % s.nu, "_n_in": n_in, "_n_max": n_max, "_bl0": bl0,
+        parts = _settings_parts(s)
+        if (rows is parts.input_rows and self.ymax_rows is parts.ymax_rows
+                and self.ymin_rows is parts.ymin_rows):  # built by build_formulation
+            bl0, bu0, in_idx, tile_M = parts.bl0, parts.bu0, parts.in_idx, parts.tile_M
+        else:
+            ymax = np.tile(s.y_max, s.P)[self.ymax_rows]
+            ymin = np.tile(s.y_min, s.P)[self.ymin_rows]
+            bl0 = np.concatenate([np.tile(s.u_min, s.M)[rows], np.full(n_max, -np.inf),
+                                  ymin])
+            bu0 = np.concatenate([np.tile(s.u_max, s.M)[rows], ymax,
+                                  np.full(ymin.size, np.inf)])
+            in_idx, tile_M = rows % s.nu, np.tile(np.arange(s.nu), s.M)
+        consts = {"_in_idx": in_idx, "_n_in": n_in, "_n_max": n_max, "_bl0": bl0,
                   "_bu0": bu0, "_Sx_max": np.ascontiguousarray(self.S_x[self.ymax_rows]),
                   "_Sx_min": np.ascontiguousarray(self.S_x[self.ymin_rows]),
                   "_F_ut": (np.zeros((0, 0)) if self.F_ut is None
                             else np.ascontiguousarray(self.F_ut)),
                   "_no_dev": np.zeros(0),
                   # np.tile(v, M) of an (nu,) vector as one take (the same copy)
-                  "_tile_M": np.tile(np.arange(s.nu), s.M)}
+                  "_tile_M": tile_M}
         for k, v in consts.items():
             object.__setattr__(self, k, v)
         self._warm_kernels()
@@ -215,7 +224,9 @@ class DeltaUFormulation:
         zero_u = np.zeros(s.nu)
         _, vec = self.sample_vectors(np.zeros(n), np.zeros(n), np.zeros(s.ny), zero_u,
                                      np.zeros((s.P, s.ny)))
-        stacked_bounds(vec.f, vec.lb, vec.ub, vec.bl, vec.bu)
+        n_bounds = vec.lb.size + vec.bl.size
+        stacked_bounds(vec.f, vec.lb, vec.ub, vec.bl, vec.bu, np.empty(n_bounds),
+                       np.empty(n_bounds))
         clip_move(np.zeros(s.nu), s.du_max, zero_u, s.u_min, s.u_max)
 
     @property
@@ -344,6 +355,84 @@ class DeltaUFormulation:
         return Y.reshape(s.P, s.ny)
 
 
+@dataclass(frozen=True, eq=False)
+class _SettingsParts:
+    """What a formulation takes from its settings alone (the same for every model), made
+    once per :class:`MPCSettings` object (:func:`_settings_parts`): ``np.tile`` and
+    ``np.kron`` cost some 10 µs a call, fifteen of them half of a TE-size build."""
+
+    Xi_bar: np.ndarray
+    Lambda_diag: np.ndarray
+    TtW: np.ndarray | None
+    T_ut: np.ndarray | None
+    lb0: np.ndarray
+    ub0: np.ndarray
+    input_block: np.ndarray
+    input_rows: np.ndarray
+    ymax_rows: np.ndarray
+    ymin_rows: np.ndarray
+    scale: np.ndarray | None
+    bl0: np.ndarray
+    bu0: np.ndarray
+    in_idx: np.ndarray
+    tile_M: np.ndarray
+
+
+#: id(settings) -> (weak reference to the settings, their parts); settings are immutable
+_PARTS: dict[int, tuple[weakref.ref, _SettingsParts]] = {}
+
+
+def _settings_parts(s: MPCSettings) -> _SettingsParts:
+    """The settings-only arrays of :func:`build_formulation` and of a formulation's
+    per-sample constants, made on the first call for ``s`` and kept while ``s`` lives
+    (read-only arrays, shared by the formulations of every model)."""
+    entry = _PARTS.get(id(s))
+    if entry is not None and entry[0]() is s:
+        return entry[1]
+    nmv = s.M * s.nu
+    has_slack = s.has_output_limits
+    nz = nmv + (1 if has_slack else 0)
+    T_ut = TtW = None
+    if np.any(s.u_target_weight > 0):
+        T_ut = np.kron(np.tril(np.ones((s.M, s.M))), np.eye(s.nu))
+        TtW = T_ut.T * np.tile(s.u_target_weight, s.M)
+    lb0 = np.full(nz, -np.inf)
+    ub0 = np.full(nz, np.inf)
+    lb0[:nmv] = -np.tile(s.du_max, s.M)
+    ub0[:nmv] = np.tile(s.du_max, s.M)
+    if has_slack:
+        lb0[-1] = 0.0
+    finite_u = np.isfinite(np.tile(s.u_min, s.M)) | np.isfinite(np.tile(s.u_max, s.M))
+    input_rows = np.flatnonzero(finite_u)
+    T = np.kron(np.tril(np.ones((s.M, s.M))), np.eye(s.nu))
+    input_block = np.hstack([T[input_rows], np.zeros((input_rows.size, nz - nmv))])
+    ymax_rows = np.flatnonzero(np.isfinite(np.tile(s.y_max, s.P)))
+    ymin_rows = np.flatnonzero(np.isfinite(np.tile(s.y_min, s.P)))
+    scale = np.tile(s.slack_scale, s.P) if has_slack else None
+    ymax = np.tile(s.y_max, s.P)[ymax_rows]
+    ymin = np.tile(s.y_min, s.P)[ymin_rows]
+    n_max = ymax_rows.size
+    bl0 = np.concatenate([np.tile(s.u_min, s.M)[input_rows], np.full(n_max, -np.inf), ymin])
+    bu0 = np.concatenate([np.tile(s.u_max, s.M)[input_rows], ymax,
+                          np.full(ymin.size, np.inf)])
+    parts = _SettingsParts(
+        Xi_bar=np.tile(s.Xi, s.P), Lambda_diag=np.diag(np.tile(s.Lambda, s.M)), TtW=TtW,
+        T_ut=T_ut, lb0=lb0, ub0=ub0, input_block=input_block, input_rows=input_rows,
+        ymax_rows=ymax_rows, ymin_rows=ymin_rows, scale=scale, bl0=bl0, bu0=bu0,
+        in_idx=input_rows % s.nu, tile_M=np.tile(np.arange(s.nu), s.M))
+    # read-only where a formulation's own array was; writeable where a kernel takes it
+    # (numba compiles a read-only argument as another type)
+    for arr in (parts.Xi_bar, parts.Lambda_diag, parts.T_ut, parts.lb0, parts.ub0,
+                parts.input_block, parts.scale):
+        if arr is not None:
+            arr.setflags(write=False)
+    if len(_PARTS) >= 64:  # settings come and go (retunes): forget the dead ones
+        for key in [k for k, (ref, _) in list(_PARTS.items()) if ref() is None]:
+            del _PARTS[key]
+    _PARTS[id(s)] = (weakref.ref(s), parts)
+    return parts
+
+
 def build_formulation(Phi, Gamma, C, settings: MPCSettings,
                       terminal_weight=None, Gamma_d=None) -> DeltaUFormulation:
     """Build the condensed QP of eq. 6.10 for one model.
@@ -381,19 +470,17 @@ def build_formulation(Phi, Gamma, C, settings: MPCSettings,
             raise ValueError(f"{name}: non-finite entries")
     S_x, S_u, T_x, T_u = prediction_matrices(Phi_a, Psi_a, C_a, s.P, s.M,
                                              terminal=terminal_weight is not None)
+    parts = _settings_parts(s)
     nmv = s.M * s.nu
-    Xi_bar = np.tile(s.Xi, s.P)
-    SuT_Xi = S_u.T * Xi_bar
-    Hu = SuT_Xi @ S_u + np.diag(np.tile(s.Lambda, s.M))
+    SuT_Xi = S_u.T * parts.Xi_bar
+    Hu = SuT_Xi @ S_u + parts.Lambda_diag
     F_x = SuT_Xi @ S_x
     F_r = SuT_Xi
     F_ut = None
-    if np.any(s.u_target_weight > 0):
+    if parts.TtW is not None:
         # Input targets: u(k+j) = u(k-1) + Σ_{i<=j} Δu(k+i), cost ‖u − u_t‖²_W.
-        T = np.kron(np.tril(np.ones((s.M, s.M))), np.eye(s.nu))
-        TtW = T.T * np.tile(s.u_target_weight, s.M)
-        Hu = Hu + TtW @ T
-        F_ut = TtW  # f += F_ut @ tile(u_prev − u_target)
+        Hu = Hu + parts.TtW @ parts.T_ut
+        F_ut = parts.TtW  # f += F_ut @ tile(u_prev − u_target)
     if terminal_weight is not None:
         W = np.asarray(terminal_weight, dtype=float)
         na = Phi_a.shape[0]
@@ -410,25 +497,15 @@ def build_formulation(Phi, Gamma, C, settings: MPCSettings,
     if has_slack:
         H[-1, -1] = s.slack_quadratic
 
-    # Simple bounds: rates on the moves, ε >= 0.
-    lb0 = np.full(nz, -np.inf)
-    ub0 = np.full(nz, np.inf)
-    lb0[:nmv] = -np.tile(s.du_max, s.M)
-    ub0[:nmv] = np.tile(s.du_max, s.M)
-    if has_slack:
-        lb0[-1] = 0.0
-
+    # Simple bounds (rates on the moves, ε >= 0) and the rows of the input limits
+    # (eq. 6.9: lower block-triangular sums of the moves) are the settings'.
+    lb0, ub0 = parts.lb0, parts.ub0
+    input_rows, ymax_rows, ymin_rows = parts.input_rows, parts.ymax_rows, parts.ymin_rows
     blocks = []
-    # Input limits (eq. 6.9): lower block-triangular sums of the moves.
-    finite_u = np.isfinite(np.tile(s.u_min, s.M)) | np.isfinite(np.tile(s.u_max, s.M))
-    input_rows = np.flatnonzero(finite_u)
     if input_rows.size:
-        T = np.kron(np.tril(np.ones((s.M, s.M))), np.eye(s.nu))
-        blocks.append(np.hstack([T[input_rows], np.zeros((input_rows.size, nz - nmv))]))
-    ymax_rows = np.flatnonzero(np.isfinite(np.tile(s.y_max, s.P)))
-    ymin_rows = np.flatnonzero(np.isfinite(np.tile(s.y_min, s.P)))
+        blocks.append(parts.input_block)
     if has_slack:
-        scale = np.tile(s.slack_scale, s.P)
+        scale = parts.scale
         blocks.append(np.hstack([S_u[ymax_rows], -scale[ymax_rows, None]]))
         blocks.append(np.hstack([S_u[ymin_rows], scale[ymin_rows, None]]))
     A = np.vstack(blocks) if blocks else np.zeros((0, nz))

@@ -102,6 +102,7 @@ class QPSolver(ABC):
             raise ValueError(f"max_iter: must be a positive integer, got {max_iter!r}")
         self.max_iter = int(max_iter)
         self.warm_start = bool(warm_start)
+        self._stacked: tuple[np.ndarray, np.ndarray] | None = None  # see _bounds
 
     @property
     def nz(self) -> int:
@@ -116,9 +117,11 @@ class QPSolver(ABC):
         warm = self.warm_start if warm is None else warm
         t0 = time.perf_counter()
         asc = np.ascontiguousarray  # no copy of the kernels' own vectors
-        clean, upper, lower = stacked_bounds(  # the check and [ub; bu], [lb; bl] in one call
-            asc(v.f, dtype=float), asc(v.lb, dtype=float), asc(v.ub, dtype=float),
-            asc(v.bl, dtype=float), asc(v.bu, dtype=float))
+        lb, bl = asc(v.lb, dtype=float), asc(v.bl, dtype=float)
+        upper, lower = self._bounds(lb.size + bl.size)
+        clean = stacked_bounds(  # the check and [ub; bu], [lb; bl] in one call
+            asc(v.f, dtype=float), lb, asc(v.ub, dtype=float), bl, asc(v.bu, dtype=float),
+            upper, lower)
         if not clean:
             return QPResult("nan", None, 0, (time.perf_counter() - t0) * 1e3, float("nan"),
                             self.name, "non-finite QP data")
@@ -133,6 +136,14 @@ class QPSolver(ABC):
         if status != "solved":
             x = None if status == "nan" else x
         return QPResult(status, x, int(it), ms, float(obj), self.name, str(raw))
+
+    def _bounds(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The stacked bounds' buffers ``[ub; bu]``, ``[lb; bl]`` of ``n`` entries, kept
+        from solve to solve (each solve writes them before the backend reads them)."""
+        buf = self._stacked
+        if buf is None or buf[0].size != n:
+            buf = self._stacked = (np.empty(n), np.empty(n))
+        return buf
 
     def setup_ahead(self) -> None:
         """Make the solver's workspace now (between samples) rather than in the next

@@ -106,28 +106,27 @@ def qp_vectors_kernel(x, x_prev, y, F_x, F_r, r, F_ut, ut_dev, slack_linear, has
 
 
 @njit(cache=True)
-def stacked_bounds(f, lb, ub, bl, bu):
+def stacked_bounds(f, lb, ub, bl, bu, upper, lower):
     """The QP data check and DAQP's stacked bounds in one call.
 
     Parameters
     ----------
     f, lb, ub : ndarray, shape (nz,)
     bl, bu : ndarray, shape (rows,)
+    upper, lower : ndarray, shape (nz + rows,)
+        Written: ``[ub; bu]`` and ``[lb; bl]``, the order DAQP takes them in (the
+        solver's own buffers: a returned array would cost ~0.7 µs of boxing each).
 
     Returns
     -------
     clean : bool
         ``f`` finite and no bound NaN (an infinite bound is an open one).
-    upper, lower : ndarray, shape (nz + rows,)
-        ``[ub; bu]`` and ``[lb; bl]``, the order DAQP takes them in.
     """
     clean = True
     for i in range(f.size):
         if not math.isfinite(f[i]):
             clean = False
     nz, rows = lb.size, bl.size
-    upper = np.empty(nz + rows)
-    lower = np.empty(nz + rows)
     for i in range(nz):
         upper[i], lower[i] = ub[i], lb[i]
     for i in range(rows):
@@ -135,7 +134,7 @@ def stacked_bounds(f, lb, ub, bl, bu):
     for i in range(nz + rows):
         if math.isnan(upper[i]) or math.isnan(lower[i]):
             clean = False
-    return clean, upper, lower
+    return clean
 
 
 @njit(cache=True)
