@@ -160,7 +160,7 @@ from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.d_share_path import DSharePath, DSharePathSettings
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
-from controller.units.te.models import MPC_ORDER
+from controller.units.te.models import MODEL_GRADES, MPC_ORDER
 from controller.units.te.overrides import FeedOverrides, FeedOverrideSettings
 from controller.units.te.path_kernel import compile_path_kernels
 from controller.units.te.pi_baseline import (
@@ -259,6 +259,8 @@ __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec"
            "PRESSURE_LOOP", "ALARM_LIMITS"]
 
 STRATEGIES = ("fixed", "ssmpc", "pi", "decentralized", "plan")
+#: The strategies with the multiple-model MPC core (a and b).
+MPC_STRATEGIES = ("fixed", "ssmpc")
 #: The five core handles: XMV numbers, None = reactor-temperature set point (R7.15).
 CORE_XMVS = (3, 4, None, None, 11)
 CORE_NAMES = ("XMV3", "XMV4", "Pr_sp", "Tr_sp", "XMV11")
@@ -551,7 +553,7 @@ class TEController:
         self.reactants = ReactantTrim(reactants, self.sample_h)
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h)
-                       if strategy in ("fixed", "ssmpc") else None)
+                       if strategy in MPC_STRATEGIES else None)
         #: h the plan's clock is behind real time (the plan hold, TransitionGuards)
         self.plan_lag_h = 0.0
         self._hold_alarm = False
@@ -1189,8 +1191,6 @@ class TEMPCOptions:
 
         if self.basis not in BASES:
             raise ValueError(f"basis: must be one of {BASES}, got {self.basis!r}")
-        from controller.units.te.models import MODEL_GRADES
-
         if self.basis_grade not in MODEL_GRADES:
             raise ValueError(f"basis_grade: must be one of {MODEL_GRADES}, got "
                              f"{self.basis_grade!r}")
@@ -1377,13 +1377,14 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         u0 = np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
         core, horizon = make_mpc_core(strategy, sample_h, u0, mpc, realtime=realtime)
         targets = core_targets(strategy, mpc or TEMPCOptions())
+    mpc_core = strategy in MPC_STRATEGIES
     if ratio is None:
-        ratio = RATIO_MPC if strategy in ("fixed", "ssmpc") else RatioSettings()
-    if guards is None and strategy in ("fixed", "ssmpc"):
+        ratio = RATIO_MPC if mpc_core else RatioSettings()
+    if guards is None and mpc_core:
         guards = GUARDS_MPC
     ctl = TEController(strategy, plan, core, ratio, sample_h, horizon,
                        outer_a_loop, production_loop,
-                       targets=targets if strategy in ("fixed", "ssmpc") else None,
+                       targets=targets if mpc_core else None,
                        guards=guards, feeds=feeds, production=production,
                        reactants=reactants, separator_loop=separator_loop,
                        d_share_path=d_share_path)
