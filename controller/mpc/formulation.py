@@ -196,12 +196,7 @@ class DeltaUFormulation:
                 and self.ymin_rows is parts.ymin_rows):  # built by build_formulation
             bl0, bu0, in_idx, tile_M = parts.bl0, parts.bu0, parts.in_idx, parts.tile_M
         else:
-            ymax = np.tile(s.y_max, s.P)[self.ymax_rows]
-            ymin = np.tile(s.y_min, s.P)[self.ymin_rows]
-            bl0 = np.concatenate([np.tile(s.u_min, s.M)[rows], np.full(n_max, -np.inf),
-                                  ymin])
-            bu0 = np.concatenate([np.tile(s.u_max, s.M)[rows], ymax,
-                                  np.full(ymin.size, np.inf)])
+            bl0, bu0 = _row_bounds(s, rows, self.ymax_rows, self.ymin_rows)
             in_idx, tile_M = rows % s.nu, np.tile(np.arange(s.nu), s.M)
         consts = {"_in_idx": in_idx, "_n_in": n_in, "_n_max": n_max, "_bl0": bl0,
                   "_bu0": bu0, "_Sx_max": np.ascontiguousarray(self.S_x[self.ymax_rows]),
@@ -247,17 +242,11 @@ class DeltaUFormulation:
         is infinite needs a formulation built with a finite one); a non-finite value
         in such a row leaves it open (±1e30, the solvers' infinity).
         """
-        s = self.settings
-        pick = lambda v, d: d if v is None else np.asarray(v, dtype=float)  # noqa: E731
-        umin, umax = pick(u_min, s.u_min), pick(u_max, s.u_max)
-        ymin, ymax = pick(y_min, s.y_min), pick(y_max, s.y_max)
-        n_max = self.ymax_rows.size
+        f = (lambda v: None if v is None else np.asarray(v, dtype=float))  # noqa: E731
         rows = self.input_rows
-        bl = np.concatenate([np.tile(umin, s.M)[rows], np.full(n_max, -np.inf),
-                             np.tile(ymin, s.P)[self.ymin_rows]])
-        bu = np.concatenate([np.tile(umax, s.M)[rows], np.tile(ymax, s.P)[self.ymax_rows],
-                             np.full(self.ymin_rows.size, np.inf)])
-        n_fixed = rows.size + n_max  # open rows that the settings have open stay inf
+        bl, bu = _row_bounds(self.settings, rows, self.ymax_rows, self.ymin_rows,
+                             f(u_min), f(u_max), f(y_min), f(y_max))
+        n_fixed = rows.size + self.ymax_rows.size  # open rows the settings have open stay inf
         bl[:rows.size] = np.maximum(bl[:rows.size], -_OPEN)
         bu[:n_fixed] = np.minimum(bu[:n_fixed], _OPEN)
         bl[n_fixed:] = np.maximum(bl[n_fixed:], -_OPEN)
@@ -378,6 +367,22 @@ class _SettingsParts:
     tile_M: np.ndarray
 
 
+def _row_bounds(s: MPCSettings, input_rows, ymax_rows, ymin_rows, u_min=None, u_max=None,
+                y_min=None, y_max=None):
+    """Constant parts ``(bl0, bu0)`` of the general constraints' bounds: the input
+    limits on ``input_rows``, then the output limits' rows (``-inf``/``+inf`` where a
+    row has only the other side). The limits are the settings' unless given."""
+    u_min = s.u_min if u_min is None else u_min
+    u_max = s.u_max if u_max is None else u_max
+    ymax = np.tile(s.y_max if y_max is None else y_max, s.P)[ymax_rows]
+    ymin = np.tile(s.y_min if y_min is None else y_min, s.P)[ymin_rows]
+    bl0 = np.concatenate([np.tile(u_min, s.M)[input_rows], np.full(ymax.size, -np.inf),
+                          ymin])
+    bu0 = np.concatenate([np.tile(u_max, s.M)[input_rows], ymax,
+                          np.full(ymin.size, np.inf)])
+    return bl0, bu0
+
+
 #: id(settings) -> (weak reference to the settings, their parts); settings are immutable
 _PARTS: dict[int, tuple[weakref.ref, _SettingsParts]] = {}
 
@@ -409,12 +414,7 @@ def _settings_parts(s: MPCSettings) -> _SettingsParts:
     ymax_rows = np.flatnonzero(np.isfinite(np.tile(s.y_max, s.P)))
     ymin_rows = np.flatnonzero(np.isfinite(np.tile(s.y_min, s.P)))
     scale = np.tile(s.slack_scale, s.P) if has_slack else None
-    ymax = np.tile(s.y_max, s.P)[ymax_rows]
-    ymin = np.tile(s.y_min, s.P)[ymin_rows]
-    n_max = ymax_rows.size
-    bl0 = np.concatenate([np.tile(s.u_min, s.M)[input_rows], np.full(n_max, -np.inf), ymin])
-    bu0 = np.concatenate([np.tile(s.u_max, s.M)[input_rows], ymax,
-                          np.full(ymin.size, np.inf)])
+    bl0, bu0 = _row_bounds(s, input_rows, ymax_rows, ymin_rows)
     parts = _SettingsParts(
         Xi_bar=np.tile(s.Xi, s.P), Lambda_diag=np.diag(np.tile(s.Lambda, s.M)), TtW=TtW,
         T_ut=T_ut, lb0=lb0, ub0=ub0, input_block=input_block, input_rows=input_rows,
