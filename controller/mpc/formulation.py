@@ -397,9 +397,10 @@ def _settings_parts(s: MPCSettings) -> _SettingsParts:
     nmv = s.M * s.nu
     has_slack = s.has_output_limits
     nz = nmv + (1 if has_slack else 0)
+    T = np.kron(np.tril(np.ones((s.M, s.M))), np.eye(s.nu))  # the moves' running sums
     T_ut = TtW = None
     if np.any(s.u_target_weight > 0):
-        T_ut = np.kron(np.tril(np.ones((s.M, s.M))), np.eye(s.nu))
+        T_ut = T
         TtW = T_ut.T * np.tile(s.u_target_weight, s.M)
     lb0 = np.full(nz, -np.inf)
     ub0 = np.full(nz, np.inf)
@@ -409,7 +410,6 @@ def _settings_parts(s: MPCSettings) -> _SettingsParts:
         lb0[-1] = 0.0
     finite_u = np.isfinite(np.tile(s.u_min, s.M)) | np.isfinite(np.tile(s.u_max, s.M))
     input_rows = np.flatnonzero(finite_u)
-    T = np.kron(np.tril(np.ones((s.M, s.M))), np.eye(s.nu))
     input_block = np.hstack([T[input_rows], np.zeros((input_rows.size, nz - nmv))])
     ymax_rows = np.flatnonzero(np.isfinite(np.tile(s.y_max, s.P)))
     ymin_rows = np.flatnonzero(np.isfinite(np.tile(s.y_min, s.P)))
