@@ -380,7 +380,9 @@ class PlantNode:
                 return
             if msg.seq <= self.last_mv_seq:
                 self.counters.rejected["stale"] += 1
-                if msg.meas_seq >= self._last_mv_meas_seq:
+                # a repeat of the applied move is the network's doing; an older move
+                # for a sample no older than the applied one's is another publisher's
+                if msg.seq < self.last_mv_seq and msg.meas_seq >= self._last_mv_meas_seq:
                     self._alarm("stale", f"move for sample {msg.meas_seq} refused as older "
                                 "than the applied one: the applied move is not the "
                                 "controller's latest (another publisher uses its name?)")
