@@ -37,14 +37,15 @@ __all__ = ["FLOOR_FRACTION", "MIN_SAMPLES", "STEP_WINDOW", "MoveHistory", "RampI
 #: fraction of its instrument range (TE: 0.05 % of a valve, 0.225 kPa of the reactor
 #: pressure set point).
 FLOOR_FRACTION = 5e-4
-#: Steps looked back for the ramp-in's limits: half the 20 samples of the bumpless rule,
-#: so that a record written up to 10 samples before the kill (the store's writes run
-#: behind the loop; a SIGKILL loses the queued ones) still lies within the rule's window
-#: and its largest step is no larger than the rule's bound. With the whole 20 the
-#: record's window reached back before the rule's, and while a transition's moves
-#: shrank that allowed steps above the rule's bound on six or more of the 12 TE MVs
-#: (a kill at 1800x).
-STEP_WINDOW = 10
+#: Steps looked back for the ramp-in's limits: a quarter of the 20 samples of the
+#: bumpless rule, so that a record written up to 15 samples before the kill (the store's
+#: writes run behind the loop, at most one every 50 wall ms, and a SIGKILL loses the
+#: queued ones) still lies within the rule's window and its largest step is no larger
+#: than the rule's bound. A record's window reaching back before the rule's allowed,
+#: while a transition's moves shrank, steps above the rule's bound on six or more of the
+#: 12 TE MVs: with the whole 20 at every kill at 1800x, with 10 once in about ten
+#: loaded runs (a record 11 samples behind).
+STEP_WINDOW = 5
 #: Fewest samples the ramp-in lasts after a take-over.
 MIN_SAMPLES = 20
 
