@@ -149,6 +149,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -274,6 +275,10 @@ _NO_SHIFT = np.zeros(len(CORE_CVS))  # the targets' shift of the CVs when they h
 _NO_SHIFT.setflags(write=False)
 _NO_XMVS = np.full(12, np.nan)  # a sample's XMVs before any is written (copied)
 _NO_XMVS.setflags(write=False)
+#: (core handle, column of the 12 XMVs) of the handles that are valves
+_CORE_XMV_COLUMNS = tuple((j, xmv - 1) for j, xmv in enumerate(CORE_XMVS) if xmv is not None)
+#: Keys of the core's ``extra`` the decision passes on when the core gives them.
+_PASSED_ON_KEYS = ("prediction_rms", "active_model_detail") + QP_WORK_KEYS
 #: Reactor temperature set point range, degC (R7.12).
 TR_LIMITS = (110.0, 130.0)
 #: High-pressure override on the A+C feed (production), as in Ricker's (1996)
@@ -657,7 +662,7 @@ class TEController:
         """The separator-temperature loop's trim of the condenser's target, %."""
         return self._sep.value
 
-    def _production_step(self, ym: np.ndarray, xmeas: np.ndarray) -> float:
+    def _production_step(self, ym: Sequence[float], xmeas: Sequence[float]) -> float:
         """Outer production loop of the MPC strategies: product flow (XMEAS 17)
         trims the MPC's input target of the A+C feed (XMV 4). ``ym``: the plan's
         XMEAS references now."""
@@ -669,7 +674,7 @@ class TEController:
             self._p.step(float(ym[lp.cv - 1]) - y, lp.gain, lp.ti_h, self.sample_h, held)
         return self._p.value
 
-    def _a_trim_step(self, ym: np.ndarray, xmeas: np.ndarray) -> float:
+    def _a_trim_step(self, ym: Sequence[float], xmeas: Sequence[float]) -> float:
         """Outer composition loop of the MPC strategies: A in the reactor feed
         (XMEAS 23, 0.1 h analyzer) trims the MPC's input target of the A feed (the
         PI baseline's loop of the same tuning, :data:`A_FEED_LOOP`)."""
@@ -685,7 +690,7 @@ class TEController:
                          held)
         return self._a.value
 
-    def _separator_trim_step(self, xmeas: np.ndarray, reference: float) -> float:
+    def _separator_trim_step(self, xmeas: Sequence[float], reference: float) -> float:
         """Separator temperature (XMEAS 11) -> the condenser's input target (XMV 11) at
         a steady grade (:data:`SEPARATOR_LOOP`); ``reference``: the plan's separator
         temperature moved by the steady-state targets, degC."""
@@ -710,13 +715,13 @@ class TEController:
         before, after = self.plan.change_at(self._t_last)
         return bool(after.xmeas[22] < before.xmeas[22] - A_FALLING_MOL)
 
-    def _e_feed_margin(self, xmeas: np.ndarray) -> float:
+    def _e_feed_margin(self, xmeas: Sequence[float]) -> float:
         """How far (%) the E valve may go above the plan's (:class:`TransitionGuards`)."""
         g = self.guards
         f = g.hold_fraction(float(xmeas[6]))
         return g.e_feed_margin + f * (g.e_feed_margin_held - g.e_feed_margin)
 
-    def _hold_step(self, t_ref: float, xmeas: np.ndarray, alarms: list) -> None:
+    def _hold_step(self, t_ref: float, xmeas: Sequence[float], alarms: list) -> None:
         """The plan hold (:class:`TransitionGuards`): while a leg is under way, the
         plan's clock of the next sample falls behind by the held share of this one."""
         legs = getattr(self.plan, "legs", ())  # a held plan (an abort) has none
@@ -733,7 +738,7 @@ class TEController:
             alarms.append(f"reactor pressure {p:.0f} kPa: grade plan held "
                           f"{100 * f:.0f} % (behind by {self.plan_lag_h:.2f} h)")
 
-    def _track_pressure_setpoint(self, core_u, xmeas: np.ndarray):
+    def _track_pressure_setpoint(self, core_u, xmeas: Sequence[float]):
         """P_r* at most :attr:`TransitionGuards.purge_track_kpa` above the measured
         reactor pressure (not below :data:`PR_LIMITS`); a core that computed more is
         told what was applied."""
@@ -748,7 +753,7 @@ class TEController:
             applied(core_u)
         return core_u
 
-    def _override_step(self, xmeas: np.ndarray) -> float:
+    def _override_step(self, xmeas: Sequence[float]) -> float:
         """High-pressure override: integral cut of the A+C feed (XMV 4) above
         :data:`OVERRIDE_PRESSURE`, released below it (never negative)."""
         p = float(xmeas[6])
@@ -757,7 +762,8 @@ class TEController:
             self.override = min(max(self.override, 0.0), OVERRIDE_MAX)
         return self.override
 
-    def _d_share_ff(self, ff: float, t_ref: float, ym: np.ndarray, xmeas: np.ndarray) -> float:
+    def _d_share_ff(self, ff: float, t_ref: float, ym: Sequence[float],
+                    xmeas: Sequence[float]) -> float:
         """The D share's feedforward: the plan's ``ff``, or for the MPC strategies their
         own path (:mod:`controller.units.te.d_share_path`), started on the plan's and
         standing where it is under a plan without legs (a held plan: an abort)."""
@@ -774,7 +780,7 @@ class TEController:
                          float(xmeas[1]), float(xmeas[7]),
                          float(self.production.level_setpoint(ym[7])))
 
-    def _ratio_step(self, ff: float, ym: np.ndarray, xmeas: np.ndarray) -> float:
+    def _ratio_step(self, ff: float, ym: Sequence[float], xmeas: Sequence[float]) -> float:
         if self.s is None:
             self.s, self.s_ff_prev = ff, ff
         s = self.s + (ff - self.s_ff_prev)
@@ -846,7 +852,7 @@ class TEController:
         return res.u, refs + shift, shift
 
     @staticmethod
-    def _core_ff(xv: np.ndarray, ym: np.ndarray) -> np.ndarray:
+    def _core_ff(xv: np.ndarray, ym: Sequence[float]) -> np.ndarray:
         """Core handles' plan values from the valve and XMEAS references."""
         return np.array([xv[2], xv[3], ym[6], ym[8], xv[10]])
 
@@ -859,7 +865,11 @@ class TEController:
             return ControlDecision(u=np.full(12, np.nan), status="invalid_measurement",
                                    fallback=True, alarms=(f"y: expected 41 XMEAS, got "
                                                           f"{xmeas.shape}",))
-        alarms = alarm_crossings(xmeas)
+        # the sample's scalars as Python floats for the scalar helpers below (a numpy
+        # scalar's indexing and arithmetic cost several times a float's; the same IEEE
+        # numbers); the arrays stay for the vector reads
+        xm = xmeas.tolist()
+        alarms = alarm_crossings(xm)
         # every plan reference of the sample in one evaluation: now and the horizon, on
         # the sample grid (see _grid_time); usually evaluated after the previous move
         t_ref = self._grid_time(t)
@@ -873,15 +883,16 @@ class TEController:
         # the hours since the last grade change, read once a sample by the outer loops,
         # the reactant trim and the targets' economics
         self._since = self.plan.hours_since_change(t)
-        self.feeds.observe(xmeas)
+        self.feeds.observe(xm)
         xv, ym = xv_all[0], ym_all[0]
-        s = self._ratio_step(self._d_share_ff(ff, t_ref, ym, xmeas), ym, xmeas)
+        yl = ym.tolist()  # as xm
+        s = self._ratio_step(self._d_share_ff(ff, t_ref, yl, xm), yl, xm)
         u = _NO_XMVS.copy()  # NaN: not written
-        d_meas = xmeas[1] if math.isfinite(xmeas[1]) else xv[0] * D_FULL_KG_H / 100
+        d_meas = xm[1] if math.isfinite(xm[1]) else xv[0] * D_FULL_KG_H / 100
         u[1] = min(max(d_meas * (1.0 - s) / s / E_FULL_KG_H * 100.0, 0.0), 100.0,
-                   max(xv[1] + self._e_feed_margin(xmeas), 0.0))
+                   max(xv[1] + self._e_feed_margin(xm), 0.0))
         u[4], u[8], u[11] = xv[4], xv[8], xv[11]
-        ff = self._core_ff(xv, ym)
+        ff = self._core_ff(xv, yl)
         info: dict[str, Any] = {}
         if self.strategy == "pi":
             core_u = self.core.step(xmeas, ym, ff)
@@ -896,11 +907,11 @@ class TEController:
             refs = ym_all[1:].take(_CORE_CV_INDEX, axis=1)
             target = self._core_ff(xv_all[-1], ym_all[-1])
             if self.outer_a_loop:
-                target[0] = min(max(target[0] + self._a_trim_step(ym, xmeas), 0.0), 100.0)
+                target[0] = min(max(target[0] + self._a_trim_step(yl, xm), 0.0), 100.0)
             if self.production_loop is not None:
-                target[1] = min(max(target[1] + self._production_step(ym, xmeas), 0.0), 100.0)
+                target[1] = min(max(target[1] + self._production_step(yl, xm), 0.0), 100.0)
             target[1] = self.production.ac_valve(target[1])
-            c_trim = self.reactants.step(xmeas, ym, self._since,
+            c_trim = self.reactants.step(xm, yl, self._since,
                                          hold_cut=self.feeds.a_lost or self.production.active)
             if c_trim != 0.0:
                 target[1] = min(max(target[1] + c_trim, 0.0), 100.0)
@@ -911,9 +922,9 @@ class TEController:
                     yc, ym[_CORE_CV_INDEX], ff, target, refs, ym_all[-1, _CORE_CV_INDEX],
                     info, alarms)
             if self.separator_loop is not None:
-                r_sep = float(ym[10]) + (0.0 if shift is None else float(shift[1]))
+                r_sep = yl[10] + (0.0 if shift is None else float(shift[1]))
                 target = np.array(target, dtype=float)
-                target[4] = min(max(target[4] + self._separator_trim_step(xmeas, r_sep),
+                target[4] = min(max(target[4] + self._separator_trim_step(xm, r_sep),
                                     0.0), 100.0)
             self._set_input_target(target)
             dec = self.core.step(k, t, yc, refs)
@@ -924,22 +935,20 @@ class TEController:
             # the MPC's soft reactor-pressure constraint: its slack (None = no solve)
             info["constraint_slack"] = dec.extra.get("constraint_slack")
             info["law_status"] = dec.extra.get("law_status", status)
-            for key in ("prediction_rms", "active_model_detail"):
+            for key in _PASSED_ON_KEYS:
                 if key in dec.extra:
                     info[key] = dec.extra[key]
-            info.update((key, dec.extra[key]) for key in QP_WORK_KEYS if key in dec.extra)
-        core_u = self._track_pressure_setpoint(core_u, xmeas)
-        for j, xmv in enumerate(CORE_XMVS):
-            if xmv is not None:
-                u[xmv - 1] = core_u[j]
-        cut = self._override_step(xmeas)
+        core_u = self._track_pressure_setpoint(core_u, xm)
+        for j, col in _CORE_XMV_COLUMNS:
+            u[col] = core_u[j]
+        cut = self._override_step(xm)
         if cut > 0:
             u[3] = max(u[3] - cut, 0.0)
             if cut >= 0.05:
-                alarms.append(f"reactor pressure {xmeas[6]:.0f} kPa: high-pressure override "
+                alarms.append(f"reactor pressure {xm[6]:.0f} kPa: high-pressure override "
                               f"cuts the A+C feed by {cut:.1f} % (interlock 3000 kPa)")
-        self.production.update(xmeas, self.feeds.a_lost, u[1], u[3],
-                               self.feeds.last_a_valve, float(ym[26]))
+        self.production.update(xm, self.feeds.a_lost, u[1], u[3],
+                               self.feeds.last_a_valve, yl[26])
         if self.production.active:
             u[1] = self.production.e_valve(u[1])
             u[3] = self.production.ac_valve(u[3])
@@ -948,9 +957,9 @@ class TEController:
         self.feeds.applied(u[2], u[3])
         if self.feeds.active:
             alarms.extend(self.feeds.alarms())
-        self._hold_step(t_ref, xmeas, alarms)
-        setpoints = np.array([core_u[3], self.production.level_setpoint(ym[7]), ym[11],
-                              ym[14], core_u[2]])
+        self._hold_step(t_ref, xm, alarms)
+        setpoints = np.array([core_u[3], self.production.level_setpoint(yl[7]), yl[11],
+                              yl[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
         extra.update(info)
         return ControlDecision(u=u, active_model=active, model_names=tuple(names), J=J,

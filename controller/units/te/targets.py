@@ -262,13 +262,16 @@ def model_steady_state(ssm, j: int) -> tuple[np.ndarray, np.ndarray] | None:
         singular or the result is not finite.
     """
     A, B, C, b, f = ssm.continuous_form(j)
+    rhs = np.empty((B.shape[0], B.shape[1] + 1))  # [B, f], as np.column_stack makes it
+    rhs[:, :-1] = B
+    rhs[:, -1] = f
     try:
-        X = np.linalg.solve(A, np.column_stack((B, f)))
+        X = np.linalg.solve(A, rhs)
     except np.linalg.LinAlgError:
         return None
     G = -C @ X[:, :-1]
     a = b - C @ X[:, -1]
-    if not (np.isfinite(G).all() and np.isfinite(a).all()):
+    if not (all_finite(G) and all_finite(a)):
         return None
     return G, a
 
@@ -568,12 +571,13 @@ class CoreTargets:
             return out
 
         if outcome != QP or cheaper:  # the numbers a QP would refuse (_check)
-            standing = (self.q_u, self.q_y, self.y_min, self.y_max, self.y_rank,
-                        self.y_scale)  # the order of _STANDING_FIELDS
             last = self._checked
-            if last is None or any(a is not b for a, b in zip(standing, last, strict=True)):
+            if (last is None or last[0] is not self.q_u or last[1] is not self.q_y
+                    or last[2] is not self.y_min or last[3] is not self.y_max
+                    or last[4] is not self.y_rank or last[5] is not self.y_scale):
                 self._solver.check(**fields())
-                self._checked = standing
+                self._checked = (self.q_u, self.q_y, self.y_min, self.y_max, self.y_rank,
+                                 self.y_scale)  # the order of _STANDING_FIELDS
             elif not ok:
                 self._solver.check(**fields())  # raises, naming the field
         if outcome == PLAN:
