@@ -50,15 +50,8 @@ def test_backoff_settings_validate():
         BackOff("mode3", "mode0", 1, 0.5)
 
 
-MODE6_GAP = pytest.mark.xfail(
-    strict=False, reason="known gap: with the transition guards 3 -> 6 has not settled at "
-    "36 h (the valves drift 4.4 % over the last 10 h while the purge closes) and the D feed "
-    "ends at 95.2 %, 0.2 % inside the 5 % margin; see docs/te_modes.md")
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [pytest.param(n, marks=MODE6_GAP) if n == "mode6" else n
-                                  for n in sorted(RICKER_MAX)])
+@pytest.mark.parametrize("name", sorted(RICKER_MAX))
 def test_cascade_settles_at_the_grade_with_every_valve_in_its_margin(name):
     # the rule, checked on the plant: run the cascade there (noise off, 36 h from the
     # grade of the same G/H ratio) and read the valves it settles at
