@@ -6,10 +6,11 @@ the same G/H ratio) toward points of the back-off line, the largest fraction (gr
 0.01) at which the limiting valve keeps ``BACKOFF_MARGIN`` and every controlled valve
 ``CONTROL_MARGIN`` at the steady state (mean of the last hour), and at which a run
 toward that steady state itself (the grade's table) settles there again, the
-limiting valve ``CUSHION`` further in; then that steady state as the grade's table and the Downs & Vogel cost of it beside Ricker's
-optimum's (his state evaluated by this model).
+limiting valve ``CUSHION`` further in; then that steady state as the grade's table
+and the Downs & Vogel cost of it beside Ricker's optimum's (his state evaluated by
+this model).
 
-    PYTHONPATH=. python docs/te_modes.py          # about 2 wall minutes
+    PYTHONPATH=. python docs/te_modes.py          # about 1 wall minute
 
 Prints the table rows for ``_STEADY`` and the measured table of the module's
 docstring. The trial grades are put in place of ``grades.grade`` for the runs only.
