@@ -1120,7 +1120,7 @@ class TEMPCOptions:
         order 10.
     model_order : int
         Reduced order n of every mode's model (default
-        :data:`controller.units.te.models.MPC_ORDER`, 12: the order-8 models' DC
+        :data:`controller.units.te.models.MPC_ORDER`, 10: the order-8 models' DC
         gains were wrong, see that module).
     index_errors : {"equation", "steady_output"}
         What the switching index compares

@@ -166,7 +166,7 @@ def state_shared_model(dt_h: float, adaptive: bool, order: int = ORDER,
     roots_grade : str
         The grade of :data:`MODEL_GRADES` whose model's poles omega holds (orthonormal
         basis, ``roots`` not given). See :class:`controller.units.te.control.TEMPCOptions`
-        ``basis_grade`` for why the MPC's models at order 12 take mode 3's.
+        ``basis_grade`` for the measured choice (mode 0's at the MPC's order 10).
     basis : {"companion", "orthonormal"}
         Coordinates of the shared state (:mod:`controller.shared_basis`).
     """

@@ -100,6 +100,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from operator import is_not
 
 import numpy as np
 
@@ -571,13 +572,13 @@ class CoreTargets:
             return out
 
         if outcome != QP or cheaper:  # the numbers a QP would refuse (_check)
+            standing = (self.q_u, self.q_y, self.y_min, self.y_max, self.y_rank,
+                        self.y_scale)  # the order of _STANDING_FIELDS
             last = self._checked
-            if (last is None or last[0] is not self.q_u or last[1] is not self.q_y
-                    or last[2] is not self.y_min or last[3] is not self.y_max
-                    or last[4] is not self.y_rank or last[5] is not self.y_scale):
+            # identity, element by element, in C (a generator costs ~0.7 µs a sample)
+            if last is None or any(map(is_not, standing, last)):
                 self._solver.check(**fields())
-                self._checked = (self.q_u, self.q_y, self.y_min, self.y_max, self.y_rank,
-                                 self.y_scale)  # the order of _STANDING_FIELDS
+                self._checked = standing
             elif not ok:
                 self._solver.check(**fields())  # raises, naming the field
         if outcome == PLAN:
