@@ -76,12 +76,6 @@ def test_order_eight_models_get_the_condenser_wrong():
     assert models["mode0"][SEPARATOR_T_ROW, CONDENSER] > 0
 
 
-def test_the_mpc_runs_on_models_of_the_mpc_order():
-    ctl, _ = make_te_controller("ssmpc")
-    n, m = MPC_ORDER, 5
-    assert ctl.core.ssm.order == 2 * n * m and ctl.core.ssm.n_params == n * (m * m + 1)
-
-
 def test_mpc_strategies_hold_the_plan_beneath_the_mpc_pressure_limit():
     opt = TEMPCOptions()
     assert GUARDS_MPC.hold_start_kpa < opt.pressure_soft_max < NORMAL_HIGH_KPA

@@ -194,10 +194,10 @@ class DeltaUFormulation:
         parts = _settings_parts(s)
         if (rows is parts.input_rows and self.ymax_rows is parts.ymax_rows
                 and self.ymin_rows is parts.ymin_rows):  # built by build_formulation
-            bl0, bu0, in_idx, tile_M = parts.bl0, parts.bu0, parts.in_idx, parts.tile_M
+            bl0, bu0, in_idx = parts.bl0, parts.bu0, parts.in_idx
         else:
             bl0, bu0 = _row_bounds(s, rows, self.ymax_rows, self.ymin_rows)
-            in_idx, tile_M = rows % s.nu, np.tile(np.arange(s.nu), s.M)
+            in_idx = rows % s.nu
         consts = {"_in_idx": in_idx, "_n_in": n_in, "_n_max": n_max, "_bl0": bl0,
                   "_bu0": bu0, "_Sx_max": np.ascontiguousarray(self.S_x[self.ymax_rows]),
                   "_Sx_min": np.ascontiguousarray(self.S_x[self.ymin_rows]),
@@ -205,7 +205,7 @@ class DeltaUFormulation:
                             else np.ascontiguousarray(self.F_ut)),
                   "_no_dev": np.zeros(0),
                   # np.tile(v, M) of an (nu,) vector as one take (the same copy)
-                  "_tile_M": tile_M}
+                  "_tile_M": parts.tile_M}
         for k, v in consts.items():
             object.__setattr__(self, k, v)
         self._warm_kernels()
