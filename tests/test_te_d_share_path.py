@@ -1,6 +1,6 @@
 """The MPC strategies' own D-share path through a TE grade change
 (:mod:`controller.units.te.d_share_path`): its steps worked by hand, its waits, its
-settings and its checkpoint."""
+lead, its settings and its checkpoint."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ FREE = dict(hold=0.0, d_feed_kg_h=3000.0, level_pct=65.0, level_sp_pct=65.0)
 
 
 def test_first_order_steps_toward_the_grade_slower_upward():
-    p = DSharePath(DSharePathSettings(tau_h=1.0, tau_rise_h=2.0), DT)
+    p = DSharePath(DSharePathSettings(tau_h=1.0, tau_rise_h=2.0, lead=0.0), DT)
     p.start(0.5)
     assert p.step(0.3, **FREE) == pytest.approx(0.5 - 0.2 * (1 - math.exp(-0.01)), abs=1e-15)
     p.start(0.5)
@@ -59,10 +59,75 @@ def test_a_rise_waits_while_the_d_feed_is_at_its_limit_and_the_level_falls():
     assert p.step(0.8, **{**short, "level_pct": float("nan")}) > 0.5
 
 
+def _changed(settings, s_from=0.5, s_to=0.3, g_from=50.0, g_to=10.0,
+             limits=(0.03, 0.97)):
+    """A path at ``s_from`` (grade with G ``g_from``) and the first sample after a
+    change to the grade (``s_to``, ``g_to``); returns the path and that sample's share."""
+    p = DSharePath(settings, DT, limits)
+    p.step(s_from, **FREE, g_mol=g_from, g_grade_mol=g_from)
+    return p, p.step(s_to, **FREE, g_mol=g_from, g_grade_mol=g_to)
+
+
+def test_the_lead_aims_beyond_the_grade_until_g_has_covered_its_share_of_the_way():
+    a = 1 - math.exp(-DT / 1.0)  # toward less D share: tau_h
+    p, v = _changed(DSharePathSettings(tau_h=1.0, lead=0.5, lead_until=0.3))
+    # aim 0.3 + 0.5 (0.3 - 0.5) = 0.2
+    assert v == pytest.approx(0.5 + a * (0.2 - 0.5), abs=1e-15)
+    # G 29 % of the way from 50 to 10 mol %: the lead goes on
+    v2 = p.step(0.3, **FREE, g_mol=50.0 - 0.29 * 40.0, g_grade_mol=10.0)
+    assert v2 == pytest.approx(v + a * (0.2 - v), abs=1e-15)
+    # 30 %: it ends, for good (G going back does not start it again)
+    v3 = p.step(0.3, **FREE, g_mol=50.0 - 0.30 * 40.0, g_grade_mol=10.0)
+    assert v3 == pytest.approx(v2 + a * (0.3 - v2), abs=1e-15)
+    v4 = p.step(0.3, **FREE, g_mol=50.0, g_grade_mol=10.0)
+    assert v4 == pytest.approx(v3 + a * (0.3 - v3), abs=1e-15)
+
+
+def test_the_lead_stays_within_the_share_limits_and_ends_at_its_longest():
+    b = 1 - math.exp(-DT / 1.5)  # toward more D share: tau_rise_h
+    # 0.5 -> 0.9: the aim 0.9 + 0.5 x 0.4 = 1.1 is cut to the limit 0.97
+    p, v = _changed(DSharePathSettings(lead=0.5, lead_max_h=0.05), 0.5, 0.9, 50.0, 90.0)
+    assert v == pytest.approx(0.5 + b * (0.97 - 0.5), abs=1e-15)
+    # G not finite (the analyzer out): the lead goes on to lead_max_h (5 samples)
+    vals = [p.step(0.9, **FREE, g_mol=math.nan, g_grade_mol=90.0) for _ in range(6)]
+    prev = v
+    for i, x in enumerate(vals):
+        aim = 0.97 if i < 4 else 0.9
+        assert x == pytest.approx(prev + b * (aim - prev), abs=1e-15)
+        prev = x
+
+
+@pytest.mark.parametrize("g_at_change", [math.nan, 10.0])
+def test_no_lead_without_g_at_the_change_or_with_a_grade_of_the_same_g(g_at_change):
+    a = 1 - math.exp(-DT / 1.0)
+    p = DSharePath(DSharePathSettings(lead=0.5), DT, (0.03, 0.97))
+    p.step(0.5, **FREE, g_mol=10.0, g_grade_mol=10.0)
+    v = p.step(0.3, **FREE, g_mol=g_at_change, g_grade_mol=10.0)
+    assert v == pytest.approx(0.5 + a * (0.3 - 0.5), abs=1e-15)
+    assert p.lead is None
+
+
+def test_a_restored_path_goes_on_with_its_lead():
+    p, _ = _changed(DSharePathSettings())
+    q = DSharePath(DSharePathSettings(), DT, (0.03, 0.97))
+    q.restore(p.checkpoint())
+    steps = dict(**FREE, g_mol=45.0, g_grade_mol=10.0)
+    assert [q.step(0.3, **steps) for _ in range(5)] == [p.step(0.3, **steps) for _ in range(5)]
+    assert q.lead == p.lead and q.lead is not None
+    # a checkpoint written before the lead existed: the path goes on without one
+    r = DSharePath(DSharePathSettings(), DT, (0.03, 0.97))
+    r.restore({"value": 0.4})
+    assert r.step(0.3, **steps) == pytest.approx(0.4 + (1 - math.exp(-DT)) * (0.3 - 0.4),
+                                                 abs=1e-15)
+
+
 @pytest.mark.parametrize("kw, field", [({"tau_h": 0.0}, "tau_h"),
                                        ({"tau_rise_h": float("nan")}, "tau_rise_h"),
                                        ({"d_feed_high": 1.5}, "d_feed_high"),
-                                       ({"level_low_pct": -1.0}, "level_low_pct")])
+                                       ({"level_low_pct": -1.0}, "level_low_pct"),
+                                       ({"lead": -0.1}, "lead"),
+                                       ({"lead_until": 0.0}, "lead_until"),
+                                       ({"lead_max_h": math.inf}, "lead_max_h")])
 def test_bad_settings_name_their_field(kw, field):
     with pytest.raises(ValueError, match=field):
         DSharePathSettings(**kw)
@@ -82,9 +147,12 @@ def test_the_mpc_strategies_move_the_d_share_faster_than_the_plan_and_resume_fro
     x = np.array(grade("mode0").xmeas, dtype=float)  # G far from mode 2's: no G loop
     s0, s2 = grade("mode0").d_fraction, grade("mode2").d_fraction
     mpc, _ = make_te_controller("fixed", plan)
-    # 1 h into the change: the path (1 h) has gone 63 % of the way, the plan's (3 h) 28 %
-    s_mpc = _run(mpc, 1.0, 101, x)[-1]
-    assert (s0 - s_mpc) / (s0 - s2) == pytest.approx(1 - math.exp(-1.0), abs=0.01)
+    # 1 h into the change: the path (1 h) has gone 63 % of the way to its lead's aim (G
+    # stands still here, so the lead lasts): half the change beyond mode 2's share, cut
+    # to the ratio's lower limit 0.03; the plan's (3 h) 28 % of the way to mode 2's
+    s_mpc = _run(mpc, 1.0 - mpc.sample_h, 102, x)[-1]  # from a sample before the change
+    assert s2 - 0.5 * (s0 - s2) < 0.03
+    assert (s0 - s_mpc) / (s0 - 0.03) == pytest.approx(1 - math.exp(-1.0), abs=0.01)
     assert (s0 - plan.d_fraction_ref(2.0)) / (s0 - s2) == pytest.approx(1 - math.exp(-1 / 3),
                                                                         abs=0.01)
     # a controller restored from the checkpoint goes on where the first one does
@@ -129,6 +197,27 @@ def test_leaving_mode_3_the_mpc_strategies_reach_the_grade_hours_before_the_plan
     plan = _hours_to_grade("plan", 3, 1, 18.0)
     assert mpc is not None and mpc < 10.0
     assert plan is None or plan > mpc + 3.0
+
+
+def test_the_lead_brings_g_to_the_grade_sooner_leaving_mode_2():
+    # 2 -> 1, noise on, seed 1 (docs/te_matrix.md: 5.8 h with the lead, 8.3 h without,
+    # median of seeds 1-3)
+    from controller.units.te.control import plant_seed_for, run_te
+    from services.campaign import metrics
+
+    def hours(lead):
+        plan = TransitionPlan("mode2", (Leg(1.0, "mode1"),))
+        r = run_te("ssmpc", plan, 14.0, noise=True, seed=1, plant_seed=plant_seed_for(1),
+                   d_share_path=DSharePathSettings(lead=lead))
+        assert r.shutdown is None
+        row = metrics.te_metrics(r.t, r.xmeas, r.cost, r.active, r.model_names,
+                                 r.meta["sample_h"], (1.0, "mode1"), None, xmv=r.xmv,
+                                 previous_grade="mode2")
+        return row["time_to_grade_h"]
+
+    with_lead, without = hours(0.5), hours(0.0)
+    assert with_lead is not None and without is not None
+    assert with_lead < without - 1.5
 
 
 def test_a_new_grade_request_mid_path_goes_on_from_where_the_path_is():

@@ -557,7 +557,7 @@ class TEController:
         self.production = ProductionIndex(production, self.sample_h)
         self.reactants = ReactantTrim(reactants, self.sample_h)
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
-        self.d_path = (DSharePath(d_share_path, self.sample_h)
+        self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
                        if strategy in MPC_STRATEGIES else None)
         #: h the plan's clock is behind real time (the plan hold, TransitionGuards)
         self.plan_lag_h = 0.0
@@ -770,15 +770,16 @@ class TEController:
         path = self.d_path
         if path is None:
             return ff
+        g = self.plan.grade_at(t_ref - self.plan_lag_h)
         if path.value is None:
-            path.start(ff)
+            path.start(ff, g.d_fraction)
             return ff
         if not getattr(self.plan, "legs", ()):  # held (an abort): the share stays
             return path.value
-        s_grade = self.plan.grade_at(t_ref - self.plan_lag_h).d_fraction
-        return path.step(s_grade, self.guards.hold_fraction(float(xmeas[6])),
+        return path.step(g.d_fraction, self.guards.hold_fraction(float(xmeas[6])),
                          float(xmeas[1]), float(xmeas[7]),
-                         float(self.production.level_setpoint(ym[7])))
+                         float(self.production.level_setpoint(ym[7])), float(xmeas[39]),
+                         float(g.g_mol))
 
     def _ratio_step(self, ff: float, ym: Sequence[float], xmeas: Sequence[float]) -> float:
         if self.s is None:
