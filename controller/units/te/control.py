@@ -463,8 +463,10 @@ class TransitionGuards:
         % (IDV(13) 0.700 -> 0.719, IDV(12) 0.653 -> 0.666, lower under IDV 1, 8, 11, 17,
         18 and 20); no trip, the highest pressure 2877 kPa. Without the time limit
         (40 kPa as long as the economics lift) IDV(8) 152.0, IDV(13) 156.7. Modes 1-3
-        as before (no lift there), and the 12 transitions (48 h) to the digit: the lift
-        acts only 12 h after a leg into mode 0, once the grade is reached.
+        as before (no lift there); the acceptance matrix's transitions in time and
+        cost to the digit, the peaks of 2 -> 0 and 2 -> 0 with IDV(8) 3 and 7 kPa
+        higher (2813, 2874 kPa): the lift acts 12 h after a leg into mode 0, once the
+        grade is reached.
     purge_track_lift_h : float
         See ``purge_track_lift_kpa``, h (>= 0).
     """
