@@ -248,6 +248,32 @@ def test_the_economic_pressure_survives_a_disturbance_that_swings_the_pressure()
     assert pressure > 2740.0 > tight_pressure
 
 
+def test_the_wide_margin_lasts_half_an_hour_of_cutting_and_survives_a_restart():
+    import json
+
+    def cuts(ctl, n, pressure=2700.0):
+        x = _xmeas(0, pressure)
+        ask = np.array(ctl.core.u_last, dtype=float)
+        ask[2] = 2800.0  # the core asks for the economic P_r*
+        return [float(ctl._track_pressure_setpoint(ask.copy(), x)[2]) for _ in range(n)]
+
+    ctl, _ = make_te_controller("ssmpc", TransitionPlan("mode0"))
+    assert cuts(ctl, 1) == [2710.0]  # no lift yet: the tight margin
+    ctl.targets.econ_lift = 50.0  # the economics hold P_r*'s target above the plan
+    first = cuts(ctl, 30)
+    assert first == [2740.0] * 30
+    again, _ = make_te_controller("ssmpc", TransitionPlan("mode0"))
+    again.restore(json.loads(json.dumps(ctl.checkpoint())))
+    again.targets.econ_lift = 50.0
+    rest, rest_again = cuts(ctl, 40), cuts(again, 40)
+    assert rest == rest_again  # the restored controller's clock goes on
+    # 0.5 h (50 samples of 0.01 h) of cutting at 40 kPa, then 10 kPa
+    assert rest[:19] == [2740.0] * 19 and rest[-18:] == [2710.0] * 18
+    # a sample that does not cut starts the clock again
+    assert cuts(ctl, 1, pressure=2795.0) == [2800.0]
+    assert cuts(ctl, 1) == [2740.0]
+
+
 def test_without_the_economic_lift_the_tracking_stays_tight():
     # IDV(13) at mode 2 (noise on, seed 1): the kinetics' drift cycles the pressure over
     # 20 h (2526-2872 kPa); with 40 kPa of margin there too the purge closed from 45 to

@@ -1061,6 +1061,7 @@ class TEController:
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
                 "t_last": self._t_last, "plan_lag_h": self.plan_lag_h,
+                "track_bound_h": self._track_bound_h,
                 "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
                 "reactants": self.reactants.checkpoint(),
                 "d_path": None if self.d_path is None else self.d_path.checkpoint()}
@@ -1077,6 +1078,9 @@ class TEController:
         self._refs_ahead = None
         self.override = float(state.get("override", 0.0))
         self.plan_lag_h = float(state.get("plan_lag_h", 0.0))
+        bound = state.get("track_bound_h", 0.0)  # absent: a checkpoint from before it
+        self._track_bound_h = float(bound) if isinstance(bound, int | float) \
+            and math.isfinite(bound) and bound >= 0.0 else 0.0
         for trim, key in ((self._a, "a"), (self._p, "p"), (self._sep, "sep")):
             trim.value = float(state.get(f"{key}_trim", 0.0))
             trim.e_prev = state.get(f"e_{key}_prev")
