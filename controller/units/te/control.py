@@ -16,7 +16,8 @@ Layers (seed Fig. 7.2)
          D share ``s = D/(D+E)`` from a grade feedforward plus a slow PI on the
          product analyzer's G mol% (XMEAS 40, 0.25 h sample + 0.25 h dead time). The
          MPC strategies move the feedforward along their own, faster path through a
-         grade change, paced by the plant (:mod:`controller.units.te.d_share_path`),
+         grade change, with a lead past the new grade's share until G has covered
+         30 % of its way, paced by the plant (:mod:`controller.units.te.d_share_path`),
          and their G loop acts then only within :data:`RATIO_PATH_WINDOW_MOL` of the
          new grade's G; with half the gain and twice the integral time
          (:data:`RATIO_MPC`);
@@ -48,7 +49,8 @@ Layers (seed Fig. 7.2)
        - the transition guards (:class:`TransitionGuards`, all strategies but
          "decentralized"): the E feed at most 5 % above the plan's, the plan held
          while the reactor pressure is near the interlock, P_r* at most 10 kPa above
-         the measured pressure;
+         the measured pressure (MPC strategies: 40 kPa for at most 0.5 h while the
+         targets' economics lift P_r*);
        - MPC strategies: the input targets and CV references pass through the
          steady-state targets of the active model
          (:mod:`controller.units.te.targets`): the plan's values as they stand while
