@@ -210,9 +210,10 @@ class DSharePath:
             when G is not finite at the change).
         """
         if self.value is None:
-            self.start(s_grade)
+            self.start(s_grade, s_grade)
+            return self.value
         st = self.settings
-        if self.s_grade is None:
+        if self.s_grade is None:  # a path started without its grade, or restored so
             self.s_grade = s_grade
         elif s_grade != self.s_grade:  # a grade change: the lead from here
             self.lead = None
