@@ -139,6 +139,14 @@ def test_controller_models_in_orthonormal_basis_hold_and_represent():
         TEMPCOptions(model_order=41)
 
 
+#: What the companion coefficients lose of each TE model's estimate, relative to the
+#: model's deviation, per model grade (modes 0, 2, 3). Measured: 1e-9, 1e-9 and, for
+#: mode 3's model far from its own point, 3e-4 on one machine and 1.25e-3 on another
+#: with the same numpy, scipy and OpenBLAS (AMD EPYC both; the same on every input
+#: sequence tried): the rounding of the coefficients, not the inputs, sets it.
+COMPANION_LOSS = np.array([1e-6, 1e-6, 1e-2])
+
+
 def test_controller_estimates_do_not_depend_on_the_basis():
     # The basis is a change of coordinates: with the same omega the TE models' one-step
     # estimates (what the switching index sees) agree; only omega changes them.
@@ -167,7 +175,7 @@ def test_controller_estimates_do_not_depend_on_the_basis():
             ssm.update(u, y)
         c, o = models["companion"].estimates(), models["orthonormal"].estimates()
         # relative to each model's own deviation (up to 2.5e7 kPa for mode 3 at mode 0's
-        # point: the equation error's DC weight d_j(0)/omega(0) is 1.3e5 there); the
-        # companion coefficients lose about 3e-4 of it (measured)
+        # point: the equation error's DC weight d_j(0)/omega(0) is 1.3e5 there)
         dev = np.max(np.abs(o - y0) / scale, axis=1)
-        assert np.all(np.max(np.abs(c - o) / scale, axis=1) <= 1e-3 * np.maximum(1.0, dev))
+        assert np.all(np.max(np.abs(c - o) / scale, axis=1)
+                      <= COMPANION_LOSS * np.maximum(1.0, dev))

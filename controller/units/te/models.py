@@ -35,15 +35,15 @@ every other handle; at n = 8 the mode-0 model's gain from the condenser (XMV 11)
 the reactor pressure was +1.94 kPa/% and its gain to the separator temperature
 +0.23 °C/% where the plant's is -0.69 (the sign that once pinned the condenser
 in the MPC). Measured on the three grades (``closed_loop`` against
-``reduced(g, n)``'s ``(A, B, C)``):
+``reduced(g, n)``'s ``(A, B, C)``; ``python docs/te_model_order.py``):
 
 ===  ==================================  =======================================
  n   DC error (max |D|), modes 0/2/3     step-response error, modes 0 / 2 / 3
 ===  ==================================  =======================================
- 8   1.94 / 0.96 / 0.99                  10.3 / 5.5 / 3.9  (of 9.4 / 17.9 / 8.3)
- 10  0.44 / 0.60 / 0.42                  1.9 / 7.8 / 3.2
- 12  0.22 / 0.15 / 0.13                  2.2 / 1.8 / 1.5
- 16  0.06 / 0.09 / 0.04                  0.3 / 0.3 / 0.2
+ 8   1.94 / 0.96 / 0.99                  10.5 / 5.5 / 4.0  (of 9.5 / 17.9 / 9.1)
+ 10  0.44 / 0.60 / 0.42                  1.9 / 7.8 / 3.3
+ 12  0.22 / 0.15 / 0.13                  2.2 / 1.9 / 1.6
+ 16  0.06 / 0.09 / 0.04                  0.3 / 0.3 / 0.3
 ===  ==================================  =======================================
 
 Step-response error: the largest deviation over 0.05-100 h from the full cascade's
@@ -62,6 +62,16 @@ model drove the condenser from 13 to 85 % in a quarter of an hour in 1 -> 2 and 
 plant tripped (see :class:`controller.units.te.control.TEMPCOptions` ``basis_grade``).
 In the closed loop the MPC holds its pressure limit only with models whose DC gains
 are right (``TEMPCOptions.pressure_soft_max``).
+
+The order-10 models leave out the cascade's slowest modes (-0.14 1/h at mode 2, -0.023
+at mode 3; the models' slowest are -0.28 to -0.32), and the switching index depends on
+it. With a tighter reactor-temperature loop (-2.5 %/degC or more) the truncation keeps
+them, and omega, at mode 0's poles, does not hold them: with -6 %/degC the fixed
+models' one-step errors at their own grade rose (mode 2's 0.5, mode 3's 6.3 CV scales)
+and in strategy ``fixed`` the index left mode 0's model 9.8 h after the 0 -> 2 request
+(3.6 h with -2 %/degC) and 15.9 h after 0 -> 3 (2.6 h), while it reached mode 0's 5.1
+h into 3 -> 0 (not within 16 h with -2) (seed 1; ``docs/te_matrix.md``, "The reactor
+temperature's inner loop").
 """
 
 from __future__ import annotations
