@@ -22,6 +22,13 @@ the same layer (no limits on a set point), and a :class:`ValveOverride` on a
 loop: a latched hysteresis that drives the loop's valve to a fixed opening while a
 second measurement is beyond a limit and restarts the loop when it is back. Loops
 run in the order given, each on the set point in force when it runs.
+
+A :class:`PILoop` may also close a cascade of its own (:class:`SecondaryLoop`): its
+output is then the set point of a secondary PI loop on a faster measurement, which
+drives the loop's valve (the reactor temperature over the coolant outlet temperature,
+as Lyman & Georgakis close it). The secondary runs right after its primary in the same
+step; its set point is the layer's state, not one of the layer's set points, so a
+layer with cascaded loops still takes one set point per loop.
 """
 
 from __future__ import annotations
@@ -35,7 +42,8 @@ from numba import njit
 from plant_sim.base import PlantInputError
 from plant_sim.tennessee_eastman.simulator import NCOL, TESimulator, euler_run
 
-__all__ = ["PILoop", "CascadeLoop", "ValveOverride", "TABLE_7_10", "RegulatoryLayer"]
+__all__ = ["PILoop", "SecondaryLoop", "CascadeLoop", "ValveOverride", "TABLE_7_10",
+           "RegulatoryLayer"]
 
 
 @dataclass(frozen=True)
@@ -94,6 +102,35 @@ def _check_ti(ti_h) -> None:
 
 
 @dataclass(frozen=True)
+class SecondaryLoop:
+    """The secondary (inner) PI loop of a cascaded :class:`PILoop`: it holds ``cv`` at
+    the set point its primary writes, driving the primary's valve.
+
+    Parameters
+    ----------
+    name : str
+    cv : int
+        Controlled XMEAS number (1-based).
+    gain : float
+        Controller gain, % of valve per unit of this CV.
+    ti_h : float
+        Integral time (h, > 0); ``math.inf``: proportional only.
+    """
+
+    name: str
+    cv: int
+    gain: float
+    ti_h: float
+
+    def __post_init__(self) -> None:
+        if not 1 <= int(self.cv) <= 41:
+            raise PlantInputError(f"cv: XMEAS number must be 1..41, got {self.cv!r}")
+        if not math.isfinite(self.gain):
+            raise PlantInputError(f"gain: must be finite, got {self.gain!r}")
+        _check_ti(self.ti_h)
+
+
+@dataclass(frozen=True)
 class PILoop:
     """One PI loop.
 
@@ -105,11 +142,15 @@ class PILoop:
     mv : int
         Manipulated XMV number (1-based).
     gain : float
-        Controller gain, % of valve per unit of the CV.
+        Controller gain, % of valve per unit of the CV; with a ``secondary``, units of
+        the secondary's CV per unit of this CV.
     ti_h : float
         Integral time (h, > 0); ``math.inf``: proportional only.
     override : ValveOverride, optional
         A hysteresis override of this loop's valve.
+    secondary : SecondaryLoop, optional
+        Close the loop as a cascade: this loop writes the secondary's set point and the
+        secondary drives ``mv``. Not with an ``override``.
     """
 
     name: str
@@ -118,6 +159,7 @@ class PILoop:
     gain: float
     ti_h: float
     override: ValveOverride | None = None
+    secondary: SecondaryLoop | None = None
 
     def __post_init__(self) -> None:
         if not 1 <= int(self.cv) <= 41:
@@ -127,6 +169,9 @@ class PILoop:
         if not math.isfinite(self.gain):
             raise PlantInputError(f"gain: must be finite, got {self.gain!r}")
         _check_ti(self.ti_h)
+        if self.secondary is not None and self.override is not None:
+            raise PlantInputError(f"{self.name}: a cascaded loop (secondary) cannot also "
+                                  "have a valve override")
 
 
 @dataclass(frozen=True)
@@ -262,30 +307,49 @@ class RegulatoryLayer:
                 raise PlantInputError(f"loops: cascade inner loop {name!r} is not in the layer")
         #: indices of the loops whose set point a cascade loop of the layer writes
         self.cascaded = tuple(names.index(n) for n in inners)
-        n = len(self.loops)
-        self._cv = np.array([lp.cv - 1 for lp in self.loops], dtype=np.int64)
-        self._to_sp = np.array([isinstance(lp, CascadeLoop) for lp in self.loops],
-                               dtype=np.bool_)
-        self._mv = np.array([names.index(lp.inner) if isinstance(lp, CascadeLoop)
-                             else lp.mv - 1 for lp in self.loops], dtype=np.int64)
-        self._gain = np.array([lp.gain for lp in self.loops], dtype=float)
-        self._ti = np.array([lp.ti_h for lp in self.loops], dtype=float)
+        # The compiled run's loops: the layer's, each cascaded PILoop followed by its
+        # secondary; _public[i] is loop i's index among them.
+        run, public = [], []
+        for lp in self.loops:
+            public.append(len(run))
+            run.append(lp)
+            if isinstance(lp, PILoop) and lp.secondary is not None:
+                run.append(lp.secondary)
+        self._public = np.array(public, dtype=np.int64)
+        self._secondary = np.array([isinstance(lp, SecondaryLoop) for lp in run], dtype=np.bool_)
+        n = len(run)
+        self._cv = np.array([lp.cv - 1 for lp in run], dtype=np.int64)
+        self._to_sp = np.array([isinstance(lp, CascadeLoop)
+                                or (isinstance(lp, PILoop) and lp.secondary is not None)
+                                for lp in run], dtype=np.bool_)
+        mv = []
+        for j, lp in enumerate(run):
+            if isinstance(lp, CascadeLoop):
+                mv.append(public[names.index(lp.inner)])
+            elif isinstance(lp, SecondaryLoop):
+                mv.append(run[j - 1].mv - 1)
+            elif lp.secondary is not None:
+                mv.append(j + 1)
+            else:
+                mv.append(lp.mv - 1)
+        self._mv = np.array(mv, dtype=np.int64)
+        self._gain = np.array([lp.gain for lp in run], dtype=float)
+        self._ti = np.array([lp.ti_h for lp in run], dtype=float)
         self._ovr = np.zeros((n, 8))
         self._ovr_on = np.zeros(n, dtype=np.bool_)
         self._ovr_state = np.zeros(n, dtype=np.int64)
-        for j, lp in enumerate(self.loops):
+        for j, lp in enumerate(run):
             o = getattr(lp, "override", None)
             if o is not None:
                 self._ovr_on[j] = True
                 self._ovr[j] = (o.cv - 1, o.high, o.release, o.low, o.high_output,
                                 o.low_output, o.restart_output, o.restart_setpoint)
-        if setpoints is None:
-            self._sp = sim.initial_xmeas[self._cv].copy()
-        else:
-            self._sp = np.zeros(len(self.loops))
+        # every set point starts at its CV's noise-free start value (a secondary's too)
+        self._sp = sim.initial_xmeas[self._cv].copy()
+        if setpoints is not None:
             self.set_setpoints(setpoints)
-        self._e_prev = np.zeros(len(self.loops))
-        self._started = np.zeros(len(self.loops), dtype=np.bool_)
+        self._e_prev = np.zeros(n)
+        self._started = np.zeros(n, dtype=np.bool_)
         # no step: the loops' compiled run is compiled (or loaded from numba's cache)
         # now, for the argument types every run passes, not in the plant's first sample
         self.run_steps(0)
@@ -293,12 +357,18 @@ class RegulatoryLayer:
     @property
     def setpoints(self) -> np.ndarray:
         """Set points, one per loop (CV units), a copy."""
-        return self._sp.copy()
+        return self._sp[self._public]
+
+    @property
+    def secondary_setpoints(self) -> np.ndarray:
+        """The set points the cascaded loops write to their secondaries, in loop order
+        (CV units of each secondary), a copy."""
+        return self._sp[self._secondary]
 
     @property
     def overrides_latched(self) -> tuple[int, ...]:
         """Per loop: 0 free, 1 latched high, 2 latched low (:class:`ValveOverride`)."""
-        return tuple(int(v) for v in self._ovr_state)
+        return tuple(int(v) for v in self._ovr_state[self._public])
 
     def set_setpoints(self, values) -> None:
         """Set all set points (one per loop).
@@ -315,7 +385,7 @@ class RegulatoryLayer:
         if arr.shape[0] != len(self.loops):
             raise PlantInputError(f"setpoints: expected {len(self.loops)}, got {arr.shape[0]}")
         if all(map(math.isfinite, arr.tolist())):  # every set point given (the usual case)
-            self._sp[:] = arr
+            self._sp[self._public] = arr
             return
         keep = np.zeros(arr.shape[0], dtype=bool)
         for j, (lp, v) in enumerate(zip(self.loops, arr, strict=True)):
@@ -323,7 +393,7 @@ class RegulatoryLayer:
                 keep[j] = True
             elif not math.isfinite(v):
                 raise PlantInputError(f"setpoints: {lp.name} set point is not finite ({v})")
-        self._sp[:] = np.where(keep, self._sp, arr)
+        self._sp[self._public] = np.where(keep, self._sp[self._public], arr)
 
     def run_steps(self, n: int, record_every: int = 0, stop_on_trip: bool = False) -> np.ndarray:
         """``n`` steps with the loops closed; rows as :meth:`TESimulator.run_steps`."""

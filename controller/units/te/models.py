@@ -101,46 +101,74 @@ _CORE_CVS = (7, 11, 13, 16, 18)
 
 
 @lru_cache(maxsize=8)
-def closed_loop(grade: str) -> tuple[Realization, np.ndarray, np.ndarray]:
-    """Linear cascade about ``grade``: (realization, u_op (5,), y_op (5,)), time in h."""
+def closed_loop(grade: str, loops: tuple | None = None
+                ) -> tuple[Realization, np.ndarray, np.ndarray]:
+    """Linear cascade about ``grade``: (realization, u_op (5,), y_op (5,)), time in h.
+
+    ``loops``: the inner loops closed (default :data:`controller.units.te.loops.INNER_LOOPS`),
+    in their order; the first holds the reactor temperature (its set point is T_r*) and
+    may be a cascade (a :class:`plant_sim.tennessee_eastman.regulatory.SecondaryLoop`
+    on a faster measurement drives its valve); the fifth is the pressure loop.
+    """
     from controller.units.te.grades import grade as get_grade
     from controller.units.te.loops import INNER_LOOPS
     from plant_sim import get_plant
     from plant_sim.linearize import linearize
 
+    lps = INNER_LOOPS if loops is None else tuple(loops)
+
     g = get_grade(grade)
     plant = get_plant("te")
     lm = linearize(plant, plant.operating_point(g.name))
     A, B, C = lm.A.copy(), lm.B, lm.C
-    nx, nl = A.shape[0], len(INNER_LOOPS)
+    nx, nl = A.shape[0], len(lps)
     # E/D ratio: XMV2 follows the D valve position (state 39) in % of its range
     ratio = g.xmv[1] / g.xmv[0]
     A[:, 38] += B[:, 1] * ratio
-    yl = [lp.cv - 1 for lp in INNER_LOOPS]
-    ul = [lp.mv - 1 for lp in INNER_LOOPS]
-    Kc = np.array([lp.gain for lp in INNER_LOOPS])
-    Ti = np.array([lp.ti_h for lp in INNER_LOOPS])
-    CL, BL = C[yl], B[:, ul]
-    N = nx + nl + 1
+    # states: the plant's, one integrator per loop, one per secondary of a cascaded loop
+    # (after the loops' own), the pressure filter
+    sec = [k for k, lp in enumerate(lps) if lp.secondary is not None]
+    N = nx + nl + len(sec) + 1
+    plain = [k for k in range(nl) if k not in sec]
+    Kc = np.array([lps[k].gain for k in plain])
+    Ti = np.array([lps[k].ti_h for k in plain])
+    CL = C[[lps[k].cv - 1 for k in plain]]
+    BL = B[:, [lps[k].mv - 1 for k in plain]]
+    z = [nx + k for k in plain]
     Acl = np.zeros((N, N))
+    Bsp = np.zeros((N, nl))  # the loops' set points as inputs
+    # plain loops: u = Kc (r - y) + Kc/Ti z, z' = r - y
     Acl[:nx, :nx] = A - BL @ np.diag(Kc) @ CL
-    Acl[:nx, nx:nx + nl] = BL @ np.diag(Kc / Ti)
-    Acl[nx:nx + nl, :nx] = -CL
+    Acl[:nx, z] = BL @ np.diag(Kc / Ti)
+    Acl[z, :nx] = -CL
+    Bsp[:nx, plain] = BL * Kc
+    Bsp[z, plain] = 1.0  # paired indices: loop k's integrator takes its set point
+    for k in sec:
+        lp = lps[k]
+        b, c, zk = B[:, lp.mv - 1], C[lp.cv - 1], nx + k
+        # cascade: r_s = Kp (r - y) + Kp/Tp z; u = Ks (r_s - y_s) + Ks/Ts z_s, z_s' = r_s - y_s
+        s2, cs, zs = lp.secondary, C[lp.secondary.cv - 1], nx + nl + sec.index(k)
+        rs_x, rs_z = -lp.gain * c, lp.gain / lp.ti_h  # r_s's dependence on x and z
+        Acl[:nx, :nx] += s2.gain * np.outer(b, rs_x - cs)
+        Acl[:nx, zk] += b * s2.gain * rs_z
+        Acl[:nx, zs] += b * s2.gain / s2.ti_h
+        Acl[zk, :nx] = -c
+        Acl[zs, :nx] = rs_x - cs
+        Acl[zs, zk] = rs_z
+        Bsp[:nx, k] = b * s2.gain * lp.gain
+        Bsp[zk, k] = 1.0
+        Bsp[zs, k] = lp.gain
     Acl[-1, :nx] = C[_CORE_CVS[0] - 1] / PRESSURE_FILTER_H
     Acl[-1, -1] = -1.0 / PRESSURE_FILTER_H
     Bcl = np.zeros((N, 5))
     for j, (kind, idx) in enumerate(_CORE_INPUTS):
-        if kind == "sp":  # u = Kc (r - y) + Kc/Ti z, z' = r - y
-            Bcl[:nx, j] = BL[:, idx] * Kc[idx]
-            Bcl[nx + idx, j] = 1.0
-        else:
-            Bcl[:nx, j] = B[:, idx - 1]
+        Bcl[:, j] = Bsp[:, idx] if kind == "sp" else np.r_[B[:, idx - 1], np.zeros(N - nx)]
     Ccl = np.zeros((5, N))
     Ccl[0, -1] = 1.0
     for i, cv in enumerate(_CORE_CVS[1:], start=1):
         Ccl[i, :nx] = C[cv - 1]
     y = lm.y_op
-    u_op = np.array([lm.u_op[idx - 1] if kind == "xmv" else y[INNER_LOOPS[idx].cv - 1]
+    u_op = np.array([lm.u_op[idx - 1] if kind == "xmv" else y[lps[idx].cv - 1]
                      for kind, idx in _CORE_INPUTS])
     y_op = np.array([y[cv - 1] for cv in _CORE_CVS])
     return Realization(Acl, Bcl, Ccl, None), u_op, y_op
