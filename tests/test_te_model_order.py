@@ -106,4 +106,3 @@ def test_ssmpc_holds_the_pressure_under_the_normal_limit_through_a_grade_change(
                  seed=seed, plant_seed=plant_seed_for(seed))
     assert run.shutdown is None
     assert run.xmeas[:, 6].max() <= NORMAL_HIGH_KPA
-
