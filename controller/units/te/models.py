@@ -67,9 +67,10 @@ The order-10 models leave out the cascade's slowest modes (-0.14 1/h at mode 2, 
 at mode 3; the models' slowest are -0.28 to -0.32), and the switching index depends on
 it. With a tighter reactor-temperature loop (-2.5 %/degC or more) the truncation keeps
 them, and omega, at mode 0's poles, does not hold them: with -6 %/degC the fixed
-models' one-step errors at their own grade rose (mode 2's 0.5, mode 3's 6.3 CV scales)
-and in strategy ``fixed`` the index left mode 0's model 9.8 h after the 0 -> 2 request
-(3.6 h with -2 %/degC) and 15.9 h after 0 -> 3 (2.6 h), while it reached mode 0's 5.1
+models' one-step errors at their own grade rose (mode 2's 0.30 -> 0.52, mode 3's 2.6 ->
+6.3 CV scales, medians over 12 h)
+and in strategy ``fixed`` the index left mode 0's model 8.8 h after the 0 -> 2 request
+(2.6 h with -2 %/degC) and 14.9 h after 0 -> 3 (1.6 h), while it reached mode 0's 4.1
 h into 3 -> 0 (not within 16 h with -2) (seed 1; ``docs/te_matrix.md``, "The reactor
 temperature's inner loop").
 """
