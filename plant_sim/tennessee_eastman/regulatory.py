@@ -101,6 +101,15 @@ def _check_ti(ti_h) -> None:
                               f"action), got {ti_h!r}")
 
 
+def _check_loop(cv, gain, ti_h) -> None:
+    """A loop's measurement (XMEAS 1-41), gain (finite) and integral time (> 0 h)."""
+    if not 1 <= int(cv) <= 41:
+        raise PlantInputError(f"cv: XMEAS number must be 1..41, got {cv!r}")
+    if not math.isfinite(gain):
+        raise PlantInputError(f"gain: must be finite, got {gain!r}")
+    _check_ti(ti_h)
+
+
 @dataclass(frozen=True)
 class SecondaryLoop:
     """The secondary (inner) PI loop of a cascaded :class:`PILoop`: it holds ``cv`` at
@@ -123,11 +132,7 @@ class SecondaryLoop:
     ti_h: float
 
     def __post_init__(self) -> None:
-        if not 1 <= int(self.cv) <= 41:
-            raise PlantInputError(f"cv: XMEAS number must be 1..41, got {self.cv!r}")
-        if not math.isfinite(self.gain):
-            raise PlantInputError(f"gain: must be finite, got {self.gain!r}")
-        _check_ti(self.ti_h)
+        _check_loop(self.cv, self.gain, self.ti_h)
 
 
 @dataclass(frozen=True)
@@ -162,13 +167,9 @@ class PILoop:
     secondary: SecondaryLoop | None = None
 
     def __post_init__(self) -> None:
-        if not 1 <= int(self.cv) <= 41:
-            raise PlantInputError(f"cv: XMEAS number must be 1..41, got {self.cv!r}")
+        _check_loop(self.cv, self.gain, self.ti_h)
         if not 1 <= int(self.mv) <= 12:
             raise PlantInputError(f"mv: XMV number must be 1..12, got {self.mv!r}")
-        if not math.isfinite(self.gain):
-            raise PlantInputError(f"gain: must be finite, got {self.gain!r}")
-        _check_ti(self.ti_h)
         if self.secondary is not None and self.override is not None:
             raise PlantInputError(f"{self.name}: a cascaded loop (secondary) cannot also "
                                   "have a valve override")
@@ -198,11 +199,7 @@ class CascadeLoop:
     ti_h: float
 
     def __post_init__(self) -> None:
-        if not 1 <= int(self.cv) <= 41:
-            raise PlantInputError(f"cv: XMEAS number must be 1..41, got {self.cv!r}")
-        if not math.isfinite(self.gain):
-            raise PlantInputError(f"gain: must be finite, got {self.gain!r}")
-        _check_ti(self.ti_h)
+        _check_loop(self.cv, self.gain, self.ti_h)
         if self.inner == self.name:
             raise PlantInputError(f"inner: loop {self.name!r} cannot write its own set point")
 
