@@ -75,8 +75,10 @@ def _run_bench(args) -> int:
 
 
 def _add_reproduce(sub) -> None:
-    p = sub.add_parser("reproduce", help="reproduce one seed result (ids of seed_results.md)")
-    p.add_argument("id", help="result id, e.g. R3.2; 'list' lists the available ids")
+    p = sub.add_parser("reproduce", help="reproduce seed results (ids of seed_results.md)")
+    p.add_argument("id", nargs="+",
+                   help="result ids, e.g. R3.2 or R7.13 R7.14 R7.16 (run in the order given); "
+                        "'list' lists the available ids")
     p.add_argument("--json", action="store_true", help="print the JSON record")
     p.add_argument("--plot", metavar="DIR", help="write figures into DIR")
     p.add_argument("--seed", type=int, default=0, help="random seed for studies that draw")
@@ -87,10 +89,16 @@ def _add_reproduce(sub) -> None:
 
 
 def _run_reproduce(args) -> int:
+    """One or more seed results; the last line is the result's JSON record (one id) or
+    ``{"results": [record, ...]}`` in the order given (several ids)."""
     from services.reproduce import StudyContext, discover_studies
 
     studies = discover_studies()
-    if args.id == "list":
+    ids = list(args.id)
+    if "list" in ids:
+        if len(ids) > 1:
+            raise CLIError("id: 'list' stands alone (got also "
+                           f"{', '.join(i for i in ids if i != 'list')})")
         from services.reproduce.titles import TITLES, last_verdicts
 
         seen = last_verdicts()
@@ -104,10 +112,14 @@ def _run_reproduce(args) -> int:
             for r in rows:
                 print(f"{r['id']:<7} {r['verdict'] or '-':<13} {r['title']}")
         return 0
-    rid = args.id.upper()
-    if rid not in studies:
-        raise CLIError(f"id: unknown or not yet reproducible result {args.id!r}; "
+    # every id checked before any study runs: a typo in the third does not cost the first two
+    rids = [i.upper() for i in ids]
+    unknown = [i for i, rid in zip(ids, rids, strict=True) if rid not in studies]
+    if unknown:
+        raise CLIError(f"id: unknown or not yet reproducible result "
+                       f"{', '.join(repr(i) for i in unknown)}; "
                        f"available: {', '.join(sorted(studies, key=_id_key)) or 'none'}")
+    rids = list(dict.fromkeys(rids))  # each once, in the order given
     plot_dir = None
     if args.plot:
         plot_dir = Path(args.plot)
@@ -119,16 +131,19 @@ def _run_reproduce(args) -> int:
         ctx = StudyContext(plot_dir=plot_dir, seed=args.seed, workers=args.workers)
     except ValueError as exc:
         raise CLIError(str(exc)) from exc
-    res = studies[rid](ctx)
-    doc = res.as_dict()
     from services.reproduce.titles import record_verdict
 
-    record_verdict(rid, doc["verdict"])
-    if not args.json:
-        print(f"{doc['id']}: {doc['verdict']} - {doc['why']}")
-        for r in doc["rows"]:
-            print(f"  {r['name']:<40} seed {r['seed']!s:>12}  ours {r['ours']:.6g} {r['unit']}")
-    emit_json(doc)
+    docs = []
+    for rid in rids:
+        doc = studies[rid](ctx).as_dict()
+        record_verdict(rid, doc["verdict"])
+        docs.append(doc)
+        if not args.json:
+            print(f"{doc['id']}: {doc['verdict']} - {doc['why']}")
+            for r in doc["rows"]:
+                print(f"  {r['name']:<40} seed {r['seed']!s:>12}  ours {r['ours']:.6g} "
+                      f"{r['unit']}")
+    emit_json(docs[0] if len(docs) == 1 else {"results": docs})
     return 0
 
 
