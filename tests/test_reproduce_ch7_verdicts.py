@@ -280,3 +280,9 @@ def test_input_noise_that_never_reached_a_strategy_is_named():
              "decentralized": SimpleNamespace(xmv=np.ones((4, 12)))}
     notes = ch7._noise_not_applied("0-2 input noise", noisy, clean)
     assert len(notes) == 1 and "decentralized loops" in notes[0]
+
+
+def test_the_e_valve_time_is_compared_to_a_quarter_hour():
+    e_valve = V.MEASURES["E valve"]
+    assert V.compare(e_valve, 13.76, 13.82) == 0  # R7.14's 0 -> 2 with noise: a tie
+    assert V.compare(e_valve, 0.0, 0.4) == 1 and V.compare(e_valve, 0.4, 0.0) == -1

@@ -111,8 +111,10 @@ MEASURES = {
     "leg 2": Measure("time to G (leg 2)", "h", _leg_time(1), tie=0.25),
     "cost peak": Measure("operating cost peak", "$/h", lambda m: m["cost_peak"], tie=0.01,
                          relative=True),
+    # a quarter hour, as the times to G: at one supervisory sample (0.01 h) 13.76 h
+    # against 13.82 h of a 48 h run counted as a win
     "E valve": Measure("E feed valve time at 100 %", "h", lambda m: m["e_valve_at_limit_h"],
-                       tie=0.01),
+                       tie=0.25),
     "smoothness": Measure("MV total variation", "%", lambda m: m["mv_total_variation"],
                           tie=0.01, relative=True),
     "production": Measure("production change", "%", lambda m: m["production_change_pct"],
