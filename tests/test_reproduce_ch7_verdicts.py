@@ -286,3 +286,10 @@ def test_the_e_valve_time_is_compared_to_a_quarter_hour():
     e_valve = V.MEASURES["E valve"]
     assert V.compare(e_valve, 13.76, 13.82) == 0  # R7.14's 0 -> 2 with noise: a tie
     assert V.compare(e_valve, 0.0, 0.4) == 1 and V.compare(e_valve, 0.4, 0.0) == -1
+
+
+def test_a_difference_of_exactly_the_tie_is_a_tie():
+    # times on the 0.01 h sample grid, as the runs' are: 0.25 h apart up to rounding
+    leg = V.MEASURES["leg 2"]
+    assert V.compare(leg, 9.76, 9.76 + 0.25 + 1e-12) == 0
+    assert V.compare(leg, 9.76, 9.76 + 0.26) == 1

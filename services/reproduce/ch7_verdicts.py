@@ -130,7 +130,8 @@ def compare(measure: Measure, a: float, b: float) -> int:
     if not (fa and fb):
         return 0 if fa == fb else (1 if fa else -1)
     scale = max(abs(a), abs(b)) if measure.relative else 1.0
-    if abs(a - b) <= measure.tie * scale:
+    # within the tie inclusive, also where the subtraction rounds up (10.01 - 9.76 h)
+    if abs(a - b) <= measure.tie * scale * (1.0 + 1e-9):
         return 0
     better = a < b if measure.lower_is_better else a > b
     return 1 if better else -1
