@@ -70,7 +70,6 @@ def test_bad_loop_settings_are_rejected():
     assert len(TABLE_7_10) == 4
 
 
-CASCADED_TEMPERATURE = PUBLISHED_TEMPERATURE_CASCADE
 SINGLE_TEMPERATURE = PILoop("reactor temperature", cv=9, mv=10, gain=-2.0, ti_h=0.5)
 
 
@@ -86,14 +85,14 @@ def _temperature_under_idv11(first: PILoop) -> np.ndarray:
 def test_a_cascaded_temperature_loop_meets_the_cooling_waters_variation():
     # measured: 0.08 degC against 1.66 with the single -2 %/degC loop on the same draws
     single, cascade = (_temperature_under_idv11(lp)
-                       for lp in (SINGLE_TEMPERATURE, CASCADED_TEMPERATURE))
+                       for lp in (SINGLE_TEMPERATURE, PUBLISHED_TEMPERATURE_CASCADE))
     assert np.std(cascade) < 0.15 < 1.0 < np.std(single)
     assert abs(np.mean(cascade) - MODE0_SP[0]) < 0.05
 
 
 def test_a_cascaded_loop_keeps_one_set_point_per_loop_and_moves_its_secondary():
     sim = TESimulator()
-    reg = RegulatoryLayer(sim, loops=(CASCADED_TEMPERATURE,) + TABLE_7_10[1:],
+    reg = RegulatoryLayer(sim, loops=(PUBLISHED_TEMPERATURE_CASCADE,) + TABLE_7_10[1:],
                           setpoints=MODE0_SP)
     assert reg.setpoints.shape == (4,)
     # the secondary starts at its measurement: closing the cascade is bumpless
@@ -117,4 +116,4 @@ def test_a_cascaded_loop_is_validated():
                              restart_output=40.0, restart_setpoint=120.4)
     with pytest.raises(PlantInputError, match="secondary"):
         PILoop("reactor temperature", cv=9, mv=10, gain=28.3, ti_h=0.3, override=override,
-               secondary=CASCADED_TEMPERATURE.secondary)
+               secondary=PUBLISHED_TEMPERATURE_CASCADE.secondary)
