@@ -37,8 +37,9 @@ median of 300, µs)::
     80      169.5      16.1       53.9
     213    1453.3     184.9     1018.3
 
-**Incremental** (:func:`gram_append`, :func:`cholesky_extend`): the implicit form's V
-only grows by blocks between resets, so ``V' V`` is bordered and the leading rows of
+**Incremental** (:func:`cholesky_extend`): the implicit form's V only grows by
+blocks between resets, so ``V' V`` is bordered
+(:func:`controller.lowrank_kernel.lowrank_append`) and the leading rows of
 the Cholesky factor of ``(c - floor) I_r - V' V`` stand from check to check; each check
 factors only the rows added since (a compiled row-oriented Cholesky, O(m r^2) per block
 of m columns instead of LAPACK's O(r^3) and its argument copies). Its pivots differ
@@ -63,7 +64,7 @@ import numpy as np
 from numba import njit
 from scipy.linalg import lapack
 
-__all__ = ["ABOVE", "FLOOR", "SINGULAR", "cholesky_extend", "floor_check", "gram_append",
+__all__ = ["ABOVE", "FLOOR", "SINGULAR", "cholesky_extend", "floor_check",
            "lowrank_floor_check"]
 
 #: Outcomes of a check: ``lambda_min > floor``; ``0 < lambda_min <= floor``;
@@ -150,37 +151,6 @@ def lowrank_floor_check(c: float, gram: np.ndarray, floor: float, *,
             bound = min(c, floor + _bound_from_factor(L))
         return ABOVE, bound
     return (FLOOR if _positive_definite(c * np.eye(r) - gram)[0] and c > 0 else SINGULAR), floor
-
-
-@njit(cache=True)
-def gram_append(V, G, r, block, cross, bb):  # pragma: no cover - compiled
-    """Append a block of columns to the implicit covariance's ``V`` and ``V' V``.
-
-    Parameters
-    ----------
-    V : ndarray, shape (N, R)
-        Buffer of V; columns ``r .. r+m-1`` are written with ``block`` (a copy: exact).
-    G : ndarray, shape (R, R)
-        Buffer of ``V' V``; rows and columns ``r .. r+m-1`` are written.
-    r : int
-        Columns of V so far (``r + m <= R``).
-    block : ndarray, shape (N, m)
-    cross : ndarray, shape (r, m)
-        ``V[:, :r]' block``.
-    bb : ndarray, shape (m, m)
-        ``block' block``.
-    """
-    n, m = block.shape
-    for i in range(n):
-        for b in range(m):
-            V[i, r + b] = block[i, b]
-    for a in range(r):
-        for b in range(m):
-            G[a, r + b] = cross[a, b]
-            G[r + b, a] = cross[a, b]
-    for a in range(m):
-        for b in range(m):
-            G[r + a, r + b] = bb[a, b]
 
 
 @njit(cache=True)

@@ -143,7 +143,8 @@ def test_incremental_factor_decides_as_the_eigenvalues_block_by_block():
     """V grown by blocks of 3 columns: the Gram buffer holds V' V, the rows of the factor
     added per block are those of the whole matrix's Cholesky factor, and the check says
     "above" exactly while lambda_min(c I - V V') > floor."""
-    from controller.definiteness import cholesky_extend, gram_append
+    from controller.definiteness import cholesky_extend
+    from controller.lowrank_kernel import lowrank_append
 
     rng = np.random.default_rng(21)
     n, cap, c = 40, 30, 10.0
@@ -151,10 +152,11 @@ def test_incremental_factor_decides_as_the_eigenvalues_block_by_block():
     r, done, outcomes = 0, 0, set()
     while r + 3 <= cap:
         block = rng.standard_normal((n, 3)) * 0.35
-        gram_append(V, G, r, block, V[:, :r].T @ block, block.T @ block)
+        assert lowrank_append(V, G, r, block, np.eye(3), 1.0, np.zeros((3, cap)))
         np.testing.assert_array_equal(V[:, r:r + 3], block)
         r += 3
         np.testing.assert_allclose(G[:r, :r], V[:, :r].T @ V[:, :r], rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(G[:r, :r], G[:r, :r].T)
         lam = float(np.linalg.eigvalsh(c * np.eye(n) - V[:, :r] @ V[:, :r].T)[0])
         if abs(lam - FLOOR_VALUE) < 1e-9:
             continue
