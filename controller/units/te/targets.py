@@ -256,22 +256,32 @@ def model_steady_state(ssm, j: int) -> tuple[np.ndarray, np.ndarray] | None:
     """Steady state of model ``j`` of a :class:`controller.state_shared.StateSharedModel`:
     ``y_ss = G u + a`` for a constant input ``u``.
 
+    At a steady state every block of the shared state is its signal times the basis's
+    steady vector ``s = -Fb^-1 gb`` (eq. 3.10 with ``n' = 0``), so
+    ``y = Theta_1' (u (x) s) + Theta_2' (y (x) s) + b``, i.e. ``(I - Q) y = H u + b``
+    with ``H``, ``Q`` the read-outs of ``s`` through the input and output blocks of
+    ``Theta_j'``: one (p, p) solve, where the continuous form's ``A x = -[B, f]`` is one
+    of the shared order (the same answer; ``A`` is singular exactly when ``I - Q`` is,
+    since ``F`` is Hurwitz).
+
     Returns
     -------
     (G, a) : ndarray (p, m), ndarray (p,)
-        Gain (output units per input unit) and offset; None when the model's ``A`` is
+        Gain (output units per input unit) and offset; None when ``I - Q`` is
         singular or the result is not finite.
     """
-    A, B, C, b, f = ssm.continuous_form(j)
-    rhs = np.empty((B.shape[0], B.shape[1] + 1))  # [B, f], as np.column_stack makes it
-    rhs[:, :-1] = B
-    rhs[:, -1] = f
+    m, p, n = ssm.m, ssm.p, ssm.n_deg
+    read = ssm.theta_rows(j).reshape(p, m + p, n) @ ssm.basis.steady  # [H, Q], (p, m + p)
+    lhs = -read[:, m:]
+    lhs[np.diag_indices(p)] += 1.0
+    rhs = np.empty((p, m + 1))
+    rhs[:, :m] = read[:, :m]
+    rhs[:, m] = ssm.bias(j)
     try:
-        X = np.linalg.solve(A, rhs)
+        X = np.linalg.solve(lhs, rhs)
     except np.linalg.LinAlgError:
         return None
-    G = -C @ X[:, :-1]
-    a = b - C @ X[:, -1]
+    G, a = X[:, :m].copy(), X[:, m].copy()
     if not (all_finite(G) and all_finite(a)):
         return None
     return G, a
