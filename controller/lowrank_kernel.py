@@ -17,21 +17,25 @@ temporaries), where the same products as numpy expressions cost some fifteen cal
 and their temporaries. The loops run over V's rows, contiguous in its C-ordered
 buffer, and may reassociate the sums (``fastmath`` ``reassoc``/``contract``, never
 ``nnan``: a NaN or inf in the data still comes out as one), so a product differs
-from BLAS's in the last bits: over the 48 h TE run the moves stay within
-``tests/test_te_moves_reference.py``'s tolerance (1e-6) of those made with numpy's
-products.
+from BLAS's in the last bits: the TE moves of ``tests/data/te_moves`` (48 h and the
+short cases) stay within 4e-9 of those made with numpy's products, the difference two
+numpy builds make (``tests/test_te_moves_reference.py`` allows 1e-6).
 
-**Measured** (AMD EPYC, 2 vCPU, one thread, TE size N = 265, m = 5; median of
-20,000 calls, µs; "numpy" the expressions these replace, with their errstate and
-column stack):
+**Measured** (AMD EPYC, 2 vCPU, one BLAS thread, quiet; TE size N = 265, m = 5;
+mean of 20,000 calls, µs; "numpy": the expressions these replace, with their
+errstate, column stack, finiteness check and buffer copies):
 
-=====  ========================  ========================
-r      products numpy / here     append numpy / here
-=====  ========================  ========================
-10     9.0 / 6.7                 see adaptation
-40     15.5 / 11.6
-80     25.3 / 21.1
-=====  ========================  ========================
+=====  =====================  =====================
+r      products numpy / here  append numpy / here
+=====  =====================  =====================
+10     9.0 / 6.7              9.6 / 6.3
+40     15.5 / 11.6            13.1 / 8.5
+75-80  25.3 / 21.1 (80)       18.1 / 11.8 (75)
+=====  =====================  =====================
+
+In the TE ``ssmpc`` closed loop V grows from 0 to 80 columns and is reset about every
+17 samples (r about 40 on average). ``ssmpc bench te-closed-loop`` went from 38.2 to
+40.4-40.9 process-h/s on the same quiet machine (ssmpc, three 48 h runs each).
 """
 
 from __future__ import annotations
