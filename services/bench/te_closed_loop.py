@@ -84,9 +84,9 @@ With the implicit covariance's products compiled (:mod:`controller.lowrank_kerne
 ``P W'`` before an update, the covariance step's block and the Gram border after it)
 and a model's steady state for the targets solved as a (5, 5) system instead of one of
 the shared order (:func:`controller.units.te.targets.model_steady_state`), on a quiet
-machine (load 0.3-1.1; AMD EPYC 2 vCPU): ssmpc 38.2 -> 40.4 / 40.9 process-h/s
-(``--strategies ssmpc``, two benches; step median 0.13 ms, p99 0.20 ms either way),
-fixed 60.3. The ssmpc sample's bookkeeping after the move fell from 36-44 to 26 µs
+machine (load 0.3-1.1; AMD EPYC 2 vCPU), the products alone: ssmpc 38.2 -> 40.4 /
+40.9 process-h/s (``--strategies ssmpc``, two benches; step median 0.13 ms, p99
+0.20 ms either way), fixed 60.3. The ssmpc sample's bookkeeping after the move fell from 36-44 to 26 µs
 (method timers), the estimator's prepare from 26-31 to 18 µs and its covariance commit
 from 12-14 to 7 µs. On a busy host the rate swings by a third from run to run (fixed
 41-56 process-h/s within ten minutes); best of four 48 h runs, the code before and
