@@ -86,12 +86,13 @@ and a model's steady state for the targets solved as a (5, 5) system instead of 
 the shared order (:func:`controller.units.te.targets.model_steady_state`), on a quiet
 machine (load 0.3-1.1; AMD EPYC 2 vCPU), the products alone: ssmpc 38.2 -> 40.4 /
 40.9 process-h/s (``--strategies ssmpc``, two benches; step median 0.13 ms, p99
-0.20 ms either way), fixed 60.3. The ssmpc sample's bookkeeping after the move fell from 36-44 to 26 µs
-(method timers), the estimator's prepare from 26-31 to 18 µs and its covariance commit
-from 12-14 to 7 µs. On a busy host the rate swings by a third from run to run (fixed
-41-56 process-h/s within ten minutes); best of four 48 h runs, the code before and
-after alternated four times at such a time: 28.2 / 31.5 / 30.0 / 24.2 against 37.4 /
-39.5 / 28.8 / 39.0. The moves are those of before within 4e-9 (``tests/data/te_moves``).
+0.20 ms either way), fixed 60.3. The ssmpc sample's bookkeeping after the move fell
+from 36-44 to 26 µs (method timers), the estimator's prepare from 26-31 to 18 µs and
+its covariance commit from 12-14 to 7 µs. On a busy host the rate swings by a third
+from run to run (fixed 41-56 process-h/s within ten minutes); best of four 48 h runs,
+the code before and after alternated four times at such a time: 28.2 / 31.5 / 30.0 /
+24.2 against 37.4 / 39.5 / 28.8 / 39.0. The moves are those of before within 4e-9
+(``tests/data/te_moves``).
 """
 
 from __future__ import annotations
