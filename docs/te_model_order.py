@@ -12,7 +12,8 @@ slowest mode of the cascade and of the MPC's reduced model.
     PYTHONPATH=. python docs/te_model_order.py     # about half a wall minute
 
 The cascade is :func:`controller.units.te.models.closed_loop` with the inner loops of
-:data:`controller.units.te.loops.INNER_LOOPS` as they stand.
+:data:`controller.units.te.loops.MODEL_LOOPS` as they stand (the loops the core's models
+are linearized with).
 """
 
 from __future__ import annotations

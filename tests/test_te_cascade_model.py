@@ -1,8 +1,9 @@
 """The TE MPC's linear cascade is the plant with its inner loops closed
 (controller.units.te.models.closed_loop): checked against the same plant, loops and
 pressure filter interconnected by python-control (``control.interconnect``, signals
-joined by name), for the product's loops and for a cascaded reactor-temperature loop
-(the published one, controller.units.te.loops.PUBLISHED_TEMPERATURE_CASCADE)."""
+joined by name), for the loops the core's models close
+(controller.units.te.loops.MODEL_LOOPS) and for the plant side's, whose reactor
+temperature is a cascade (controller.units.te.loops.INNER_LOOPS)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 from controller.units.te.grades import grade as get_grade
-from controller.units.te.loops import INNER_LOOPS, PUBLISHED_TEMPERATURE_CASCADE
+from controller.units.te.loops import INNER_LOOPS, MODEL_LOOPS
 from controller.units.te.models import MODEL_GRADES, PRESSURE_FILTER_H, closed_loop
 from plant_sim import get_plant
 from plant_sim.linearize import linearize
@@ -65,10 +66,10 @@ def _frequency_response(A, B, C, D, w) -> np.ndarray:
     return np.array([C @ np.linalg.solve(1j * x * np.eye(n) - A, B) + D for x in w])
 
 
-@pytest.mark.parametrize("cascaded", [False, True], ids=["product loops", "cascade"])
+@pytest.mark.parametrize("cascaded", [False, True], ids=["model loops", "plant loops"])
 @pytest.mark.parametrize("grade", MODEL_GRADES)
 def test_closed_loop_is_the_interconnected_cascade(grade, cascaded):
-    loops = ((PUBLISHED_TEMPERATURE_CASCADE,) + INNER_LOOPS[1:]) if cascaded else INNER_LOOPS
+    loops = INNER_LOOPS if cascaded else MODEL_LOOPS
     ref = _interconnected(grade, loops)
     ours, _, _ = closed_loop(grade, loops)
     assert ours.A.shape == ref.A.shape

@@ -1,5 +1,7 @@
 """The inner loops of the TE cascade: what the plant side runs under the supervisory
-controller, at the plant's 1.8 s Euler step (seed Table 7.10, R7.11, with one change).
+controller, at the plant's 1.8 s Euler step (seed Table 7.10, R7.11, with the reactor
+temperature cascaded over the coolant outlet temperature), and the loops the core's
+models are linearized with.
 
 Used by the controller (:mod:`controller.units.te.control`), by the models of the
 cascade the MPC acts on (:mod:`controller.units.te.models`) and by the plant side.
@@ -9,33 +11,54 @@ from __future__ import annotations
 
 from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop, SecondaryLoop
 
-__all__ = ["INNER_LOOPS", "PRESSURE_LOOP", "PUBLISHED_TEMPERATURE_CASCADE"]
+__all__ = ["INNER_LOOPS", "MODEL_LOOPS", "PRESSURE_LOOP", "PUBLISHED_TEMPERATURE_CASCADE",
+           "REACTOR_TEMPERATURE_CASCADE"]
 
-#: The inner loops: Table 7.10 (R7.11) with one change, the reactor-temperature
-#: gain. As printed (-0.5 %/degC, Ti "i" read as 1 h) the linearized plant with the
-#: four loops closed has a growing 3 h oscillation at modes 0 and 2 (eigenvalues
-#: +0.35 +- 2.08j and +0.51 +- 2.02j 1/h; with -0.5 %/degC no Ti in 0.02-1 h is
-#: stable at both modes) and the nonlinear plant trips on reactor pressure after
-#: 40 h (mode 0) and 19 h (mode 2) with all other valves held. -2 %/degC with
-#: Ti = 0.5 h makes the linearizations Hurwitz at modes 0, 2 and 3, as the seed
-#: reports for its loops (R7.10). The three level loops are exactly Table 7.10.
 #: A fifth inner loop, reactor pressure -> purge (XMV 6), whose set point the core
 #: writes in place of the purge valve (see :mod:`controller.units.te.control`, "Pressure").
 PRESSURE_LOOP = PILoop("reactor pressure", cv=7, mv=6, gain=-0.15, ti_h=0.5)
-INNER_LOOPS = ((PILoop("reactor temperature", cv=9, mv=10, gain=-2.0, ti_h=0.5),)
+
+#: The loops the core's models are linearized with (:mod:`controller.units.te.models`):
+#: Table 7.10 (R7.11) with one change, the reactor-temperature gain, and the pressure
+#: loop. As printed (-0.5 %/degC, Ti "i" read as 1 h) the linearized plant with the four
+#: loops closed has a growing 3 h oscillation at modes 0 and 2 (eigenvalues +0.35 +-
+#: 2.08j and +0.51 +- 2.02j 1/h; with -0.5 %/degC no Ti in 0.02-1 h is stable at both
+#: modes) and the nonlinear plant trips on reactor pressure after 40 h (mode 0) and
+#: 19 h (mode 2) with all other valves held. -2 %/degC with Ti = 0.5 h makes the
+#: linearizations Hurwitz at modes 0, 2 and 3, as the seed reports for its loops
+#: (R7.10). The three level loops are exactly Table 7.10.
+MODEL_LOOPS = ((PILoop("reactor temperature", cv=9, mv=10, gain=-2.0, ti_h=0.5),)
                + TABLE_7_10[1:] + (PRESSURE_LOOP,))
 
 #: The reactor temperature over the reactor coolant outlet temperature (XMEAS 21), as
 #: the decentralized structure closes it (``temain_mod.f``, Lyman & Georgakis; its loops
 #: 18 and 10 with 150 degC spans: 2.83 x 10 %/% = 28.3 degC of coolant set point per
-#: degC, reset 982 s; -0.156 x 10 %/% = -1.04 % of valve per degC, reset 1452 s).
-#: Measured, not in :data:`INNER_LOOPS`: it holds the reactor temperature within 0.08
-#: degC under IDV(11) (the -2 %/degC loop 1.66, `tests/test_te_regulatory.py`), and with
-#: the MPC it brought G's deviation under IDV(11) at mode 0 to 0.506 mol %
-#: (decentralized 0.504); but the cascade's reduced models carry its fast modes
-#: (-30 +- 244j 1/h at mode 2), and with them `fixed` tripped 0 -> 2 0.7 h after the
-#: request (docs/te_matrix.md, "The reactor temperature's inner loop").
+#: degC, reset 982 s; -0.156 x 10 %/% = -1.04 % of valve per degC, reset 1452 s). It holds
+#: the reactor temperature within 0.08 degC under IDV(11) (the -2 %/degC loop 1.66,
+#: `tests/test_te_regulatory.py`). The baseline ``decentralized`` runs it.
 PUBLISHED_TEMPERATURE_CASCADE = PILoop(
     "reactor temperature", cv=9, mv=10, gain=28.3, ti_h=982.0 / 3600.0,
     secondary=SecondaryLoop("reactor coolant outlet temperature", cv=21,
                             gain=-0.156 * 10.0 / 1.5, ti_h=1452.0 / 3600.0))
+
+#: The cascade the plant side runs under the supervisory controller: the published one
+#: with the primary's gain at 10 degC of coolant set point per degC instead of 28.3 (the
+#: secondary and both resets as published). Measured (``ssmpc`` and ``fixed``, seeds
+#: 1-3, 48 h; ``docs/te_matrix.md``, "The reactor temperature's cascade") on ten cases
+#: of the acceptance matrix (the legs out of mode 3, 1 -> 0, 2 -> 0, IDV 11, 12, 17 and
+#: 20 at mode 0, IDV(13) at mode 2): with the primary at 15 degC/degC ``fixed`` tripped
+#: under IDV(13) at mode 2 (seed 2), at 20 and 28.3 both strategies tripped 3 -> 2 on
+#: every seed (reactor pressure, 3-4.5 h); at 10 none did, nor anywhere in the whole
+#: matrix.
+REACTOR_TEMPERATURE_CASCADE = PILoop(
+    "reactor temperature", cv=9, mv=10, gain=10.0, ti_h=982.0 / 3600.0,
+    secondary=PUBLISHED_TEMPERATURE_CASCADE.secondary)
+
+#: The inner loops the plant side runs: the reactor-temperature cascade above, the
+#: three level loops of Table 7.10 and the pressure loop. The core's models keep the
+#: single temperature loop of :data:`MODEL_LOOPS`: any loop with integral action holds
+#: the reactor temperature at T_r* at a steady state, so the models' steady-state gains
+#: are the cascade's; their temperature dynamics are slower than the cascade's. The
+#: cascade's own reduced models carry its fast modes (-30 +- 244j 1/h at mode 2 with the
+#: published tuning), and with them ``fixed`` tripped 0 -> 2 0.7 h after the request.
+INNER_LOOPS = (REACTOR_TEMPERATURE_CASCADE,) + MODEL_LOOPS[1:]

@@ -3,16 +3,21 @@
 Why not :mod:`controller.units.te.linear_models`: that module closes Table 7.10's loops as
 printed (reactor-temperature gain -0.5 %/degC), which leaves the linearized plant
 unstable at modes 0 and 2, and holds the E feed constant. The cascade that runs
-the original plant here (:mod:`controller.units.te.control`) uses a stabilizing
-reactor-temperature gain (-2 %/degC, Ti 0.5 h) and ratios the E feed to the
-measured D feed (§7.7). The MPC's model must be the plant it acts on, so this
-module linearizes exactly that, with the chapter-3 tooling:
+the original plant here (:mod:`controller.units.te.control`) holds the reactor
+temperature with integral action and ratios the E feed to the measured D feed (§7.7).
+The MPC's model must be the plant it acts on, so this module linearizes that, with the
+chapter-3 tooling, with one stand-in: the plant side cascades the reactor temperature
+over the coolant outlet temperature (:data:`controller.units.te.loops.INNER_LOOPS`),
+the models close a single temperature loop on the cooling water (-2 %/degC, Ti 0.5 h;
+:data:`controller.units.te.loops.MODEL_LOOPS`). Both hold the temperature at T_r* at a
+steady state, so the steady-state gains are the same; the models' temperature is
+slower than the cascade's, and they keep no fast cascade modes:
 
 1. Jacobian linearization of ``get_plant("te")`` (50 states, h) at the grade's
    tabulated state (Ricker 1995 / the base case);
-2. the four inner PI loops closed (:data:`controller.units.te.loops.INNER_LOOPS`, integrators as
-   states), and the E/D ratio: XMV(2) deviation = r x XMV(1) valve deviation with
-   r the grade's ratio in % of each valve range;
+2. the four inner PI loops closed (:data:`controller.units.te.loops.MODEL_LOOPS`,
+   integrators as states), and the E/D ratio: XMV(2) deviation = r x XMV(1) valve
+   deviation with r the grade's ratio in % of each valve range;
 3. a unity-gain first-order filter on reactor pressure, 1/300 h (R7.10);
 4. inputs XMV3, XMV4, P_r* (set point of the pressure loop on XMV6), T_r*, XMV11;
    outputs reactor pressure (filtered),
@@ -106,17 +111,17 @@ def closed_loop(grade: str, loops: tuple | None = None
                 ) -> tuple[Realization, np.ndarray, np.ndarray]:
     """Linear cascade about ``grade``: (realization, u_op (5,), y_op (5,)), time in h.
 
-    ``loops``: the inner loops closed (default :data:`controller.units.te.loops.INNER_LOOPS`),
+    ``loops``: the inner loops closed (default :data:`controller.units.te.loops.MODEL_LOOPS`),
     in their order; the first holds the reactor temperature (its set point is T_r*) and
     may be a cascade (a :class:`plant_sim.tennessee_eastman.regulatory.SecondaryLoop`
     on a faster measurement drives its valve); the fifth is the pressure loop.
     """
     from controller.units.te.grades import grade as get_grade
-    from controller.units.te.loops import INNER_LOOPS
+    from controller.units.te.loops import MODEL_LOOPS
     from plant_sim import get_plant
     from plant_sim.linearize import linearize
 
-    lps = INNER_LOOPS if loops is None else tuple(loops)
+    lps = MODEL_LOOPS if loops is None else tuple(loops)
 
     g = get_grade(grade)
     plant = get_plant("te")
