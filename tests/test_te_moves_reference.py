@@ -1,8 +1,8 @@
 """The TE cascade's moves against stored ones (``tests/data/te_moves``).
 
 The references were made by ``tests/data/te_moves/make_references.py`` on the commit
-named in ``origin.txt``, before the closed loop's speed work: a change that only
-makes the loop faster must leave every move as it was. :data:`MOVES_ATOL` is the
+named in ``origin.txt`` (made again when the control changes, never for speed work): a
+change that only makes the loop faster must leave every move as it was. :data:`MOVES_ATOL` is the
 tolerance (0: bit for bit); the compiled plant, the core's kernels and NumPy's
 elementwise functions give the same bits on x86-64 from run to run.
 """
