@@ -44,7 +44,7 @@ PUBLISHED_TEMPERATURE_CASCADE = PILoop(
 #: The cascade the plant side runs under the supervisory controller: the published one
 #: with the primary's gain at 10 degC of coolant set point per degC instead of 28.3 (the
 #: secondary and both resets as published). Measured (``ssmpc`` and ``fixed``, seeds
-#: 1-3, 48 h; ``docs/te_matrix.md``, "The reactor temperature's cascade") on ten cases
+#: 1-3, 48 h; ``docs/te_matrix.md``, "The primary's gain") on ten cases
 #: of the acceptance matrix (the legs out of mode 3, 1 -> 0, 2 -> 0, IDV 11, 12, 17 and
 #: 20 at mode 0, IDV(13) at mode 2): with the primary at 15 degC/degC ``fixed`` tripped
 #: under IDV(13) at mode 2 (seed 2), at 20 and 28.3 both strategies tripped 3 -> 2 on
