@@ -179,6 +179,24 @@ def test_a_run_identity_changes_with_what_makes_the_run_different():
             assert (rid != ids[key]) == (key[0] == "0-1"), key
 
 
+def test_a_run_identity_changes_with_the_plant_sides_inner_loops(monkeypatch):
+    """Runs made with another regulatory layer are other runs: a campaign resumed in the
+    same directory after the inner loops changed makes them again."""
+    import controller.units.te.loops as loops
+    from services.campaign import identity
+
+    before = {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))}
+    monkeypatch.setattr(loops, "INNER_LOOPS", loops.MODEL_LOOPS)
+    identity._settings_json.cache_clear()
+    try:
+        after = {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))}
+    finally:
+        monkeypatch.undo()
+        identity._settings_json.cache_clear()
+    assert before and not before & after
+    assert {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))} == before
+
+
 # -- the campaign on Dask ---------------------------------------------------------------------
 def test_local_cluster_gives_the_metrics_of_the_runs_made_one_by_one(local_campaign,
                                                                      serial_rows):

@@ -2,7 +2,9 @@
 
 A run is (unit, case contents, strategy, seed, hours, noise) plus the settings of
 the code that runs it: for TE the supervisory sample, the plant's Euler step, the
-MPC tuning (:class:`controller.units.te.control.TEMPCOptions`), the ratio loop
+plant side's inner loops and the loops the core's models close
+(:mod:`controller.units.te.loops`), the MPC tuning
+(:class:`controller.units.te.control.TEMPCOptions`), the ratio loop
 (:class:`~controller.units.te.control.RatioSettings`), the separator-temperature loop
 (:data:`~controller.units.te.control.SEPARATOR_LOOP`), the transition guards
 (:class:`~controller.units.te.control.TransitionGuards`) and the grade references'
@@ -44,9 +46,13 @@ def _settings_json(unit: str) -> str:
         )
         from controller.units.te.d_share_path import DSharePathSettings
         from controller.units.te.grades import TAU_DEFAULT_H
+        from controller.units.te.loops import INNER_LOOPS, MODEL_LOOPS
         from controller.units.te.reactant_trim import ReactantTrimSettings
 
-        s = {"sample_h": SAMPLE_H, "plant_dt_s": 1.8, "mpc": asdict(TEMPCOptions()),
+        s = {"sample_h": SAMPLE_H, "plant_dt_s": 1.8,
+             "inner_loops": [asdict(lp) for lp in INNER_LOOPS],
+             "model_loops": [asdict(lp) for lp in MODEL_LOOPS],
+             "mpc": asdict(TEMPCOptions()),
              "ratio": asdict(RatioSettings()), "ratio_mpc": asdict(RATIO_MPC),
              "tau_h": dict(TAU_DEFAULT_H),
              "guards": asdict(TransitionGuards()), "guards_mpc": asdict(GUARDS_MPC),
