@@ -3,8 +3,10 @@
 Layers (seed Fig. 7.2)
     1. Inner PI loops of Table 7.10 (R7.11) at the plant's 1.8 s Euler step,
        :class:`plant_sim.tennessee_eastman.regulatory.RegulatoryLayer`: reactor
-       temperature -> reactor coolant XMV(10) (gain changed, see
-       :data:`INNER_LOOPS`), reactor level -> D feed XMV(1), separator level ->
+       temperature -> reactor coolant outlet temperature -> reactor coolant XMV(10)
+       (a cascade in place of Table 7.10's single loop, see :data:`INNER_LOOPS`; the
+       MPC's models close the single loop, :data:`controller.units.te.loops.MODEL_LOOPS`),
+       reactor level -> D feed XMV(1), separator level ->
        separator underflow XMV(7), stripper level -> stripper underflow XMV(8);
        plus reactor pressure -> purge XMV(6) (see "Pressure").
     2. The supervisory controller, every :data:`SAMPLE_H` (36 s, 20 plant steps):
