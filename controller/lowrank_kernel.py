@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 __all__ = ["lowrank_append", "lowrank_products", "compile_lowrank"]
@@ -156,8 +157,6 @@ def compile_lowrank(N: int, m: int) -> None:
     """Compile both kernels (or load them from numba's on-disk cache) now, with the
     argument types the estimator passes (C-ordered float64 buffers, Python ints and
     floats), on scratch arrays."""
-    import numpy as np
-
     V, G = np.zeros((N, m + 1)), np.zeros((m + 1, m + 1))
     lowrank_products(V, 0, 1.0, np.zeros((m, N)), np.zeros(N), np.zeros((N, m + 1)),
                      np.zeros((m + 1, m + 1)))

@@ -9,6 +9,8 @@ cascade the MPC acts on (:mod:`controller.units.te.models`) and by the plant sid
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop, SecondaryLoop
 
 __all__ = ["INNER_LOOPS", "MODEL_LOOPS", "PRESSURE_LOOP", "PUBLISHED_TEMPERATURE_CASCADE",
@@ -50,9 +52,7 @@ PUBLISHED_TEMPERATURE_CASCADE = PILoop(
 #: under IDV(13) at mode 2 (seed 2), at 20 and 28.3 both strategies tripped 3 -> 2 on
 #: every seed (reactor pressure, 3-4.5 h); at 10 none did, nor anywhere in the whole
 #: matrix.
-REACTOR_TEMPERATURE_CASCADE = PILoop(
-    "reactor temperature", cv=9, mv=10, gain=10.0, ti_h=982.0 / 3600.0,
-    secondary=PUBLISHED_TEMPERATURE_CASCADE.secondary)
+REACTOR_TEMPERATURE_CASCADE = replace(PUBLISHED_TEMPERATURE_CASCADE, gain=10.0)
 
 #: The inner loops the plant side runs: the reactor-temperature cascade above, the
 #: three level loops of Table 7.10 and the pressure loop. The core's models keep the
