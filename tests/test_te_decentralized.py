@@ -258,3 +258,21 @@ def test_plant_node_runner_applies_the_decentralized_moves():
     assert not plant.shutdown
     y = plant.y()
     assert abs(y[7] - 75.0) < 2.0 and abs(y[6] - 2705.0) < 30.0  # reactor level, pressure
+
+
+def test_the_published_temperature_cascade_in_engineering_units():
+    # loop 18: Kc 2.83 on the reactor temperature's 150 degC span, its output in % of
+    # loop 10's 150 degC span, x 10 in the source: 28.3 degC of set point per degC;
+    # loop 10: Kc -0.156 x 10 on 150 degC, output in % of the valve: -1.04 %/degC
+    from controller.units.te.published_loops import published_cascade
+
+    lp = published_cascade(18, 10)
+    assert (lp.cv, lp.mv, lp.secondary.cv) == (9, 10, 21)
+    assert lp.gain == pytest.approx(28.3, rel=1e-12)
+    assert lp.ti_h == pytest.approx(982.0 / 3600.0, rel=1e-12)
+    assert lp.secondary.gain == pytest.approx(-1.04, rel=1e-12)
+    assert lp.secondary.ti_h == pytest.approx(1452.0 / 3600.0, rel=1e-12)
+    with pytest.raises(ValueError, match="loop 18"):
+        published_cascade(18, 4)  # loop 18 writes loop 10's set point, not loop 4's
+    with pytest.raises(ValueError, match="loop 20"):
+        published_cascade(20, 16)  # loop 16 writes loop 9's set point, not a valve

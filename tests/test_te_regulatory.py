@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from controller.units.te.loops import PUBLISHED_TEMPERATURE_CASCADE
+from controller.units.te.loops import MODEL_LOOPS, PUBLISHED_TEMPERATURE_CASCADE
 from plant_sim.base import PlantInputError
 from plant_sim.tennessee_eastman import TESimulator
 from plant_sim.tennessee_eastman.regulatory import (
@@ -70,7 +70,7 @@ def test_bad_loop_settings_are_rejected():
     assert len(TABLE_7_10) == 4
 
 
-SINGLE_TEMPERATURE = PILoop("reactor temperature", cv=9, mv=10, gain=-2.0, ti_h=0.5)
+SINGLE_TEMPERATURE = MODEL_LOOPS[0]  # the -2 %/degC loop on the cooling water
 
 
 def _temperature_under_idv11(first: PILoop) -> np.ndarray:

@@ -123,103 +123,26 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from controller.interfaces import ControlDecision
 from controller.units.te.grades import TransitionPlan, grade
+from controller.units.te.published_loops import (
+    LOOP_BY_NUMBER,
+    PURGE_OVERRIDE,
+    TEMAIN_MOD_LOOPS,
+    PublishedLoop,
+    gain_eu,
+)
 from controller.units.te.spec import SAMPLE_H, TEControlSpec, alarm_crossings
-from plant_sim.tennessee_eastman.regulatory import CascadeLoop, PILoop, ValveOverride
+from plant_sim.tennessee_eastman.regulatory import CascadeLoop, PILoop
 
 __all__ = ["PublishedLoop", "TEMAIN_MOD_LOOPS", "PURGE_OVERRIDE", "PLANT_LOOPS",
            "ANALYZER_LOOP_NUMBERS", "AnalyzerLoop", "DecentralizedController",
            "decentralized_spec", "make_decentralized_controller", "plant_loop"]
 
-
-@dataclass(frozen=True)
-class PublishedLoop:
-    """One loop of ``temain_mod.f`` as published (its units, not this project's).
-
-    Parameters
-    ----------
-    number : int
-        The source's loop (subroutine) number.
-    name : str
-    cv : int
-        Controlled XMEAS number.
-    xmv : int or None
-        Manipulated XMV number; None for an outer loop.
-    inner : int or None
-        Number of the loop whose set point an outer loop writes.
-    gain : float
-        ``Kc`` on errors in % of ``span`` (output in % of the output's span).
-    ti_s : float
-        Reset time, s; ``math.inf``: proportional only.
-    span : float
-        The CV's span in the error scaling, CV units per 100 %.
-    sample_s : float
-        Execution period, s.
-    setpoint : float
-        Base-case set point, CV units.
-    """
-
-    number: int
-    name: str
-    cv: int
-    xmv: int | None
-    inner: int | None
-    gain: float
-    ti_s: float
-    span: float
-    sample_s: float
-    setpoint: float
-
-    def __post_init__(self) -> None:
-        if (self.xmv is None) == (self.inner is None):
-            raise ValueError(f"loop {self.number}: exactly one of xmv and inner")
-        if not 1 <= self.cv <= 41:
-            raise ValueError(f"loop {self.number}: cv must be an XMEAS number 1..41")
-        if not (self.ti_s > 0 and self.span > 0 and self.sample_s > 0):
-            raise ValueError(f"loop {self.number}: ti_s, span and sample_s must be > 0")
-
-
-_P = math.inf
-#: The loops of ``temain_mod.f`` (set points lines 246-312, gains and reset times
-#: there, errors and outputs in the loop subroutines, execution order and samples
-#: in the main loop, lines 369-394).
-TEMAIN_MOD_LOOPS = (
-    PublishedLoop(1, "D feed", 2, 1, None, 1.0, _P, 5811.0, 3.0, 3664.0),
-    PublishedLoop(2, "E feed", 3, 2, None, 1.0, _P, 8354.0, 3.0, 4509.3),
-    PublishedLoop(3, "A feed", 1, 3, None, 1.0, _P, 1.017, 3.0, 0.25052),
-    PublishedLoop(4, "A and C feed", 4, 4, None, 1.0, _P, 15.25, 3.0, 9.3477),
-    PublishedLoop(5, "recycle flow", 5, 5, None, -0.083, 1.0, 53.0, 3.0, 26.902),
-    PublishedLoop(6, "purge rate", 10, 6, None, 1.22, _P, 1.0, 3.0, 0.33712),
-    PublishedLoop(7, "separator level", 12, 7, None, -2.06, _P, 70.0, 3.0, 50.0),
-    PublishedLoop(8, "stripper level", 15, 8, None, -1.62, _P, 70.0, 3.0, 50.0),
-    PublishedLoop(9, "stripper steam", 19, 9, None, 0.41, _P, 460.0, 3.0, 230.31),
-    PublishedLoop(10, "reactor coolant outlet temperature", 21, 10, None, -0.156 * 10.0,
-                  1452.0, 150.0, 3.0, 94.599),
-    PublishedLoop(11, "production", 17, 11, None, 1.09, 2600.0, 46.0, 3.0, 22.949),
-    PublishedLoop(16, "stripper temperature", 18, None, 9, 1.69 / 10.0, 236.0, 130.0, 3.0,
-                  65.731),
-    PublishedLoop(17, "reactor level", 8, None, 4, 11.1 / 10.0, 3168.0, 50.0, 3.0, 75.0),
-    PublishedLoop(18, "reactor temperature", 9, None, 10, 2.83 * 10.0, 982.0, 150.0, 3.0,
-                  120.40),
-    PublishedLoop(13, "A in reactor feed", 23, None, 3, 18.0, 3168.0, 100.0, 360.0, 32.188),
-    PublishedLoop(14, "D in reactor feed", 26, None, 1, 8.3, 3168.0, 100.0, 360.0, 6.8820),
-    PublishedLoop(15, "E in reactor feed", 27, None, 2, 2.37, 5069.0, 100.0, 360.0, 18.776),
-    PublishedLoop(19, "B in purge", 30, None, 6, -83.2 / 5.0 / 3.0, 6336.0, 26.0, 360.0,
-                  13.823),
-    PublishedLoop(20, "E in product", 38, None, 16, -16.3 / 5.0, 12408.0, 1.6, 900.0,
-                  0.83570),
-)
-_BY_NUMBER = {lp.number: lp for lp in TEMAIN_MOD_LOOPS}
-
-#: Loop 6's override on the separator pressure (source lines 710-727).
-PURGE_OVERRIDE = ValveOverride(cv=13, high=2950.0, release=2633.7, low=2300.0,
-                               restart_output=40.060, restart_setpoint=0.33712)
 
 #: Numbers of the loops run in the supervisory step, in the source's order.
 ANALYZER_LOOP_NUMBERS = (13, 14, 15, 19, 20)
@@ -227,34 +150,25 @@ ANALYZER_LOOP_NUMBERS = (13, 14, 15, 19, 20)
 PLANT_LOOP_NUMBERS = (1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 16, 17, 18)
 
 
-def _out_span(lp: PublishedLoop) -> float:
-    return 100.0 if lp.inner is None else _BY_NUMBER[lp.inner].span
-
-
-def _gain_eu(lp: PublishedLoop) -> float:
-    """Gain in engineering units: % of valve (or inner CV units) per CV unit."""
-    return lp.gain * _out_span(lp) / lp.span
-
-
 def plant_loop(lp: PublishedLoop) -> PILoop | CascadeLoop:
     """A published fast loop as a plant-side loop (gain in engineering units, Ti in h)."""
     ti_h = lp.ti_s / 3600.0
     if lp.inner is None:
         override = PURGE_OVERRIDE if lp.number == 6 else None
-        return PILoop(lp.name, cv=lp.cv, mv=lp.xmv, gain=_gain_eu(lp), ti_h=ti_h,
+        return PILoop(lp.name, cv=lp.cv, mv=lp.xmv, gain=gain_eu(lp), ti_h=ti_h,
                       override=override)
-    return CascadeLoop(lp.name, cv=lp.cv, inner=_BY_NUMBER[lp.inner].name,
-                       gain=_gain_eu(lp), ti_h=ti_h)
+    return CascadeLoop(lp.name, cv=lp.cv, inner=LOOP_BY_NUMBER[lp.inner].name,
+                       gain=gain_eu(lp), ti_h=ti_h)
 
 
 #: The plant-side loops (the source's fast loops), in the source's order.
-PLANT_LOOPS = tuple(plant_loop(_BY_NUMBER[n]) for n in PLANT_LOOP_NUMBERS)
+PLANT_LOOPS = tuple(plant_loop(LOOP_BY_NUMBER[n]) for n in PLANT_LOOP_NUMBERS)
 _PLANT_INDEX = {n: i for i, n in enumerate(PLANT_LOOP_NUMBERS)}
 #: Plant-side loops whose set point a plant-side cascade writes (NaN in the move).
-_CASCADED = tuple(_PLANT_INDEX[_BY_NUMBER[n].inner] for n in PLANT_LOOP_NUMBERS
-                  if _BY_NUMBER[n].inner is not None)
+_CASCADED = tuple(_PLANT_INDEX[LOOP_BY_NUMBER[n].inner] for n in PLANT_LOOP_NUMBERS
+                  if LOOP_BY_NUMBER[n].inner is not None)
 #: Plant-side loops whose set point an analyzer loop writes.
-_ANALYZER_OUT = {n: _PLANT_INDEX[_BY_NUMBER[n].inner] for n in ANALYZER_LOOP_NUMBERS}
+_ANALYZER_OUT = {n: _PLANT_INDEX[LOOP_BY_NUMBER[n].inner] for n in ANALYZER_LOOP_NUMBERS}
 
 
 class AnalyzerLoop:
@@ -272,7 +186,7 @@ class AnalyzerLoop:
 
     def __init__(self, loop: PublishedLoop, t0_h: float) -> None:
         self.loop = loop
-        self.gain = _gain_eu(loop)
+        self.gain = gain_eu(loop)
         self.period_h = loop.sample_s / 3600.0
         self.ti_h = loop.ti_s / 3600.0
         self.next_h = float(t0_h) + self.period_h
@@ -346,9 +260,9 @@ class DecentralizedController:
                 for lp in TEMAIN_MOD_LOOPS}
 
     def _start(self, t_h: float) -> None:
-        self._analyzers = [AnalyzerLoop(_BY_NUMBER[n], t_h) for n in ANALYZER_LOOP_NUMBERS]
+        self._analyzers = [AnalyzerLoop(LOOP_BY_NUMBER[n], t_h) for n in ANALYZER_LOOP_NUMBERS]
         sp = self.setpoints_at(t_h)
-        self._held = {_BY_NUMBER[n].inner: sp[_BY_NUMBER[n].inner]
+        self._held = {LOOP_BY_NUMBER[n].inner: sp[LOOP_BY_NUMBER[n].inner]
                       for n in ANALYZER_LOOP_NUMBERS}
 
     def _mirror_override(self, p: float) -> bool:
@@ -417,7 +331,7 @@ class DecentralizedController:
         if an is None:
             self._analyzers = None
             return
-        self._analyzers = [AnalyzerLoop(_BY_NUMBER[n], 0.0) for n in ANALYZER_LOOP_NUMBERS]
+        self._analyzers = [AnalyzerLoop(LOOP_BY_NUMBER[n], 0.0) for n in ANALYZER_LOOP_NUMBERS]
         for a, s in zip(self._analyzers, an, strict=True):
             a.next_h, a.e_prev = float(s["next_h"]), s["e_prev"]
 

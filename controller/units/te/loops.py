@@ -11,7 +11,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop, SecondaryLoop
+from controller.units.te.published_loops import published_cascade
+from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop
 
 __all__ = ["INNER_LOOPS", "MODEL_LOOPS", "PRESSURE_LOOP", "PUBLISHED_TEMPERATURE_CASCADE",
            "REACTOR_TEMPERATURE_CASCADE"]
@@ -34,14 +35,11 @@ MODEL_LOOPS = ((PILoop("reactor temperature", cv=9, mv=10, gain=-2.0, ti_h=0.5),
 
 #: The reactor temperature over the reactor coolant outlet temperature (XMEAS 21), as
 #: the decentralized structure closes it (``temain_mod.f``, Lyman & Georgakis; its loops
-#: 18 and 10 with 150 degC spans: 2.83 x 10 %/% = 28.3 degC of coolant set point per
-#: degC, reset 982 s; -0.156 x 10 %/% = -1.04 % of valve per degC, reset 1452 s). It holds
-#: the reactor temperature within 0.08 degC under IDV(11) (the -2 %/degC loop 1.66,
+#: 18 and 10, :mod:`controller.units.te.published_loops`: 28.3 degC of coolant set point
+#: per degC, reset 982 s; -1.04 % of valve per degC, reset 1452 s). It holds the reactor
+#: temperature within 0.08 degC under IDV(11) (the -2 %/degC loop 1.66,
 #: `tests/test_te_regulatory.py`). The baseline ``decentralized`` runs it.
-PUBLISHED_TEMPERATURE_CASCADE = PILoop(
-    "reactor temperature", cv=9, mv=10, gain=28.3, ti_h=982.0 / 3600.0,
-    secondary=SecondaryLoop("reactor coolant outlet temperature", cv=21,
-                            gain=-0.156 * 10.0 / 1.5, ti_h=1452.0 / 3600.0))
+PUBLISHED_TEMPERATURE_CASCADE = published_cascade(18, 10)
 
 #: The cascade the plant side runs under the supervisory controller: the published one
 #: with the primary's gain at 10 degC of coolant set point per degC instead of 28.3 (the
