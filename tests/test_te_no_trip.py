@@ -23,6 +23,10 @@ INTERLOCK_KPA = 3000.0
                                        ({"purge_track_lift_kpa": float("nan")},
                                         "purge_track_lift_kpa"),
                                        ({"a_loop_hold_h": -1.0}, "a_loop_hold_h"),
+                                       ({"purge_floor_fraction": 1.0},
+                                        "purge_floor_fraction"),
+                                       ({"purge_floor_fraction": float("nan")},
+                                        "purge_floor_fraction"),
                                        ({"a_loop_hold_h": float("inf")}, "a_loop_hold_h"),
                                        ({"a_loop_hold_falling_h": -1.0},
                                         "a_loop_hold_falling_h"),
@@ -255,7 +259,7 @@ def test_the_wide_margin_lasts_half_an_hour_of_cutting_and_survives_a_restart():
         x = _xmeas(0, pressure)
         ask = np.array(ctl.core.u_last, dtype=float)
         ask[2] = 2800.0  # the core asks for the economic P_r*
-        return [float(ctl._track_pressure_setpoint(ask.copy(), x)[2]) for _ in range(n)]
+        return [float(ctl._track_pressure_setpoint(ask.copy(), x, x[9])[2]) for _ in range(n)]
 
     ctl, _ = make_te_controller("ssmpc", TransitionPlan("mode0"))
     assert cuts(ctl, 1) == [2710.0]  # no lift yet: the tight margin
@@ -282,6 +286,38 @@ def test_without_the_economic_lift_the_tracking_stays_tight():
                plant_seed=plant_seed_for(1), idv={13: 2.0})
     assert r.shutdown is None, r.shutdown
     assert r.xmeas[:, 6].max() < 2895.0
+
+
+def test_a_purge_below_its_floor_stops_the_tracking_margin():
+    # mode 2's P_r* is 2800 kPa and its purge 0.361 kscmh: at 2700 kPa the loop gets
+    # 2710 kPa, but with the purge at a tenth of the grade's (below the floor's quarter)
+    # the set point stays at the pressure, so the loop's integral stops closing the purge
+    ctl, _ = make_te_controller("ssmpc", TransitionPlan("mode2"))
+    x = _xmeas(2, 2700.0)
+    ask = np.array(ctl.core.u_last, dtype=float)
+    ask[2] = 2800.0
+    ref = grade("mode2").xmeas[9]
+    assert ctl._track_pressure_setpoint(ask.copy(), x, ref)[2] == pytest.approx(2710.0)
+    x[9] = 0.1 * ref
+    assert ctl._track_pressure_setpoint(ask.copy(), x, ref)[2] == pytest.approx(2700.0)
+    x[9] = 0.3 * ref
+    assert ctl._track_pressure_setpoint(ask.copy(), x, ref)[2] == pytest.approx(2710.0)
+    off, _ = make_te_controller("ssmpc", TransitionPlan("mode2"),
+                                guards=TransitionGuards(purge_floor_fraction=None))
+    x[9] = 0.1 * ref
+    assert off._track_pressure_setpoint(ask.copy(), x, ref)[2] == pytest.approx(2710.0)
+
+
+def test_a_slow_kinetics_drift_at_mode_1_does_not_close_the_purge_and_trip():
+    # IDV(13) at mode 1 (noise on, seed 2): the pressure stood 40-170 kPa under P_r* from
+    # 14 to 32 h, the tracking's 10 kPa margin integrated the purge from 48 % to 0.2 %,
+    # and the plant tripped on reactor pressure at 35.3 h; with the purge's floor it runs
+    # on (48 h: peak 2882 kPa)
+    r = run_te("ssmpc", TransitionPlan("mode1"), 37.0, noise=True, seed=2,
+               plant_seed=plant_seed_for(2), idv={13: 2.0})
+    assert r.shutdown is None, r.shutdown
+    assert r.xmeas[r.t > 14.0, 9].min() > 0.25 * grade("mode1").xmeas[9] * 0.5
+    assert r.xmeas[:, 6].max() < 2950.0
 
 
 def test_change_at_gives_the_grades_of_the_last_leg_started():

@@ -474,6 +474,17 @@ class TransitionGuards:
         grade is reached.
     purge_track_lift_h : float
         See ``purge_track_lift_kpa``, h (>= 0).
+    purge_floor_fraction : float or None
+        While the purge flow (XMEAS 10) is below this fraction of the plan's reference
+        for it (the grade's at a steady grade), the tracking keeps P_r* at most at the
+        measured pressure (no margin): the pressure loop's integral stops closing the
+        purge, and the inerts keep a way out. With a margin, a pressure that stays
+        under P_r* for hours closes the purge at the loop's integral rate (-0.15 %/kPa
+        x 10 kPa / 0.5 h = 3 %/h): under IDV(13) at mode 1 (seed 2) the pressure stood
+        at 2630-2760 kPa from 14 to 32 h, the purge went from 48 % to 0.2 % (0.001
+        kscmh against the grade's 0.211), and when the drifting kinetics raised the
+        pressure again the plant tripped at 35.3 h (the purge back at 80 %, C in the
+        purge at 0.2 mol %). None: no floor.
     """
 
     e_feed_margin: float = 10.0
@@ -485,6 +496,7 @@ class TransitionGuards:
     purge_track_lift_h: float = 0.5
     a_loop_hold_h: float = 0.0
     a_loop_hold_falling_h: float = 8.0
+    purge_floor_fraction: float | None = 0.25
 
     def __post_init__(self) -> None:
         for name in ("e_feed_margin", "e_feed_margin_held"):
@@ -498,6 +510,10 @@ class TransitionGuards:
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0.0):
                 unit = "h" if name.endswith("_h") else "kPa"
                 raise ValueError(f"{name}: must be finite and >= 0 {unit}, got {v!r}")
+        v = self.purge_floor_fraction
+        if v is not None and not (isinstance(v, int | float) and math.isfinite(v)
+                                  and 0.0 <= v < 1.0):
+            raise ValueError(f"purge_floor_fraction: must be in [0, 1) or None, got {v!r}")
         for name in ("a_loop_hold_h", "a_loop_hold_falling_h"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
@@ -785,11 +801,13 @@ class TEController:
             alarms.append(f"reactor pressure {p:.0f} kPa: grade plan held "
                           f"{100 * f:.0f} % (behind by {self.plan_lag_h:.2f} h)")
 
-    def _track_pressure_setpoint(self, core_u, xmeas: Sequence[float]):
+    def _track_pressure_setpoint(self, core_u, xmeas: Sequence[float], purge_ref: float):
         """P_r* at most :attr:`TransitionGuards.purge_track_kpa` above the measured
         reactor pressure (:attr:`TransitionGuards.purge_track_lift_kpa` while the
-        targets' economics lift P_r*'s target; not below :data:`PR_LIMITS`); a core
-        that computed more is told what was applied."""
+        targets' economics lift P_r*'s target; at the pressure while the purge is below
+        :attr:`TransitionGuards.purge_floor_fraction` of ``purge_ref``, the plan's
+        reference of the purge flow now; not below
+        :data:`PR_LIMITS`); a core that computed more is told what was applied."""
         p = float(xmeas[6])
         g = self.guards
         margin = g.purge_track_kpa
@@ -797,6 +815,10 @@ class TEController:
                 and self.targets.econ_lift > 0.0 \
                 and self._track_bound_h < g.purge_track_lift_h:
             margin = g.purge_track_lift_kpa
+        purge = float(xmeas[9])
+        if g.purge_floor_fraction is not None and math.isfinite(purge):
+            if purge < g.purge_floor_fraction * purge_ref:
+                margin = 0.0
         cap = max(p + margin, PR_LIMITS[0])
         if not (math.isfinite(p) and core_u[2] > cap):
             self._track_bound_h = 0.0
@@ -995,7 +1017,7 @@ class TEController:
             for key in _PASSED_ON_KEYS:
                 if key in dec.extra:
                     info[key] = dec.extra[key]
-        core_u = self._track_pressure_setpoint(core_u, xm)
+        core_u = self._track_pressure_setpoint(core_u, xm, yl[9])
         for j, col in _CORE_XMV_COLUMNS:
             u[col] = core_u[j]
         cut = self._override_step(xm)
