@@ -27,6 +27,8 @@ INTERLOCK_KPA = 3000.0
                                         "purge_floor_fraction"),
                                        ({"purge_floor_fraction": float("nan")},
                                         "purge_floor_fraction"),
+                                       ({"purge_floor_after_h": -1.0},
+                                        "purge_floor_after_h"),
                                        ({"a_loop_hold_h": float("inf")}, "a_loop_hold_h"),
                                        ({"a_loop_hold_falling_h": -1.0},
                                         "a_loop_hold_falling_h"),
@@ -302,6 +304,12 @@ def test_a_purge_below_its_floor_stops_the_tracking_margin():
     assert ctl._track_pressure_setpoint(ask.copy(), x, ref)[2] == pytest.approx(2700.0)
     x[9] = 0.3 * ref
     assert ctl._track_pressure_setpoint(ask.copy(), x, ref)[2] == pytest.approx(2710.0)
+    # within a day of a grade change (into mode 3 the plant closes the purge) no floor
+    x[9] = 0.1 * ref
+    ctl._since = 23.0
+    assert ctl._track_pressure_setpoint(ask.copy(), x, ref)[2] == pytest.approx(2710.0)
+    ctl._since = 24.0
+    assert ctl._track_pressure_setpoint(ask.copy(), x, ref)[2] == pytest.approx(2700.0)
     off, _ = make_te_controller("ssmpc", TransitionPlan("mode2"),
                                 guards=TransitionGuards(purge_floor_fraction=None))
     x[9] = 0.1 * ref

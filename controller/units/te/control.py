@@ -485,6 +485,13 @@ class TransitionGuards:
         kscmh against the grade's 0.211), and when the drifting kinetics raised the
         pressure again the plant tripped at 35.3 h (the purge back at 80 %, C in the
         purge at 0.2 mol %). None: no floor.
+    purge_floor_after_h : float
+        Hours after a grade change from which the purge's floor holds (>= 0; a run
+        without a change: from the start). Into mode 3 the plant closes the purge for
+        most of the leg (XMV 6 at its range for 80-88 % of 0 -> 3 and 2 -> 3), under the
+        floor of the plan's falling reference (2 -> 3, noise off: from 0.8 to 14.4 h
+        after the change); there the floor slowed the closing (1 -> 3 cost 669 -> 674
+        $, the purge at its range for 51 % of the leg instead of 68 %; seeds 1-3).
     """
 
     e_feed_margin: float = 10.0
@@ -497,6 +504,7 @@ class TransitionGuards:
     a_loop_hold_h: float = 0.0
     a_loop_hold_falling_h: float = 8.0
     purge_floor_fraction: float | None = 0.25
+    purge_floor_after_h: float = 24.0
 
     def __post_init__(self) -> None:
         for name in ("e_feed_margin", "e_feed_margin_held"):
@@ -514,7 +522,7 @@ class TransitionGuards:
         if v is not None and not (isinstance(v, int | float) and math.isfinite(v)
                                   and 0.0 <= v < 1.0):
             raise ValueError(f"purge_floor_fraction: must be in [0, 1) or None, got {v!r}")
-        for name in ("a_loop_hold_h", "a_loop_hold_falling_h"):
+        for name in ("a_loop_hold_h", "a_loop_hold_falling_h", "purge_floor_after_h"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"{name}: must be finite and >= 0 h, got {v!r}")
@@ -806,7 +814,7 @@ class TEController:
         reactor pressure (:attr:`TransitionGuards.purge_track_lift_kpa` while the
         targets' economics lift P_r*'s target; at the pressure while the purge is below
         :attr:`TransitionGuards.purge_floor_fraction` of ``purge_ref``, the plan's
-        reference of the purge flow now; not below
+        reference of the purge flow now, at a steady grade; not below
         :data:`PR_LIMITS`); a core that computed more is told what was applied."""
         p = float(xmeas[6])
         g = self.guards
@@ -816,7 +824,8 @@ class TEController:
                 and self._track_bound_h < g.purge_track_lift_h:
             margin = g.purge_track_lift_kpa
         purge = float(xmeas[9])
-        if g.purge_floor_fraction is not None and math.isfinite(purge):
+        if g.purge_floor_fraction is not None and math.isfinite(purge) \
+                and self._since >= g.purge_floor_after_h:
             if purge < g.purge_floor_fraction * purge_ref:
                 margin = 0.0
         cap = max(p + margin, PR_LIMITS[0])
