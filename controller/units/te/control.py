@@ -52,7 +52,8 @@ Layers (seed Fig. 7.2)
          "decentralized"): the E feed at most 5 % above the plan's, the plan held
          while the reactor pressure is near the interlock, P_r* at most 10 kPa above
          the measured pressure (MPC strategies: 40 kPa for at most 0.5 h while the
-         targets' economics lift P_r*);
+         targets' economics lift P_r*; none while the purge is below a quarter of the
+         plan's purge flow, from a day after a grade change);
        - MPC strategies: the input targets and CV references pass through the
          steady-state targets of the active model
          (:mod:`controller.units.te.targets`): the plan's values as they stand while
