@@ -165,6 +165,7 @@ from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.d_share_path import DSharePath, DSharePathSettings
 from controller.units.te.grades import TransitionPlan, limit_margins
+from controller.units.te.level_sag import LevelSag, LevelSagSettings
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
 from controller.units.te.models import MODEL_GRADES, MPC_ORDER
 from controller.units.te.overrides import FeedOverrides, FeedOverrideSettings
@@ -602,6 +603,9 @@ class TEController:
         (default :class:`TransitionGuards`).
     feeds : FeedOverrideSettings, optional
         The feed overrides (:mod:`controller.units.te.overrides`).
+    level_sag : LevelSagSettings, optional
+        The reactor level's set point following a falling level while the pressure
+        is high and the E feed at its range (:mod:`controller.units.te.level_sag`).
     """
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
@@ -612,7 +616,8 @@ class TEController:
                  production: ProductionIndexSettings | None = None,
                  reactants: ReactantTrimSettings | None = None,
                  separator_loop: bool = True,
-                 d_share_path: DSharePathSettings | None = None) -> None:
+                 d_share_path: DSharePathSettings | None = None,
+                 level_sag: LevelSagSettings | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -626,6 +631,7 @@ class TEController:
         self.feeds = FeedOverrides(feeds, self.sample_h)
         self.production = ProductionIndex(production, self.sample_h)
         self.reactants = ReactantTrim(reactants, self.sample_h)
+        self.level_sag = LevelSag(level_sag, self.sample_h)
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
                        if strategy in MPC_STRATEGIES else None)
@@ -1047,8 +1053,11 @@ class TEController:
         if self.feeds.active:
             alarms.extend(self.feeds.alarms())
         self._hold_step(t_ref, xm, alarms)
-        setpoints = np.array([core_u[3], self.production.level_setpoint(yl[7]), yl[11],
-                              yl[14], core_u[2]])
+        level_sp = self.level_sag.update(float(xm[6]), float(xm[7]),
+                                         self.production.level_setpoint(yl[7]),
+                                         float(u[1]), self._since)
+        alarms.extend(self.level_sag.alarms())
+        setpoints = np.array([core_u[3], level_sp, yl[11], yl[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
         extra.update(info)
         return ControlDecision(u=u, active_model=active, model_names=tuple(names), J=J,
@@ -1102,6 +1111,7 @@ class TEController:
                 "track_bound_h": self._track_bound_h,
                 "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
                 "reactants": self.reactants.checkpoint(),
+                "level_sag": self.level_sag.checkpoint(),
                 "d_path": None if self.d_path is None else self.d_path.checkpoint()}
 
     def restore(self, state: dict[str, Any]) -> None:
@@ -1125,6 +1135,7 @@ class TEController:
         self.feeds.restore(state.get("feeds"))
         self.production.restore(state.get("production"))
         self.reactants.restore(state.get("reactants"))
+        self.level_sag.restore(state.get("level_sag"))
         if self.d_path is not None:
             self.d_path.restore(state.get("d_path"))
             if self.d_path.value is None and self.s_ff_prev is not None:
@@ -1416,6 +1427,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        reactants: ReactantTrimSettings | None = None,
                        separator_loop: bool = True,
                        d_share_path: DSharePathSettings | None = None,
+                       level_sag: LevelSagSettings | None = None,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -1447,6 +1459,10 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
     production : ProductionIndexSettings, optional
         The production index that lowers every feed together where the A feed is
         lost (:mod:`controller.units.te.production_index`; not for "decentralized").
+    level_sag : LevelSagSettings, optional
+        The reactor level's set point following a falling level while the pressure is
+        high and the E feed at its range (:mod:`controller.units.te.level_sag`; not for
+        "decentralized").
     reactants : ReactantTrimSettings, optional
         MPC strategies: the A+C feed's target raised where A+C is short in the reactor
         feed with the D feed at its limit, lowered where A+C is in excess
@@ -1489,7 +1505,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        targets=targets if mpc_core else None,
                        guards=guards, feeds=feeds, production=production,
                        reactants=reactants, separator_loop=separator_loop,
-                       d_share_path=d_share_path)
+                       d_share_path=d_share_path, level_sag=level_sag)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 
