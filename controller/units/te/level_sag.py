@@ -138,7 +138,9 @@ class LevelSag:
         if acts:
             self.offset = min(self.offset, max(level - setpoint, -s.drop_max_pct))
         else:
-            self.offset = min(self.offset + s.return_per_h * self.sample_h, 0.0)
+            self.offset = self.offset + s.return_per_h * self.sample_h
+            if self.offset > -1e-9:  # back (the steps' sum is not exact in floating point)
+                self.offset = 0.0
         return setpoint + self.offset
 
     def alarms(self) -> list[str]:
