@@ -53,7 +53,9 @@ Layers (seed Fig. 7.2)
          while the reactor pressure is near the interlock, P_r* at most 10 kPa above
          the measured pressure (MPC strategies: 40 kPa for at most 0.5 h while the
          targets' economics lift P_r*; none while the purge is below a quarter of the
-         plan's purge flow, from a day after a grade change);
+         plan's purge flow, from a day after a grade change); at a steady grade, while
+         the pressure is high and the E valve at its range, the reactor level's set
+         point follows a falling level (:mod:`controller.units.te.level_sag`);
        - MPC strategies: the input targets and CV references pass through the
          steady-state targets of the active model
          (:mod:`controller.units.te.targets`): the plan's values as they stand while
