@@ -832,11 +832,9 @@ class TEController:
                 and self.targets.econ_lift > 0.0 \
                 and self._track_bound_h < g.purge_track_lift_h:
             margin = g.purge_track_lift_kpa
-        purge = float(xmeas[9])
-        if g.purge_floor_fraction is not None and math.isfinite(purge) \
-                and self._since >= g.purge_floor_after_h:
-            if purge < g.purge_floor_fraction * purge_ref:
-                margin = 0.0
+        if g.purge_floor_fraction is not None and self._since >= g.purge_floor_after_h \
+                and float(xmeas[9]) < g.purge_floor_fraction * purge_ref:
+            margin = 0.0  # the purge under its floor (a NaN flow or reference: no floor)
         cap = max(p + margin, PR_LIMITS[0])
         if not (math.isfinite(p) and core_u[2] > cap):
             self._track_bound_h = 0.0

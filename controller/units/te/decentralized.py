@@ -152,13 +152,12 @@ PLANT_LOOP_NUMBERS = (1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 16, 17, 18)
 
 def plant_loop(lp: PublishedLoop) -> PILoop | CascadeLoop:
     """A published fast loop as a plant-side loop (gain in engineering units, Ti in h)."""
-    ti_h = lp.ti_s / 3600.0
     if lp.inner is None:
         override = PURGE_OVERRIDE if lp.number == 6 else None
-        return PILoop(lp.name, cv=lp.cv, mv=lp.xmv, gain=gain_eu(lp), ti_h=ti_h,
+        return PILoop(lp.name, cv=lp.cv, mv=lp.xmv, gain=gain_eu(lp), ti_h=lp.ti_h,
                       override=override)
     return CascadeLoop(lp.name, cv=lp.cv, inner=LOOP_BY_NUMBER[lp.inner].name,
-                       gain=gain_eu(lp), ti_h=ti_h)
+                       gain=gain_eu(lp), ti_h=lp.ti_h)
 
 
 #: The plant-side loops (the source's fast loops), in the source's order.
@@ -188,7 +187,7 @@ class AnalyzerLoop:
         self.loop = loop
         self.gain = gain_eu(loop)
         self.period_h = loop.sample_s / 3600.0
-        self.ti_h = loop.ti_s / 3600.0
+        self.ti_h = loop.ti_h
         self.next_h = float(t0_h) + self.period_h
         self.e_prev: float | None = None
 

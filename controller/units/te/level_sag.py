@@ -33,8 +33,8 @@ IDV(13) at mode 1   0.824 / 140.0 / 2892     the same (E valve 53 %)
 
 On seeds 9-16 ``ssmpc`` tripped on seed 15 without the guard and on none with it.
 ``fixed``, under the same guard, trips on 4 of the 16 seeds with it or without (2, 4, 5
-and 9 against 4, 5, 7 and 15). In the acceptance matrix (seeds 1-3) ``fixed`` now trips IDV(13) at
-mode 2 on seed 2 (``docs/te_matrix.md``).
+and 9 against 4, 5, 7 and 15). In the acceptance matrix (seeds 1-3) ``fixed`` now trips
+IDV(13) at mode 2 on seed 2 (``docs/te_matrix.md``).
 
 At 2880 or 2890 kPa the guard came too late (the same three trips); without the E
 valve's condition, at 2870 kPa from a day after a change, the return to mode 0 after

@@ -66,6 +66,11 @@ class PublishedLoop:
         if not (self.ti_s > 0 and self.span > 0 and self.sample_s > 0):
             raise ValueError(f"loop {self.number}: ti_s, span and sample_s must be > 0")
 
+    @property
+    def ti_h(self) -> float:
+        """Reset time, h (``math.inf``: proportional only)."""
+        return self.ti_s / 3600.0
+
 
 _P = math.inf
 #: The loops of ``temain_mod.f`` (set points lines 246-312, gains and reset times
@@ -104,6 +109,7 @@ LOOP_BY_NUMBER = {lp.number: lp for lp in TEMAIN_MOD_LOOPS}
 PURGE_OVERRIDE = ValveOverride(cv=13, high=2950.0, release=2633.7, low=2300.0,
                                restart_output=40.060, restart_setpoint=0.33712)
 
+
 def _out_span(lp: PublishedLoop) -> float:
     return 100.0 if lp.inner is None else LOOP_BY_NUMBER[lp.inner].span
 
@@ -134,6 +140,6 @@ def published_cascade(primary: int, secondary: int) -> PILoop:
         raise ValueError(f"loop {primary} does not write the set point of a valve loop "
                          f"{secondary}")
     return PILoop(outer.name, cv=outer.cv, mv=inner.xmv, gain=gain_eu(outer),
-                  ti_h=outer.ti_s / 3600.0,
+                  ti_h=outer.ti_h,
                   secondary=SecondaryLoop(inner.name, cv=inner.cv, gain=gain_eu(inner),
-                                          ti_h=inner.ti_s / 3600.0))
+                                          ti_h=inner.ti_h))
