@@ -47,8 +47,10 @@ noisy D measurement) seed 5 still tripped.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
+
+from controller.units.te.settings_check import check_finite_fields
 
 __all__ = ["LevelSagSettings", "LevelSag"]
 
@@ -78,10 +80,7 @@ class LevelSagSettings:
     after_h: float = 24.0
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise ValueError(f"level sag {f.name}: must be a finite number, got {v!r}")
+        check_finite_fields(self, "level sag ")
         if not 2000.0 < self.pressure_kpa < 3000.0:
             raise ValueError(f"level sag pressure_kpa: must be in (2000, 3000) kPa, got "
                              f"{self.pressure_kpa!r}")

@@ -56,8 +56,10 @@ mode 2                    plan 13.5-13.6 h; with the production index no trip
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
+
+from controller.units.te.settings_check import check_finite_fields
 
 __all__ = ["FeedOverrideSettings", "FeedOverrides", "A_FULL_KSCMH", "AC_FULL_KSCMH"]
 
@@ -92,10 +94,7 @@ class FeedOverrideSettings:
     short_release: float = 0.95
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"{f.name}: must be a finite number, got {v!r}")
+        check_finite_fields(self)
         if self.filter_h <= 0:
             raise ValueError(f"filter_h: must be > 0 h, got {self.filter_h!r}")
         if not 0.0 < self.min_valve < 100.0:

@@ -56,9 +56,10 @@ The baselines at mode 2 (same runs): fixed no trip (before 13.8-13.9 h), peak
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
+from controller.units.te.settings_check import check_finite_fields
 from controller.units.te.spec import D_FULL_KG_H
 
 __all__ = ["ProductionIndexSettings", "ProductionIndex"]
@@ -114,10 +115,7 @@ class ProductionIndexSettings:
     level_return_per_h: float = 5.0
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"{f.name}: must be a finite number, got {v!r}")
+        check_finite_fields(self)
         if not 2000.0 < self.pressure_target_kpa < 3000.0:
             raise ValueError(f"pressure_target_kpa: must be in (2000, 3000) kPa (interlock "
                              f"3000), got {self.pressure_target_kpa!r}")

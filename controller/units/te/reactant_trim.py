@@ -85,9 +85,10 @@ seed      trip    reactor pressure     largest trim
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
+from controller.units.te.settings_check import check_finite_fields
 from controller.units.te.spec import D_FULL_KG_H
 
 __all__ = ["ReactantTrimSettings", "ReactantTrim"]
@@ -127,10 +128,7 @@ class ReactantTrimSettings:
     excess_deadband: float = 1.5
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"{f.name}: must be a finite number, got {v!r}")
+        check_finite_fields(self)
         if not 0.0 < self.d_limit < 100.0:
             raise ValueError(f"d_limit: must be in (0, 100) %, got {self.d_limit!r}")
         for name in ("deadband", "settle_h", "excess_max", "excess_deadband"):
