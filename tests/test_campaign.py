@@ -197,6 +197,37 @@ def test_a_run_identity_changes_with_the_plant_sides_inner_loops(monkeypatch):
     assert {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))} == before
 
 
+@pytest.mark.parametrize("module, cls, field, value", [
+    ("controller.units.te.level_sag", "LevelSagSettings", "pressure_kpa", 2880.0),
+    ("controller.units.te.floating_pressure", "FloatingPressureSettings", "ceiling_kpa",
+     2860.0),
+    ("controller.units.te.production_index", "ProductionIndexSettings", "gain", 0.6),
+    ("controller.units.te.overrides", "FeedOverrideSettings", "filter_h", 0.1),
+])
+def test_a_run_identity_changes_with_a_guards_settings(monkeypatch, module, cls, field,
+                                                        value):
+    """The TE guards' own settings are part of a run: with another default of any of
+    them a resumed campaign makes its runs again."""
+    import dataclasses
+    import importlib
+
+    from services.campaign import identity
+
+    mod = importlib.import_module(module)
+    klass = getattr(mod, cls)
+    changed = dataclasses.replace(klass(), **{field: value})
+    before = {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))}
+    monkeypatch.setattr(mod, cls, lambda: changed)
+    identity._settings_json.cache_clear()
+    try:
+        after = {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))}
+    finally:
+        monkeypatch.undo()
+        identity._settings_json.cache_clear()
+    assert before and not before & after
+    assert {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))} == before
+
+
 # -- the campaign on Dask ---------------------------------------------------------------------
 def test_local_cluster_gives_the_metrics_of_the_runs_made_one_by_one(local_campaign,
                                                                      serial_rows):

@@ -7,10 +7,12 @@ plant side's inner loops and the loops the core's models close
 (:class:`controller.units.te.control.TEMPCOptions`), the ratio loop
 (:class:`~controller.units.te.control.RatioSettings`), the separator-temperature loop
 (:data:`~controller.units.te.control.SEPARATOR_LOOP`), the transition guards
-(:class:`~controller.units.te.control.TransitionGuards`) and the grade references'
-time constants; for a unit plant its registry configuration
-(:class:`controller.units.config.UnitConfig`). :data:`RUN_FORMAT` names the run
-and metrics code; it changes when they change what a run produces. The identity is
+(:class:`~controller.units.te.control.TransitionGuards`), the guards' own settings
+(feed overrides, production index, level sag, floating pressure), the steady-state
+targets' limits and the grade references' time constants; for a unit plant its
+registry configuration (:class:`controller.units.config.UnitConfig`).
+:data:`RUN_FORMAT` names the run and metrics code; it changes when they change what a
+run produces. The identity is
 the SHA-256 of the canonical JSON (sorted keys, no spaces) of all that, first 16
 hex digits: a case renamed keeps its runs, a case whose legs move gets new ones.
 """
@@ -45,9 +47,14 @@ def _settings_json(unit: str) -> str:
             TransitionGuards,
         )
         from controller.units.te.d_share_path import DSharePathSettings
+        from controller.units.te.floating_pressure import FloatingPressureSettings
         from controller.units.te.grades import TAU_DEFAULT_H
+        from controller.units.te.level_sag import LevelSagSettings
         from controller.units.te.loops import INNER_LOOPS, MODEL_LOOPS
+        from controller.units.te.overrides import FeedOverrideSettings
+        from controller.units.te.production_index import ProductionIndexSettings
         from controller.units.te.reactant_trim import ReactantTrimSettings
+        from controller.units.te.targets import CoreTargetSettings
 
         s = {"sample_h": SAMPLE_H, "plant_dt_s": 1.8,
              "inner_loops": [asdict(lp) for lp in INNER_LOOPS],
@@ -58,6 +65,11 @@ def _settings_json(unit: str) -> str:
              "guards": asdict(TransitionGuards()), "guards_mpc": asdict(GUARDS_MPC),
              "reactants": asdict(ReactantTrimSettings()),
              "d_share_path": asdict(DSharePathSettings()),
+             "feeds": asdict(FeedOverrideSettings()),
+             "production": asdict(ProductionIndexSettings()),
+             "level_sag": asdict(LevelSagSettings()),
+             "floating_pressure": asdict(FloatingPressureSettings()),
+             "core_targets": asdict(CoreTargetSettings()),
              "separator_loop": {**asdict(SEPARATOR_LOOP), "trim": list(SEP_TRIM_LIMITS),
                                 "after_h": SEPARATOR_LOOP_STEADY_AFTER_H}}
     else:

@@ -55,7 +55,9 @@ Layers (seed Fig. 7.2)
          targets' economics lift P_r*; none while the purge is below a quarter of the
          plan's purge flow, from a day after a grade change); at a steady grade, while
          the pressure is high and the E valve at its range, the reactor level's set
-         point follows a falling level (:mod:`controller.units.te.level_sag`);
+         point follows a falling level (:mod:`controller.units.te.level_sag`), and
+         while C is in excess in the recycle gas P_r* follows a rising pressure up to
+         2850 kPa (:mod:`controller.units.te.floating_pressure`);
        - MPC strategies: the input targets and CV references pass through the
          steady-state targets of the active model
          (:mod:`controller.units.te.targets`): the plan's values as they stand while
@@ -166,6 +168,10 @@ from controller.blas import single_threaded
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.d_share_path import DSharePath, DSharePathSettings
+from controller.units.te.floating_pressure import (
+    FloatingPressureSettings,
+    floating_pressure_floor,
+)
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.level_sag import LevelSag, LevelSagSettings
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
@@ -608,6 +614,9 @@ class TEController:
     level_sag : LevelSagSettings, optional
         The reactor level's set point following a falling level while the pressure
         is high and the E feed at its range (:mod:`controller.units.te.level_sag`).
+    floating_pressure : FloatingPressureSettings, optional
+        P_r* following a rising pressure while C is in excess in the recycle gas
+        (:mod:`controller.units.te.floating_pressure`).
     """
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
@@ -619,7 +628,8 @@ class TEController:
                  reactants: ReactantTrimSettings | None = None,
                  separator_loop: bool = True,
                  d_share_path: DSharePathSettings | None = None,
-                 level_sag: LevelSagSettings | None = None) -> None:
+                 level_sag: LevelSagSettings | None = None,
+                 floating_pressure: FloatingPressureSettings | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -634,6 +644,9 @@ class TEController:
         self.production = ProductionIndex(production, self.sample_h)
         self.reactants = ReactantTrim(reactants, self.sample_h)
         self.level_sag = LevelSag(level_sag, self.sample_h)
+        self.floating_pressure = floating_pressure or FloatingPressureSettings()
+        #: the floating pressure raised P_r* this sample (status)
+        self.pressure_floats = False
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
                        if strategy in MPC_STRATEGIES else None)
@@ -818,14 +831,27 @@ class TEController:
             alarms.append(f"reactor pressure {p:.0f} kPa: grade plan held "
                           f"{100 * f:.0f} % (behind by {self.plan_lag_h:.2f} h)")
 
-    def _track_pressure_setpoint(self, core_u, xmeas: Sequence[float], purge_ref: float):
+    def _track_pressure_setpoint(self, core_u, xmeas: Sequence[float], purge_ref: float,
+                                 c_purge_ref: float):
         """P_r* at most :attr:`TransitionGuards.purge_track_kpa` above the measured
         reactor pressure (:attr:`TransitionGuards.purge_track_lift_kpa` while the
         targets' economics lift P_r*'s target; at the pressure while the purge is below
         :attr:`TransitionGuards.purge_floor_fraction` of ``purge_ref``, the plan's
         reference of the purge flow now, at a steady grade; not below
-        :data:`PR_LIMITS`); a core that computed more is told what was applied."""
+        :data:`PR_LIMITS`), and no lower than the floating pressure's floor
+        (:mod:`controller.units.te.floating_pressure`; ``c_purge_ref``: the plan's C in
+        the purge, mol %); a core whose move was changed is told what was applied."""
         p = float(xmeas[6])
+        floor = floating_pressure_floor(
+            self.floating_pressure, p, float(xmeas[30]), c_purge_ref, self._since,
+            held_down=self.feeds.a_lost or self.production.active)
+        self.pressure_floats = bool(floor is not None and core_u[2] < floor)
+        if self.pressure_floats:
+            core_u = np.array(core_u, dtype=float)
+            core_u[2] = floor
+            applied = getattr(self.core, "applied", None)
+            if callable(applied):
+                applied(core_u)
         g = self.guards
         margin = g.purge_track_kpa
         if g.purge_track_lift_kpa is not None and self.targets is not None \
@@ -1033,7 +1059,7 @@ class TEController:
             for key in _PASSED_ON_KEYS:
                 if key in dec.extra:
                     info[key] = dec.extra[key]
-        core_u = self._track_pressure_setpoint(core_u, xm, yl[9])
+        core_u = self._track_pressure_setpoint(core_u, xm, yl[9], yl[30])
         for j, col in _CORE_XMV_COLUMNS:
             u[col] = core_u[j]
         cut = self._override_step(xm)
@@ -1058,7 +1084,8 @@ class TEController:
                                          float(u[1]), self._since)
         alarms.extend(self.level_sag.alarms())
         setpoints = np.array([core_u[3], level_sp, yl[11], yl[14], core_u[2]])
-        extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy()}
+        extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy(),
+                 "pressure_floats": self.pressure_floats}
         extra.update(info)
         return ControlDecision(u=u, active_model=active, model_names=tuple(names), J=J,
                                solve_ms=(time.perf_counter() - t0) * 1e3, fallback=fallback,
@@ -1428,6 +1455,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        separator_loop: bool = True,
                        d_share_path: DSharePathSettings | None = None,
                        level_sag: LevelSagSettings | None = None,
+                       floating_pressure: FloatingPressureSettings | None = None,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -1463,6 +1491,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         The reactor level's set point following a falling level while the pressure is
         high and the E feed at its range (:mod:`controller.units.te.level_sag`; not for
         "decentralized").
+    floating_pressure : FloatingPressureSettings, optional
+        P_r* following a rising pressure while C is in excess in the recycle gas
+        (:mod:`controller.units.te.floating_pressure`; not for "decentralized").
     reactants : ReactantTrimSettings, optional
         MPC strategies: the A+C feed's target raised where A+C is short in the reactor
         feed with the D feed at its limit, lowered where A+C is in excess
@@ -1505,7 +1536,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        targets=targets if mpc_core else None,
                        guards=guards, feeds=feeds, production=production,
                        reactants=reactants, separator_loop=separator_loop,
-                       d_share_path=d_share_path, level_sag=level_sag)
+                       d_share_path=d_share_path, level_sag=level_sag,
+                       floating_pressure=floating_pressure)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 

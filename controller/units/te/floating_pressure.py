@@ -1,0 +1,123 @@
+"""Floating pressure: the reactor pressure set point follows a rising pressure while the
+excess in the recycle gas is C (a guard of the TE cascade at a steady grade).
+
+The plant side's pressure loop opens the purge (XMV 6) to hold the reactor pressure at
+P_r*. The purge is the plant's costliest stream (its reactants and product leave with
+it; about 70 % of the operating cost at mode 2), and a pressure held tightly turns each
+pressure swing into a purge swing. Under IDV(8) at mode 2 (seed 1) the A-in-feed loop cut
+the A feed, C gathered in the recycle gas (C in the purge 14.6 -> 17-18 mol %, the plan's
+14.6), the pressure rose to 2830-2847 kPa, and the loop opened the purge from 0.30 to 0.60
+kscmh over 3 h (264 $/h); the set point's tracking then let the pressure fall to
+2700 kPa with the purge still open, for about ten hours. The decentralized
+structure, whose purge follows B in the purge slowly, lets its pressure ride instead.
+
+The guard: at a steady grade (:attr:`FloatingPressureSettings.after_h` after the last
+grade change), while C in the purge (XMEAS 31) is at least
+:attr:`FloatingPressureSettings.c_excess_mol` above the plan's, P_r* stands at most
+:attr:`FloatingPressureSettings.margin_kpa` below the measured pressure, up to
+:attr:`FloatingPressureSettings.ceiling_kpa`: the purge loop then sees at most the
+margin, and the excess C is left to the feeds (the A+C feed's reactant trim,
+:mod:`controller.units.te.reactant_trim`, and the A-in-feed loop) rather than purged.
+It never lowers P_r*; above the ceiling the loop acts on the rest of the error. It does
+not act while the A feed is lost or the production index lowers production (the C then
+in excess is what the lost A leaves unreacted, and the pressure must be held down).
+
+Why the condition on C: a pressure rise with the kinetics' drift (IDV(13)) gathers E,
+not C (C in the purge falls 14.6 -> 6-13 mol %); there the purge must open at once. On C
+alone (at or above the plan's, no margin) the guard floated through a rise of IDV(13)
+at mode 2 and the plant tripped on seed 3 (45 h) or 5 (12 h) of seeds 1-11, depending
+on the ceiling; with 1 mol % above the plan's, no seed of 1-16 tripped. Without the
+A-feed condition IDV(6) tripped at modes 0, 1 and 2 (the lost A leaves C in excess).
+
+Measured (``ssmpc``, noise on, seeds 1-3, 48 h, onset 2 h; G std mol % / mean $/h /
+peak kPa; the decentralized structure's cost in the last column):
+
+==================  =======================  =======================  =============
+case                without                  with the guard           decentralized
+==================  =======================  =======================  =============
+IDV(1) at mode 2    0.509 / 189.1 / 2874     0.512 / 179.7 / 2877     176.1
+IDV(8) at mode 2    0.580 / 204.1 / 2870     0.547 / 187.3 / 2875     185.3
+IDV(18) at mode 2   1.040 / 183.5 / 2838     1.030 / 182.8 / 2842     181.4
+IDV(20) at mode 2   0.676 / 182.4 / 2839     0.664 / 178.9 / 2855     181.3
+IDV(1) at mode 0    0.562 / 159.8 / 2851     0.516 / 152.8 / 2878     166.0
+IDV(8) at mode 0    0.575 / 161.9 / 2878     0.559 / 150.8 / 2878     174.6
+IDV(20) at mode 0   0.562 / 150.7 / 2861     0.558 / 149.2 / 2873     170.6
+==================  =======================  =======================  =============
+
+IDV(13) at mode 2 holds on seeds 1-16 (peak 2899 kPa, as without the guard), at mode 1
+on seeds 1-8 (138.4 against 140.0 $/h); IDV 1-20 at modes 0-3 run without a trip on
+seeds 1-3. A ceiling of 2860 kPa held as well and moved each cost by under 1 $/h.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from controller.units.te.settings_check import check_finite_fields
+
+__all__ = ["FloatingPressureSettings", "floating_pressure_floor"]
+
+
+@dataclass(frozen=True)
+class FloatingPressureSettings:
+    """Settings of the floating pressure (see the module docstring).
+
+    Parameters
+    ----------
+    margin_kpa : float
+        Most P_r* stands below the measured reactor pressure while the guard acts, kPa
+        (>= 0).
+    ceiling_kpa : float
+        Highest P_r* the guard sets, kPa.
+    c_excess_mol : float
+        C in the purge (XMEAS 31) above the plan's from which the guard acts, mol %.
+    after_h : float
+        Hours after a grade change from which the guard acts (>= 0).
+    """
+
+    margin_kpa: float = 5.0
+    ceiling_kpa: float = 2850.0
+    c_excess_mol: float = 1.0
+    after_h: float = 24.0
+
+    def __post_init__(self) -> None:
+        check_finite_fields(self, "floating pressure ")
+        if not 0.0 <= self.margin_kpa <= 100.0:
+            raise ValueError(f"floating pressure margin_kpa: must be in [0, 100] kPa, got "
+                             f"{self.margin_kpa!r}")
+        if not 2000.0 < self.ceiling_kpa < 3000.0:
+            raise ValueError(f"floating pressure ceiling_kpa: must be in (2000, 3000) kPa, "
+                             f"got {self.ceiling_kpa!r}")
+        if self.after_h < 0.0:
+            raise ValueError(f"floating pressure after_h: must be >= 0 h, got "
+                             f"{self.after_h!r}")
+
+
+def floating_pressure_floor(settings: FloatingPressureSettings, pressure_kpa: float,
+                            c_purge_mol: float, c_purge_plan_mol: float, since_h: float,
+                            held_down: bool) -> float | None:
+    """Lowest P_r* this sample (kPa), or None where the guard does not act.
+
+    Parameters
+    ----------
+    settings : FloatingPressureSettings
+    pressure_kpa : float
+        Reactor pressure, XMEAS 7, kPa.
+    c_purge_mol, c_purge_plan_mol : float
+        C in the purge, XMEAS 31, and the plan's reference of it, mol %.
+    since_h : float
+        Hours since the last grade change.
+    held_down : bool
+        True while the pressure must be held down whatever the composition (the A feed
+        lost, the production index lowering production).
+    """
+    s = settings
+    if held_down or since_h < s.after_h:
+        return None
+    if not (math.isfinite(pressure_kpa) and math.isfinite(c_purge_mol)
+            and math.isfinite(c_purge_plan_mol)):
+        return None
+    if c_purge_mol < c_purge_plan_mol + s.c_excess_mol:
+        return None
+    return min(pressure_kpa - s.margin_kpa, s.ceiling_kpa)

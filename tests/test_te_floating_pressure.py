@@ -1,0 +1,103 @@
+"""Floating pressure: P_r* follows a rising reactor pressure while C is in excess in the
+recycle gas (controller.units.te.floating_pressure)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controller.units.te.control import make_te_controller, plant_seed_for, run_te
+from controller.units.te.floating_pressure import (
+    FloatingPressureSettings,
+    floating_pressure_floor,
+)
+from controller.units.te.grades import TransitionPlan, grade
+
+C_PLAN, STEADY = 14.6, 30.0
+
+
+@pytest.mark.parametrize("kw, field", [({"margin_kpa": -1.0}, "margin_kpa"),
+                                       ({"margin_kpa": 150.0}, "margin_kpa"),
+                                       ({"ceiling_kpa": 3000.0}, "ceiling_kpa"),
+                                       ({"ceiling_kpa": math.inf}, "ceiling_kpa"),
+                                       ({"c_excess_mol": math.nan}, "c_excess_mol"),
+                                       ({"after_h": -1.0}, "after_h"),
+                                       ({"after_h": True}, "after_h")])
+def test_bad_settings_name_their_field(kw, field):
+    with pytest.raises(ValueError, match=field):
+        FloatingPressureSettings(**kw)
+
+
+def test_the_floor_stands_the_margin_under_the_pressure_up_to_the_ceiling():
+    s = FloatingPressureSettings()  # 5 kPa, 2850 kPa, C 1 mol % over the plan's, a day
+    assert floating_pressure_floor(s, 2830.0, C_PLAN + 2.0, C_PLAN, STEADY, False) == 2825.0
+    assert floating_pressure_floor(s, 2854.0, C_PLAN + 2.0, C_PLAN, STEADY, False) == 2849.0
+    assert floating_pressure_floor(s, 2890.0, C_PLAN + 2.0, C_PLAN, STEADY, False) == 2850.0
+    # exactly 1 mol % over the plan's is enough
+    assert floating_pressure_floor(s, 2830.0, C_PLAN + 1.0, C_PLAN, STEADY, False) == 2825.0
+    other = FloatingPressureSettings(margin_kpa=0.0, ceiling_kpa=2870.0, c_excess_mol=0.0)
+    assert floating_pressure_floor(other, 2860.0, C_PLAN, C_PLAN, STEADY, False) == 2860.0
+
+
+@pytest.mark.parametrize("c, since, held_down, pressure", [
+    (C_PLAN + 0.9, STEADY, False, 2830.0),   # C not enough in excess
+    (C_PLAN - 5.0, STEADY, False, 2830.0),   # C short: what the kinetics' drift does
+    (C_PLAN + 3.0, 23.9, False, 2830.0),     # within a day of a grade change
+    (C_PLAN + 3.0, STEADY, True, 2830.0),    # the A feed lost / production lowered
+    (math.nan, STEADY, False, 2830.0),       # no C analysis
+    (C_PLAN + 3.0, STEADY, False, math.nan),  # no pressure
+])
+def test_outside_its_conditions_the_guard_does_not_act(c, since, held_down, pressure):
+    s = FloatingPressureSettings()
+    assert floating_pressure_floor(s, pressure, c, C_PLAN, since, held_down) is None
+    assert floating_pressure_floor(s, 2830.0, C_PLAN + 3.0, math.nan, STEADY, False) is None
+
+
+def _sample(pressure: float, c_purge: float) -> np.ndarray:
+    x = grade("mode2").xmeas.copy()
+    x[6], x[30] = pressure, c_purge
+    return x
+
+
+def test_the_controller_raises_the_plans_pressure_set_point_and_reports_it():
+    # the grade plan alone writes the plan's P_r* (2800 kPa at mode 2)
+    ctl, _ = make_te_controller("plan", TransitionPlan("mode2"))
+    plan_c = float(grade("mode2").xmeas[30])
+    dec = ctl.step(0, 1.0, _sample(2830.0, plan_c))
+    assert dec.extra["setpoints"][4] == pytest.approx(2800.0)
+    assert dec.extra["pressure_floats"] is False
+    dec = ctl.step(1, 1.01, _sample(2830.0, plan_c + 2.0))
+    assert dec.extra["setpoints"][4] == pytest.approx(2825.0)
+    assert dec.extra["pressure_floats"] is True
+    # a pressure under the plan's set point: nothing to follow
+    dec = ctl.step(2, 1.02, _sample(2790.0, plan_c + 2.0))
+    assert dec.extra["setpoints"][4] == pytest.approx(2800.0)
+    assert dec.extra["pressure_floats"] is False
+
+
+def test_idv8_at_mode_2_keeps_the_purge_closer_to_its_grade():
+    # seed 1: the A loop cuts the A feed, C gathers and the pressure rises to 2830-2847
+    # kPa 6-10 h in; held at 2800 kPa the purge opened to 0.61 kscmh (the grade's 0.36)
+    runs = {}
+    for name, fp in (("on", None), ("off", FloatingPressureSettings(c_excess_mol=1e3))):
+        runs[name] = run_te("ssmpc", TransitionPlan("mode2"), 13.0, noise=True, seed=1,
+                            plant_seed=plant_seed_for(1), idv={8: 2.0}, floating_pressure=fp)
+    on, off = runs["on"], runs["off"]
+    assert on.shutdown is None and off.shutdown is None
+    late = on.t >= 7.0
+    assert off.xmeas[late, 9].max() > 0.55
+    assert on.xmeas[late, 9].max() < 0.50
+    assert on.cost[late].mean() < off.cost[late].mean() - 20.0
+    assert 2840.0 < on.setpoints[:, 4].max() <= 2850.0 + 1e-9  # it acted, to its ceiling
+    assert on.xmeas[:, 6].max() < 2895.0
+
+
+def test_idv13_at_mode_2_on_seed_5_is_left_to_the_purge():
+    # the kinetics' drift gathers E, not C: the guard stays out and the purge opens at
+    # once (on C at the plan's, no margin, the pressure reached 2975 kPa here)
+    r = run_te("ssmpc", TransitionPlan("mode2"), 13.0, noise=True, seed=5,
+               plant_seed=plant_seed_for(5), idv={13: 2.0})
+    assert r.shutdown is None, r.shutdown
+    assert r.xmeas[:, 6].max() < 2920.0
