@@ -22,6 +22,7 @@ C_PLAN, STEADY = 14.6, 30.0
                                        ({"margin_kpa": 150.0}, "margin_kpa"),
                                        ({"ceiling_kpa": 3000.0}, "ceiling_kpa"),
                                        ({"ceiling_kpa": math.inf}, "ceiling_kpa"),
+                                       ({"release_per_kpa": 0.0}, "release_per_kpa"),
                                        ({"c_excess_mol": math.nan}, "c_excess_mol"),
                                        ({"after_h": -1.0}, "after_h"),
                                        ({"after_h": True}, "after_h")])
@@ -34,11 +35,20 @@ def test_the_floor_stands_the_margin_under_the_pressure_up_to_the_ceiling():
     s = FloatingPressureSettings()  # 5 kPa, 2850 kPa, C 1 mol % over the plan's, a day
     assert floating_pressure_floor(s, 2830.0, C_PLAN + 2.0, C_PLAN, STEADY, False) == 2825.0
     assert floating_pressure_floor(s, 2854.0, C_PLAN + 2.0, C_PLAN, STEADY, False) == 2849.0
-    assert floating_pressure_floor(s, 2890.0, C_PLAN + 2.0, C_PLAN, STEADY, False) == 2850.0
+    assert floating_pressure_floor(s, 2855.0, C_PLAN + 2.0, C_PLAN, STEADY, False) == 2850.0
     # exactly 1 mol % over the plan's is enough
     assert floating_pressure_floor(s, 2830.0, C_PLAN + 1.0, C_PLAN, STEADY, False) == 2825.0
     other = FloatingPressureSettings(margin_kpa=0.0, ceiling_kpa=2870.0, c_excess_mol=0.0)
     assert floating_pressure_floor(other, 2860.0, C_PLAN, C_PLAN, STEADY, False) == 2860.0
+
+
+def test_past_the_ceiling_the_floor_gives_way_to_the_purge():
+    # 2 kPa of floor per kPa of pressure: the grade's 2800 kPa again at 2880 kPa, so near
+    # the MPC's soft limit (2875 kPa) the purge loop meets the whole excess
+    s = FloatingPressureSettings()
+    floors = [floating_pressure_floor(s, p, C_PLAN + 5.0, C_PLAN, STEADY, False)
+              for p in (2855.0, 2860.0, 2870.0, 2880.0, 2900.0)]
+    assert floors == pytest.approx([2850.0, 2840.0, 2820.0, 2800.0, 2760.0])
 
 
 @pytest.mark.parametrize("c, since, held_down, pressure", [
@@ -88,8 +98,8 @@ def test_idv8_at_mode_2_keeps_the_purge_closer_to_its_grade():
     assert on.shutdown is None and off.shutdown is None
     late = on.t >= 7.0
     assert off.xmeas[late, 9].max() > 0.55
-    assert on.xmeas[late, 9].max() < 0.50
-    assert on.cost[late].mean() < off.cost[late].mean() - 20.0
+    assert on.xmeas[late, 9].mean() < off.xmeas[late, 9].mean() - 0.05
+    assert on.cost[late].mean() < off.cost[late].mean() - 15.0
     assert 2840.0 < on.setpoints[:, 4].max() <= 2850.0 + 1e-9  # it acted, to its ceiling
     assert on.xmeas[:, 6].max() < 2895.0
 

@@ -18,9 +18,11 @@ grade change), while C in the purge (XMEAS 31) is at least
 :attr:`FloatingPressureSettings.ceiling_kpa`: the purge loop then sees at most the
 margin, and the excess C is left to the feeds (the A+C feed's reactant trim,
 :mod:`controller.units.te.reactant_trim`, and the A-in-feed loop) rather than purged.
-It never lowers P_r*; above the ceiling the loop acts on the rest of the error. It does
-not act while the A feed is lost or the production index lowers production (the C then
-in excess is what the lost A leaves unreacted, and the pressure must be held down).
+Past the ceiling the floor gives way (:attr:`FloatingPressureSettings.release_per_kpa`),
+so that by the MPC's soft pressure limit the loop meets the whole excess again. It never
+lowers P_r*. It does not act while the A feed is lost or the production index lowers
+production (the C then in excess is what the lost A leaves unreacted, and the pressure
+must be held down).
 
 Why the condition on C: a pressure rise with the kinetics' drift (IDV(13)) gathers E,
 not C (C in the purge falls 14.6 -> 6-13 mol %); there the purge must open at once. On C
@@ -28,6 +30,11 @@ alone (at or above the plan's, no margin) the guard floated through a rise of ID
 at mode 2 and the plant tripped on seed 3 (45 h) or 5 (12 h) of seeds 1-11, depending
 on the ceiling; with 1 mol % above the plan's, no seed of 1-16 tripped. Without the
 A-feed condition IDV(6) tripped at modes 0, 1 and 2 (the lost A leaves C in excess).
+Without the release, P_r* held at the ceiling while C ran away (0 -> 2 with IDV(8),
+seed 3: C in the purge 14.6 -> 26 mol % 27-29 h into the run, the high-pressure
+override cut the A+C feed to 16 %) took the product off its grade at 29 h (to grade at
+30.1 h instead of 6.9 in the acceptance matrix), and with IDV(8) from the start it
+tripped.
 
 Measured (``ssmpc``, noise on, seeds 1-3, 48 h, onset 2 h; G std mol % / mean $/h /
 peak kPa; the decentralized structure's cost in the last column):
@@ -35,18 +42,30 @@ peak kPa; the decentralized structure's cost in the last column):
 ==================  =======================  =======================  =============
 case                without                  with the guard           decentralized
 ==================  =======================  =======================  =============
-IDV(1) at mode 2    0.509 / 189.1 / 2874     0.512 / 179.7 / 2877     176.1
-IDV(8) at mode 2    0.580 / 204.1 / 2870     0.547 / 187.3 / 2875     185.3
+IDV(1) at mode 2    0.509 / 189.1 / 2874     0.519 / 180.7 / 2877     176.1
+IDV(8) at mode 2    0.580 / 204.1 / 2870     0.525 / 189.0 / 2872     185.3
 IDV(18) at mode 2   1.040 / 183.5 / 2838     1.030 / 182.8 / 2842     181.4
 IDV(20) at mode 2   0.676 / 182.4 / 2839     0.664 / 178.9 / 2855     181.3
-IDV(1) at mode 0    0.562 / 159.8 / 2851     0.516 / 152.8 / 2878     166.0
-IDV(8) at mode 0    0.575 / 161.9 / 2878     0.559 / 150.8 / 2878     174.6
-IDV(20) at mode 0   0.562 / 150.7 / 2861     0.558 / 149.2 / 2873     170.6
+IDV(1) at mode 0    0.562 / 159.8 / 2851     0.528 / 153.1 / 2877     166.0
+IDV(8) at mode 0    0.575 / 161.9 / 2878     0.570 / 154.5 / 2878     174.6
+IDV(20) at mode 0   0.562 / 150.7 / 2861     0.558 / 149.2 / 2871     170.6
+IDV(1) at mode 1    0.558 / 123.0 / 2877     0.541 / 117.0 / 2880     -
+IDV(8) at mode 1    0.715 / 135.2 / 2878     0.659 / 121.1 / 2877     -
+IDV(20) at mode 1   0.681 / 118.5 / 2857     0.661 / 115.6 / 2877     -
 ==================  =======================  =======================  =============
 
-IDV(13) at mode 2 holds on seeds 1-16 (peak 2899 kPa, as without the guard), at mode 1
-on seeds 1-8 (138.4 against 140.0 $/h); IDV 1-20 at modes 0-3 run without a trip on
-seeds 1-3. A ceiling of 2860 kPa held as well and moved each cost by under 1 $/h.
+IDV(13) at mode 2 holds on seeds 1-16 (peak 2899 kPa, as without the guard). At mode 3
+the guard does not act (C in the purge stays within 1 mol % of the plan's): IDV 1-20
+there are as without it. Without the release (the P_r* held at the ceiling) the costs
+were 1-4 $/h lower: IDV(8) at mode 2 187.3, at mode 0 150.8 $/h.
+
+Measured, not taken: acting only while B in the purge (the inert) is at most 0-0.4 mol %
+above the plan's. It gives up the mode-0 gains (IDV(8) 161.2-161.7 $/h, IDV(20) 150.5-
+150.7), where the economics raise the pressure and keep more B on purpose, and half of
+IDV(8)'s at mode 2 (192.4-195.7). What it answered: after 0 -> 2 without noise the guard
+lets B gather while it holds the purge back (30-34 h), and the purge then opens further
+(hour 40: 196 against 174 $/h); over hours 24-72 the run's mean cost is 173.1 against
+173.6 $/h without the guard, and both settle at 180 $/h from 60 h on.
 """
 
 from __future__ import annotations
@@ -70,6 +89,10 @@ class FloatingPressureSettings:
         (>= 0).
     ceiling_kpa : float
         Highest P_r* the guard sets, kPa.
+    release_per_kpa : float
+        Above the ceiling (and its margin) the floor falls by this many kPa per kPa of
+        pressure (> 0): with 2, from 2850 kPa at 2855 kPa to the grades' 2800 kPa at
+        2880 kPa, just past the MPC's soft pressure limit (2875 kPa).
     c_excess_mol : float
         C in the purge (XMEAS 31) above the plan's from which the guard acts, mol %.
     after_h : float
@@ -78,6 +101,7 @@ class FloatingPressureSettings:
 
     margin_kpa: float = 5.0
     ceiling_kpa: float = 2850.0
+    release_per_kpa: float = 2.0
     c_excess_mol: float = 1.0
     after_h: float = 24.0
 
@@ -89,6 +113,9 @@ class FloatingPressureSettings:
         if not 2000.0 < self.ceiling_kpa < 3000.0:
             raise ValueError(f"floating pressure ceiling_kpa: must be in (2000, 3000) kPa, "
                              f"got {self.ceiling_kpa!r}")
+        if self.release_per_kpa <= 0.0:
+            raise ValueError(f"floating pressure release_per_kpa: must be > 0, got "
+                             f"{self.release_per_kpa!r}")
         if self.after_h < 0.0:
             raise ValueError(f"floating pressure after_h: must be >= 0 h, got "
                              f"{self.after_h!r}")
@@ -115,9 +142,11 @@ def floating_pressure_floor(settings: FloatingPressureSettings, pressure_kpa: fl
     s = settings
     if held_down or since_h < s.after_h:
         return None
-    if not (math.isfinite(pressure_kpa) and math.isfinite(c_purge_mol)
-            and math.isfinite(c_purge_plan_mol)):
+    if not all(math.isfinite(v) for v in (pressure_kpa, c_purge_mol, c_purge_plan_mol)):
         return None
     if c_purge_mol < c_purge_plan_mol + s.c_excess_mol:
         return None
-    return min(pressure_kpa - s.margin_kpa, s.ceiling_kpa)
+    if pressure_kpa <= s.ceiling_kpa + s.margin_kpa:
+        return min(pressure_kpa - s.margin_kpa, s.ceiling_kpa)
+    # past the ceiling the floor gives way, and the loop meets the pressure in full
+    return s.ceiling_kpa - s.release_per_kpa * (pressure_kpa - s.ceiling_kpa - s.margin_kpa)
