@@ -179,22 +179,30 @@ def test_a_run_identity_changes_with_what_makes_the_run_different():
             assert (rid != ids[key]) == (key[0] == "0-1"), key
 
 
-def test_a_run_identity_changes_with_the_plant_sides_inner_loops(monkeypatch):
-    """Runs made with another regulatory layer are other runs: a campaign resumed in the
-    same directory after the inner loops changed makes them again."""
-    import controller.units.te.loops as loops
+def _te_run_ids_with(monkeypatch, module, name, value) -> tuple[set, set]:
+    """The TE example's run identities before and with ``module.name`` set to ``value``
+    (undone after; asserts the identities come back)."""
     from services.campaign import identity
 
     before = {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))}
-    monkeypatch.setattr(loops, "INNER_LOOPS", loops.MODEL_LOOPS)
+    monkeypatch.setattr(module, name, value)
     identity._settings_json.cache_clear()
     try:
         after = {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))}
     finally:
         monkeypatch.undo()
         identity._settings_json.cache_clear()
-    assert before and not before & after
     assert {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))} == before
+    return before, after
+
+
+def test_a_run_identity_changes_with_the_plant_sides_inner_loops(monkeypatch):
+    """Runs made with another regulatory layer are other runs: a campaign resumed in the
+    same directory after the inner loops changed makes them again."""
+    import controller.units.te.loops as loops
+
+    before, after = _te_run_ids_with(monkeypatch, loops, "INNER_LOOPS", loops.MODEL_LOOPS)
+    assert before and not before & after
 
 
 @pytest.mark.parametrize("module, cls, field, value", [
@@ -211,21 +219,10 @@ def test_a_run_identity_changes_with_a_guards_settings(monkeypatch, module, cls,
     import dataclasses
     import importlib
 
-    from services.campaign import identity
-
     mod = importlib.import_module(module)
-    klass = getattr(mod, cls)
-    changed = dataclasses.replace(klass(), **{field: value})
-    before = {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))}
-    monkeypatch.setattr(mod, cls, lambda: changed)
-    identity._settings_json.cache_clear()
-    try:
-        after = {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))}
-    finally:
-        monkeypatch.undo()
-        identity._settings_json.cache_clear()
+    changed = dataclasses.replace(getattr(mod, cls)(), **{field: value})
+    before, after = _te_run_ids_with(monkeypatch, mod, cls, lambda: changed)
     assert before and not before & after
-    assert {r.run_id for r in plan_runs(parse_spec(TE_SPEC, "te"))} == before
 
 
 # -- the campaign on Dask ---------------------------------------------------------------------
