@@ -65,6 +65,16 @@ def test_outside_its_conditions_the_guard_does_not_act(c, since, held_down, pres
     assert floating_pressure_floor(s, 2830.0, C_PLAN + 3.0, math.nan, STEADY, False) is None
 
 
+def test_a_high_limit_on_the_pressure_lowers_the_ceiling():
+    s = FloatingPressureSettings()
+    args = (C_PLAN + 2.0, C_PLAN, STEADY, False)
+    assert floating_pressure_floor(s, 2820.0, *args, limit_kpa=2815.0) == 2815.0
+    assert floating_pressure_floor(s, 2860.0, *args, limit_kpa=2895.0) == 2840.0
+    assert floating_pressure_floor(s, 2860.0, *args, limit_kpa=math.nan) == 2840.0
+    # past a lowered ceiling the floor gives way from it
+    assert floating_pressure_floor(s, 2830.0, *args, limit_kpa=2815.0) == 2795.0
+
+
 def _sample(pressure: float, c_purge: float) -> np.ndarray:
     x = grade("mode2").xmeas.copy()
     x[6], x[30] = pressure, c_purge
@@ -85,6 +95,23 @@ def test_the_controller_raises_the_plans_pressure_set_point_and_reports_it():
     dec = ctl.step(2, 1.02, _sample(2790.0, plan_c + 2.0))
     assert dec.extra["setpoints"][4] == pytest.approx(2800.0)
     assert dec.extra["pressure_floats"] is False
+
+
+def test_an_operators_high_limit_on_the_pressure_caps_the_float():
+    # the operator's XMEAS 7 limit reaches the MPC strategies through the steady-state
+    # targets (controller/units/te/operator.py); the float must not carry P_r* past it
+    plan_c = float(grade("mode2").xmeas[30])
+    free, _ = make_te_controller("ssmpc", TransitionPlan("mode2"))
+    capped, _ = make_te_controller("ssmpc", TransitionPlan("mode2"))
+    capped.targets.set_operator_limits(None, [2820.0, np.inf, np.inf, np.inf, np.inf])
+    sp = {}
+    for name, ctl in (("free", free), ("capped", capped)):
+        for k in range(3):
+            dec = ctl.step(k, 1.0 + 0.01 * k, _sample(2840.0, plan_c + 2.0))
+            ctl.finish_sample()
+        sp[name] = float(dec.extra["setpoints"][4])
+    assert sp["free"] == pytest.approx(2835.0)
+    assert sp["capped"] <= 2820.0 + 1e-9
 
 
 def test_idv8_at_mode_2_keeps_the_purge_closer_to_its_grade():

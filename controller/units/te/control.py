@@ -842,9 +842,11 @@ class TEController:
         (:mod:`controller.units.te.floating_pressure`; ``c_purge_ref``: the plan's C in
         the purge, mol %); a core whose move was changed is told what was applied."""
         p = float(xmeas[6])
+        # an operator's high limit on the pressure (the targets' y_max) caps the float too
+        limit = float(self.targets.y_max[0]) if self.targets is not None else math.inf
         floor = floating_pressure_floor(
             self.floating_pressure, p, float(xmeas[30]), c_purge_ref, self._since,
-            held_down=self.feeds.a_lost or self.production.active)
+            held_down=self.feeds.a_lost or self.production.active, limit_kpa=limit)
         self.pressure_floats = bool(floor is not None and core_u[2] < floor)
         if self.pressure_floats:
             core_u = np.array(core_u, dtype=float)

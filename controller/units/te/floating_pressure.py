@@ -123,7 +123,7 @@ class FloatingPressureSettings:
 
 def floating_pressure_floor(settings: FloatingPressureSettings, pressure_kpa: float,
                             c_purge_mol: float, c_purge_plan_mol: float, since_h: float,
-                            held_down: bool) -> float | None:
+                            held_down: bool, limit_kpa: float = math.inf) -> float | None:
     """Lowest P_r* this sample (kPa), or None where the guard does not act.
 
     Parameters
@@ -138,6 +138,9 @@ def floating_pressure_floor(settings: FloatingPressureSettings, pressure_kpa: fl
     held_down : bool
         True while the pressure must be held down whatever the composition (the A feed
         lost, the production index lowering production).
+    limit_kpa : float
+        A high limit on the reactor pressure in force (an operator's, through the
+        steady-state targets), kPa: the ceiling goes no higher.
     """
     s = settings
     if held_down or since_h < s.after_h:
@@ -146,7 +149,8 @@ def floating_pressure_floor(settings: FloatingPressureSettings, pressure_kpa: fl
         return None
     if c_purge_mol < c_purge_plan_mol + s.c_excess_mol:
         return None
-    if pressure_kpa <= s.ceiling_kpa + s.margin_kpa:
-        return min(pressure_kpa - s.margin_kpa, s.ceiling_kpa)
+    ceiling = min(s.ceiling_kpa, limit_kpa) if not math.isnan(limit_kpa) else s.ceiling_kpa
+    if pressure_kpa <= ceiling + s.margin_kpa:
+        return pressure_kpa - s.margin_kpa
     # past the ceiling the floor gives way, and the loop meets the pressure in full
-    return s.ceiling_kpa - s.release_per_kpa * (pressure_kpa - s.ceiling_kpa - s.margin_kpa)
+    return ceiling - s.release_per_kpa * (pressure_kpa - ceiling - s.margin_kpa)
