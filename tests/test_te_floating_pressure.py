@@ -133,7 +133,7 @@ def test_idv8_at_mode_2_keeps_the_purge_closer_to_its_grade():
 
 def test_idv13_at_mode_2_on_seed_5_is_left_to_the_purge():
     # the kinetics' drift gathers E, not C: the guard stays out and the purge opens at
-    # once (on C at the plan's, no margin, the pressure reached 2975 kPa here)
+    # once (the guard without its condition on C tripped this run at 11.8 h)
     r = run_te("ssmpc", TransitionPlan("mode2"), 13.0, noise=True, seed=5,
                plant_seed=plant_seed_for(5), idv={13: 2.0})
     assert r.shutdown is None, r.shutdown

@@ -25,10 +25,12 @@ production (the C then in excess is what the lost A leaves unreacted, and the pr
 must be held down).
 
 Why the condition on C: a pressure rise with the kinetics' drift (IDV(13)) gathers E,
-not C (C in the purge falls 14.6 -> 6-13 mol %); there the purge must open at once. On C
-alone (at or above the plan's, no margin) the guard floated through a rise of IDV(13)
-at mode 2 and the plant tripped on seed 3 (45 h) or 5 (12 h) of seeds 1-11, depending
-on the ceiling; with 1 mol % above the plan's, no seed of 1-16 tripped. Without the
+not C (C in the purge falls 14.6 -> 6-13 mol %); there the purge must open at once.
+Without the condition the guard floated through those rises and IDV(13) at mode 2
+tripped on seeds 3, 5 and 7 of 1-16 (45.7, 11.8 and 20.0 h); with it, on none. The 1 mol
+% margin over the plan's C is kept for the guard's first form, without the release
+below: at the plan's C it tripped on seed 3 or 5 of 1-11 (with the release, at the plan's
+C none of 1-16 trips, IDV(8) at mode 2 187.9 $/h, G 0.543 mol %). Without the
 A-feed condition IDV(6) tripped at modes 0, 1 and 2 (the lost A leaves C in excess).
 Without the release, P_r* held at the ceiling while C ran away (0 -> 2 with IDV(8),
 seed 3: C in the purge 14.6 -> 26 mol % 27-29 h into the run, the high-pressure
