@@ -27,11 +27,12 @@ must be held down).
 Why the condition on C: a pressure rise with the kinetics' drift (IDV(13)) gathers E,
 not C (C in the purge falls 14.6 -> 6-13 mol %); there the purge must open at once.
 Without the condition the guard floated through those rises and IDV(13) at mode 2
-tripped on seeds 3, 5 and 7 of 1-16 (45.7, 11.8 and 20.0 h); with it, on none. The 1 mol
-% margin over the plan's C is kept for the guard's first form, without the release
-below: at the plan's C it tripped on seed 3 or 5 of 1-11 (with the release, at the plan's
-C none of 1-16 trips, IDV(8) at mode 2 187.9 $/h, G 0.543 mol %). Without the
-A-feed condition IDV(6) tripped at modes 0, 1 and 2 (the lost A leaves C in excess).
+tripped on seeds 3, 5 and 7 of 1-16 (45.7, 11.8 and 20.0 h); with it, on none. The
+margin of 1 mol % over the plan's C was needed by a first form of the guard without the
+release (below), which at the plan's C tripped on seed 3 or 5 of 1-11; with the release,
+at the plan's C none of 1-16 trips (IDV(8) at mode 2 187.9 $/h, G 0.543 mol %), and the
+margin is kept. In that first form, without the A-feed condition, IDV(6) tripped at
+modes 0, 1 and 2 (the lost A leaves C in excess).
 Without the release, P_r* held at the ceiling while C ran away (0 -> 2 with IDV(8),
 seed 3: C in the purge 14.6 -> 26 mol % 27-29 h into the run, the high-pressure
 override cut the A+C feed to 16 %) took the product off its grade at 29 h (to grade at
@@ -62,12 +63,13 @@ there are as without it. Without the release (the P_r* held at the ceiling) the 
 were 1-4 $/h lower: IDV(8) at mode 2 187.3, at mode 0 150.8 $/h.
 
 Measured, not taken: acting only while B in the purge (the inert) is at most 0-0.4 mol %
-above the plan's. It gives up the mode-0 gains (IDV(8) 161.2-161.7 $/h, IDV(20) 150.5-
-150.7), where the economics raise the pressure and keep more B on purpose, and half of
-IDV(8)'s at mode 2 (192.4-195.7). What it answered: after 0 -> 2 without noise the guard
-lets B gather while it holds the purge back (30-34 h), and the purge then opens further
-(hour 40: 196 against 174 $/h); over hours 24-72 the run's mean cost is 173.1 against
-173.6 $/h without the guard, and both settle at 180 $/h from 60 h on.
+above the plan's. It gives up the mode-0 gains (IDV(8) 161.2-161.7 $/h against 154.5,
+IDV(20) 150.5-150.7 against 149.2), where the economics raise the pressure and keep more
+B on purpose, and half of IDV(8)'s at mode 2 (192.4-195.7 against 189.0). What it
+answered: after 0 -> 2 without noise the guard lets B gather while it holds the purge
+back (30-34 h), and the purge then opens further (hour 40: 196 against 174 $/h); over
+hours 24-72 the run's mean cost is 173.1 against 173.6 $/h without the guard, and both
+settle at 180 $/h from 60 h on.
 """
 
 from __future__ import annotations
