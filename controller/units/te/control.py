@@ -847,13 +847,10 @@ class TEController:
         floor = floating_pressure_floor(
             self.floating_pressure, p, float(xmeas[30]), c_purge_ref, self._since,
             held_down=self.feeds.a_lost or self.production.active, limit_kpa=limit)
-        self.pressure_floats = bool(floor is not None and core_u[2] < floor)
+        p_r = float(core_u[2])
+        self.pressure_floats = floor is not None and p_r < floor
         if self.pressure_floats:
-            core_u = np.array(core_u, dtype=float)
-            core_u[2] = floor
-            applied = getattr(self.core, "applied", None)
-            if callable(applied):
-                applied(core_u)
+            p_r = floor
         g = self.guards
         margin = g.purge_track_kpa
         if g.purge_track_lift_kpa is not None and self.targets is not None \
@@ -863,13 +860,18 @@ class TEController:
         if g.purge_floor_fraction is not None and self._since >= g.purge_floor_after_h \
                 and float(xmeas[9]) < g.purge_floor_fraction * purge_ref:
             margin = 0.0  # the purge under its floor (a NaN flow or reference: no floor)
+        # the cap is at or above the pressure and the floor below it: at most one acts
         cap = max(p + margin, PR_LIMITS[0])
-        if not (math.isfinite(p) and core_u[2] > cap):
+        capped = math.isfinite(p) and p_r > cap
+        if capped:
+            self._track_bound_h += self.sample_h
+            p_r = cap
+        else:
             self._track_bound_h = 0.0
+        if not (capped or self.pressure_floats):
             return core_u
-        self._track_bound_h += self.sample_h
         core_u = np.array(core_u, dtype=float)
-        core_u[2] = cap
+        core_u[2] = p_r
         applied = getattr(self.core, "applied", None)
         if callable(applied):
             applied(core_u)

@@ -1,8 +1,9 @@
 """One check shared by the TE guards' settings dataclasses: every field a finite number.
 
 The guards (:mod:`controller.units.te.overrides`, :mod:`controller.units.te.production_index`,
-:mod:`controller.units.te.reactant_trim`, :mod:`controller.units.te.level_sag`) hold only
-numeric settings; each then checks its own ranges.
+:mod:`controller.units.te.reactant_trim`, :mod:`controller.units.te.level_sag`,
+:mod:`controller.units.te.floating_pressure`) hold only numeric settings; each then checks
+its own ranges.
 """
 
 from __future__ import annotations
