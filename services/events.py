@@ -56,6 +56,8 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
+from controller.alarms import alarm_key
+
 __all__ = ["Event", "AlarmTracker", "SYSTEM_IDENTITY", "UNIDENTIFIED", "ALARM_RAISED",
            "ALARM_CLEARED", "now_us", "iso_utc", "parse_since_us", "identity_of",
            "transition_event", "action_event", "alarm_key", "fold_alarms", "describe",
@@ -73,8 +75,6 @@ MAX_LIMIT = 10_000
 
 _KIND = re.compile(r"^[a-z][a-z0-9_]*(\.[a-z][a-z0-9_]*)*$")
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
-#: A number standing alone (not part of a name such as XMEAS7): masked in alarm keys.
-_NUMBER = re.compile(r"(?<![A-Za-z0-9_.])[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?")
 
 
 def now_us() -> int:
@@ -194,11 +194,6 @@ def action_event(what: str, detail: dict, identity: str, process_time_s: float |
                  time_us=now_us() if time_us is None else time_us,
                  process_time_s=process_time_s, kind=f"action.{what}", detail=dict(detail),
                  identity=identity)
-
-
-def alarm_key(text: str) -> str:
-    """An alarm's key: its text with standalone numbers masked as ``#``."""
-    return _NUMBER.sub("#", text)
 
 
 class AlarmTracker:

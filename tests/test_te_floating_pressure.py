@@ -97,6 +97,51 @@ def test_the_controller_raises_the_plans_pressure_set_point_and_reports_it():
     assert dec.extra["pressure_floats"] is False
 
 
+def _float_alarms(dec) -> list[str]:
+    return [a for a in dec.alarms if "set point floats" in a]
+
+
+def test_the_float_raises_an_alarm_that_stands_through_short_pauses():
+    # the operator sees the guard act (the alarm reaches the service's status, its event
+    # log and telemetry); it stands FLOAT_ALARM_HOLD_H after the last raise, so a guard
+    # acting sample on, sample off does not raise and clear the alarm every minute
+    ctl, _ = make_te_controller("plan", TransitionPlan("mode2"))
+    plan_c = float(grade("mode2").xmeas[30])
+    dec = ctl.step(0, 1.0, _sample(2830.0, plan_c))
+    assert _float_alarms(dec) == []
+    dec = ctl.step(1, 1.01, _sample(2830.0, plan_c + 2.0))
+    (text,) = _float_alarms(dec)
+    assert "2825 kPa" in text and "2800" in text and f"{plan_c + 2.0:.1f} mol %" in text
+    # the guard pauses (the pressure back under the plan's P_r*): the alarm stands a while
+    t, k, seen = 1.01, 1, []
+    while t < 1.01 + 0.75:
+        k, t = k + 1, t + 0.01
+        dec = ctl.step(k, t, _sample(2790.0, plan_c + 2.0))
+        assert dec.extra["pressure_floats"] is False
+        seen.append((t - 1.01, bool(_float_alarms(dec))))
+    standing = [dt for dt, on in seen if on]
+    cleared = [dt for dt, on in seen if not on]
+    assert standing and cleared and 0.45 < max(standing) < min(cleared) <= 0.5 + 1e-6
+    assert all(not on for dt, on in seen if dt >= min(cleared))  # and stays cleared
+
+
+def test_the_floats_alarm_survives_a_restart():
+    plan_c = float(grade("mode2").xmeas[30])
+    ctl, _ = make_te_controller("plan", TransitionPlan("mode2"))
+    ctl.step(0, 1.0, _sample(2830.0, plan_c + 2.0))
+    state = ctl.checkpoint()
+    again, _ = make_te_controller("plan", TransitionPlan("mode2"))
+    again.restore(state)
+    assert _float_alarms(again.step(1, 1.01, _sample(2790.0, plan_c + 2.0)))
+    # a checkpoint from before the alarm, or a damaged one: no alarm, no error
+    for bad in ({}, {"float_alarm_h": math.nan, "float_alarm": "x"},
+                {"float_alarm_h": 0.3, "float_alarm": 7}):
+        other, _ = make_te_controller("plan", TransitionPlan("mode2"))
+        other.restore({**state, **bad} if bad else
+                      {k: v for k, v in state.items() if not k.startswith("float_alarm")})
+        assert _float_alarms(other.step(1, 1.01, _sample(2790.0, plan_c + 2.0))) == []
+
+
 def test_an_operators_high_limit_on_the_pressure_caps_the_float():
     # the operator's XMEAS 7 limit reaches the MPC strategies through the steady-state
     # targets (controller/units/te/operator.py); the float must not carry P_r* past it
@@ -128,6 +173,11 @@ def test_idv8_at_mode_2_keeps_the_purge_closer_to_its_grade():
     assert on.xmeas[late, 9].mean() < off.xmeas[late, 9].mean() - 0.05
     assert on.cost[late].mean() < off.cost[late].mean() - 15.0
     assert 2840.0 < on.setpoints[:, 4].max() <= 2850.0 + 1e-9  # it acted, to its ceiling
+    # the run's alarm log has the float's alarm when it is raised, not every sample it
+    # stands: the guard held P_r* above the plan's for many samples
+    floats = [a for a in on.alarms if "set point floats" in a]
+    assert 1 <= len(floats) <= 3 < 50 < int(np.sum(on.setpoints[:, 4] > 2800.5))
+    assert not any("set point floats" in a for a in off.alarms)
     assert on.xmeas[:, 6].max() < 2895.0
 
 

@@ -57,7 +57,7 @@ Layers (seed Fig. 7.2)
          the pressure is high and the E valve at its range, the reactor level's set
          point follows a falling level (:mod:`controller.units.te.level_sag`), and
          while C is in excess in the recycle gas P_r* follows a rising pressure up to
-         2850 kPa (:mod:`controller.units.te.floating_pressure`);
+         2850 kPa, with an alarm (:mod:`controller.units.te.floating_pressure`);
        - MPC strategies: the input targets and CV references pass through the
          steady-state targets of the active model
          (:mod:`controller.units.te.targets`): the plan's values as they stand while
@@ -164,6 +164,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.alarms import alarm_key
 from controller.blas import single_threaded
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.units.te.cost_gradient import cost_gradient
@@ -376,6 +377,15 @@ RATIO_STEADY_AFTER_H = 24.0
 #: :mod:`controller.units.te.d_share_path`): the G loop acts, with its steady-grade
 #: tuning, only while G is within this of the new grade's G (mol %).
 RATIO_PATH_WINDOW_MOL = 3.0
+
+#: The offline run's alarm log keeps this many raises (:attr:`TERun.alarms`).
+RUN_ALARM_LOG_MAX = 200
+
+#: The floating pressure's alarm stands this long after the guard last raised P_r*, h
+#: (an alarm hold: at mode 0 under IDV(1), seed 1, the guard acts in runs of a sample or
+#: two, 14 of its 19 pauses shorter than 0.25 h; with the hold the alarm is raised 5
+#: times in 48 h, and 6 under IDV(8) at mode 2, against 20 and 7 raises without it).
+FLOAT_ALARM_HOLD_H = 0.5
 
 #: The plan-hold alarm clears this far below the hold's start pressure, kPa (an alarm
 #: deadband: a pressure noisy about the start would raise and clear it every sample).
@@ -647,6 +657,10 @@ class TEController:
         self.floating_pressure = floating_pressure or FloatingPressureSettings()
         #: the floating pressure raised P_r* this sample (status)
         self.pressure_floats = False
+        #: h the floating pressure's alarm still stands (it raised P_r* within
+        #: :data:`FLOAT_ALARM_HOLD_H`), and what it last raised it to
+        self._float_alarm_h = 0.0
+        self._float_alarm: str | None = None
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
                        if strategy in MPC_STRATEGIES else None)
@@ -850,7 +864,14 @@ class TEController:
         p_r = float(core_u[2])
         self.pressure_floats = floor is not None and p_r < floor
         if self.pressure_floats:
+            self._float_alarm_h = FLOAT_ALARM_HOLD_H
+            self._float_alarm = (
+                f"reactor pressure set point floats at {floor:.0f} kPa (the core's "
+                f"{p_r:.0f}): C in the purge {float(xmeas[30]):.1f} mol % against the "
+                f"plan's {c_purge_ref:.1f}; the excess is left to the feeds, not purged")
             p_r = floor
+        else:
+            self._float_alarm_h = max(self._float_alarm_h - self.sample_h, 0.0)
         g = self.guards
         margin = g.purge_track_kpa
         if g.purge_track_lift_kpa is not None and self.targets is not None \
@@ -1083,6 +1104,8 @@ class TEController:
         if self.feeds.active:
             alarms.extend(self.feeds.alarms())
         self._hold_step(t_ref, xm, alarms)
+        if self._float_alarm_h > 0.0 and self._float_alarm is not None:
+            alarms.append(self._float_alarm)
         level_sp = self.level_sag.update(float(xm[6]), float(xm[7]),
                                          self.production.level_setpoint(yl[7]),
                                          float(u[1]), self._since)
@@ -1140,6 +1163,7 @@ class TEController:
                 "n_samples": self.n_samples,
                 "t_last": self._t_last, "plan_lag_h": self.plan_lag_h,
                 "track_bound_h": self._track_bound_h,
+                "float_alarm_h": self._float_alarm_h, "float_alarm": self._float_alarm,
                 "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
                 "reactants": self.reactants.checkpoint(),
                 "level_sag": self.level_sag.checkpoint(),
@@ -1160,6 +1184,10 @@ class TEController:
         bound = state.get("track_bound_h", 0.0)  # absent: a checkpoint from before it
         self._track_bound_h = float(bound) if isinstance(bound, int | float) \
             and math.isfinite(bound) and bound >= 0.0 else 0.0
+        hold, text = state.get("float_alarm_h", 0.0), state.get("float_alarm")
+        ok = isinstance(hold, int | float) and math.isfinite(hold) and isinstance(text, str)
+        self._float_alarm_h = min(max(float(hold), 0.0), FLOAT_ALARM_HOLD_H) if ok else 0.0
+        self._float_alarm = text if ok else None
         for trim, key in ((self._a, "a"), (self._p, "p"), (self._sep, "sep")):
             trim.value = float(state.get(f"{key}_trim", 0.0))
             trim.e_prev = state.get(f"e_{key}_prev")
@@ -1577,6 +1605,11 @@ class TERun:
         Each model's index (eq. 4.6) as a weighted RMS prediction error in units
         of the CVs' scales (:meth:`controller.switching.PerformanceIndex.rms_error`);
         None without models.
+    alarms : tuple of str
+        The alarm log, ``"t=<h> h: <text>"``: each alarm when it is raised, with the
+        text of that sample (an alarm standing over samples is logged once, again when
+        raised after it cleared; :func:`controller.alarms.alarm_key`), the first
+        :data:`RUN_ALARM_LOG_MAX`.
     """
 
     strategy: str
@@ -1668,7 +1701,8 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     ms = np.empty(n)
     slack = np.full(n, np.nan)
     rms: np.ndarray | None = None
-    alarms: list[str] = []
+    alarms: list[str] = []  # each alarm as it is raised (a standing alarm once)
+    keys = {}.keys()  # the keys of the alarms standing after the last sample
     fallbacks = 0
     names: tuple[str, ...] = ()
     w0 = time.perf_counter()
@@ -1700,9 +1734,12 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
             rms[k] = r_k
         names = names or dec.model_names
         fallbacks += int(dec.fallback)
-        for a in dec.alarms:
-            if len(alarms) < 50:
-                alarms.append(f"t={t:.2f} h: {a}")
+        if dec.alarms or keys:
+            now = {alarm_key(a): a for a in dec.alarms}
+            for key, a in now.items():
+                if key not in keys and len(alarms) < RUN_ALARM_LOG_MAX:
+                    alarms.append(f"t={t:.2f} h: {a}")
+            keys = now.keys()
         reg.run_steps(spec.sample_steps, stop_on_trip=stop_on_trip)
         if stop_on_trip and sim.shutdown is not None:
             break
