@@ -77,7 +77,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from controller.units.te.settings_check import check_finite_fields
+from controller.units.te.settings_check import check_finite_fields, check_range
 
 __all__ = ["FloatingPressureSettings", "floating_pressure_floor"]
 
@@ -110,19 +110,12 @@ class FloatingPressureSettings:
     after_h: float = 24.0
 
     def __post_init__(self) -> None:
-        check_finite_fields(self, "floating pressure ")
-        if not 0.0 <= self.margin_kpa <= 100.0:
-            raise ValueError(f"floating pressure margin_kpa: must be in [0, 100] kPa, got "
-                             f"{self.margin_kpa!r}")
-        if not 2000.0 < self.ceiling_kpa < 3000.0:
-            raise ValueError(f"floating pressure ceiling_kpa: must be in (2000, 3000) kPa, "
-                             f"got {self.ceiling_kpa!r}")
-        if self.release_per_kpa <= 0.0:
-            raise ValueError(f"floating pressure release_per_kpa: must be > 0, got "
-                             f"{self.release_per_kpa!r}")
-        if self.after_h < 0.0:
-            raise ValueError(f"floating pressure after_h: must be >= 0 h, got "
-                             f"{self.after_h!r}")
+        label = "floating pressure "
+        check_finite_fields(self, label)
+        check_range(self, "margin_kpa", "[0, 100]", "kPa", label)
+        check_range(self, "ceiling_kpa", "(2000, 3000)", "kPa", label)
+        check_range(self, "release_per_kpa", "> 0", label=label)
+        check_range(self, "after_h", ">= 0", "h", label)
 
 
 def floating_pressure_floor(settings: FloatingPressureSettings, pressure_kpa: float,

@@ -50,7 +50,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from controller.units.te.settings_check import check_finite_fields
+from controller.units.te.settings_check import check_finite_fields, check_range
 
 __all__ = ["LevelSagSettings", "LevelSag"]
 
@@ -80,21 +80,13 @@ class LevelSagSettings:
     after_h: float = 24.0
 
     def __post_init__(self) -> None:
-        check_finite_fields(self, "level sag ")
-        if not 2000.0 < self.pressure_kpa < 3000.0:
-            raise ValueError(f"level sag pressure_kpa: must be in (2000, 3000) kPa, got "
-                             f"{self.pressure_kpa!r}")
-        if not 0.0 <= self.e_valve_pct <= 100.0:
-            raise ValueError(f"level sag e_valve_pct: must be in [0, 100] %, got "
-                             f"{self.e_valve_pct!r}")
-        if not 0.0 <= self.drop_max_pct <= 50.0:
-            raise ValueError(f"level sag drop_max_pct: must be in [0, 50] %, got "
-                             f"{self.drop_max_pct!r}")
-        if self.return_per_h <= 0.0:
-            raise ValueError(f"level sag return_per_h: must be > 0, got "
-                             f"{self.return_per_h!r}")
-        if self.after_h < 0.0:
-            raise ValueError(f"level sag after_h: must be >= 0 h, got {self.after_h!r}")
+        label = "level sag "
+        check_finite_fields(self, label)
+        check_range(self, "pressure_kpa", "(2000, 3000)", "kPa", label)
+        check_range(self, "e_valve_pct", "[0, 100]", "%", label)
+        check_range(self, "drop_max_pct", "[0, 50]", "%", label)
+        check_range(self, "return_per_h", "> 0", label=label)
+        check_range(self, "after_h", ">= 0", "h", label)
 
 
 class LevelSag:

@@ -59,7 +59,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from controller.units.te.settings_check import check_finite_fields
+from controller.units.te.settings_check import check_finite_fields, check_range
 
 __all__ = ["FeedOverrideSettings", "FeedOverrides", "A_FULL_KSCMH", "AC_FULL_KSCMH"]
 
@@ -95,10 +95,8 @@ class FeedOverrideSettings:
 
     def __post_init__(self) -> None:
         check_finite_fields(self)
-        if self.filter_h <= 0:
-            raise ValueError(f"filter_h: must be > 0 h, got {self.filter_h!r}")
-        if not 0.0 < self.min_valve < 100.0:
-            raise ValueError(f"min_valve: must be in (0, 100) %, got {self.min_valve!r}")
+        check_range(self, "filter_h", "> 0", "h")
+        check_range(self, "min_valve", "(0, 100)", "%")
         if not 0.0 < self.lost_ratio < self.restored_ratio <= 1.0:
             raise ValueError(f"lost_ratio/restored_ratio: need 0 < lost < restored <= 1, "
                              f"got {self.lost_ratio}, {self.restored_ratio}")

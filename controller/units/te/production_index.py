@@ -59,7 +59,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from controller.units.te.settings_check import check_finite_fields
+from controller.units.te.settings_check import check_finite_fields, check_range
 from controller.units.te.spec import D_FULL_KG_H
 
 __all__ = ["ProductionIndexSettings", "ProductionIndex"]
@@ -116,20 +116,13 @@ class ProductionIndexSettings:
 
     def __post_init__(self) -> None:
         check_finite_fields(self)
-        if not 2000.0 < self.pressure_target_kpa < 3000.0:
-            raise ValueError(f"pressure_target_kpa: must be in (2000, 3000) kPa (interlock "
-                             f"3000), got {self.pressure_target_kpa!r}")
-        for name in ("gain", "fall_per_h", "rise_per_h", "filter_h", "level_gain", "e_gain",
-                     "e_ti_h", "level_return_per_h"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)!r}")
-        if not 0.0 < self.f_min < 1.0:
-            raise ValueError(f"f_min: must be in (0, 1), got {self.f_min!r}")
-        if not 0.0 <= self.e_trim_max < 1.0:
-            raise ValueError(f"e_trim_max: must be in [0, 1), got {self.e_trim_max!r}")
-        if not 0.0 <= self.level_drop_max <= 60.0:
-            raise ValueError(f"level_drop_max: must be in [0, 60] %, got "
-                             f"{self.level_drop_max!r}")
+        check_range(self, "pressure_target_kpa", "(2000, 3000)", "kPa",
+                    note="interlock 3000")
+        check_range(self, ("gain", "fall_per_h", "rise_per_h", "filter_h", "level_gain",
+                           "e_gain", "e_ti_h", "level_return_per_h"), "> 0")
+        check_range(self, "f_min", "(0, 1)")
+        check_range(self, "e_trim_max", "[0, 1)")
+        check_range(self, "level_drop_max", "[0, 60]", "%")
 
 
 class ProductionIndex:

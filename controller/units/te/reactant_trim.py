@@ -88,7 +88,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from controller.units.te.settings_check import check_finite_fields
+from controller.units.te.settings_check import check_finite_fields, check_range
 from controller.units.te.spec import D_FULL_KG_H
 
 __all__ = ["ReactantTrimSettings", "ReactantTrim"]
@@ -129,17 +129,10 @@ class ReactantTrimSettings:
 
     def __post_init__(self) -> None:
         check_finite_fields(self)
-        if not 0.0 < self.d_limit < 100.0:
-            raise ValueError(f"d_limit: must be in (0, 100) %, got {self.d_limit!r}")
-        for name in ("deadband", "settle_h", "excess_max", "excess_deadband"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)!r}")
-        for name in ("gain", "trim_max"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)!r}")
-        for name in ("trim_max", "excess_max"):
-            if getattr(self, name) > 100.0:
-                raise ValueError(f"{name}: must be <= 100 %, got {getattr(self, name)!r}")
+        check_range(self, "d_limit", "(0, 100)", "%")
+        check_range(self, ("deadband", "settle_h", "excess_max", "excess_deadband"), ">= 0")
+        check_range(self, ("gain", "trim_max"), "> 0")
+        check_range(self, ("trim_max", "excess_max"), "<= 100", "%")
 
 
 class ReactantTrim:

@@ -1,17 +1,24 @@
-"""One check shared by the TE guards' settings dataclasses: every field a finite number.
+"""The checks shared by the TE guards' settings dataclasses: every field a finite number,
+and each field within its range.
 
 The guards (:mod:`controller.units.te.overrides`, :mod:`controller.units.te.production_index`,
 :mod:`controller.units.te.reactant_trim`, :mod:`controller.units.te.level_sag`,
-:mod:`controller.units.te.floating_pressure`) hold only numeric settings; each then checks
-its own ranges.
+:mod:`controller.units.te.floating_pressure`) hold only numeric settings; each names its
+fields' ranges in the notation the error message shows (``"(2000, 3000)"``, ``"[0, 100]"``,
+``"> 0"``, ``">= 0"``), so the range a user reads is the range checked.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import fields
 
-__all__ = ["check_finite_fields"]
+__all__ = ["check_finite_fields", "check_range"]
+
+_NUM = r"[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?"
+_INTERVAL = re.compile(rf"^([(\[])\s*({_NUM})\s*,\s*({_NUM})\s*([)\]])$")
+_BOUND = re.compile(rf"^(>=|>|<=|<)\s*({_NUM})$")
 
 
 def check_finite_fields(settings, label: str = "") -> None:
@@ -28,3 +35,59 @@ def check_finite_fields(settings, label: str = "") -> None:
         v = getattr(settings, f.name)
         if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
             raise ValueError(f"{label}{f.name}: must be a finite number, got {v!r}")
+
+
+def _holds(v: float, interval: str) -> bool:
+    m = _INTERVAL.match(interval)
+    if m:
+        lo, hi = float(m.group(2)), float(m.group(3))
+        above = lo <= v if m.group(1) == "[" else lo < v
+        below = v <= hi if m.group(4) == "]" else v < hi
+        return above and below
+    m = _BOUND.match(interval)
+    if m is None:
+        raise ValueError(f"range {interval!r}: not an interval such as '(0, 1]' or '>= 0'")
+    op, b = m.group(1), float(m.group(2))
+    return {">": v > b, ">=": v >= b, "<": v < b, "<=": v <= b}[op]
+
+
+def check_range(settings, names, interval: str, unit: str = "", label: str = "",
+                note: str = "") -> None:
+    """Raise ``ValueError`` naming the first of ``names`` (fields of ``settings``) whose
+    value is outside ``interval``.
+
+    Parameters
+    ----------
+    settings : dataclass instance
+        Its fields already checked finite (:func:`check_finite_fields`).
+    names : str or sequence of str
+        The fields that share the range.
+    interval : str
+        ``"(lo, hi)"`` with ``(``/``)`` open and ``[``/``]`` closed ends, or one bound,
+        ``"> b"``, ``">= b"``, ``"< b"``, ``"<= b"``; shown as written in the message.
+    unit : str
+        The fields' unit, shown after the range (``"kPa"``, ``"%"``, ``"h"``).
+    label : str
+        Put before the field's name in the message, as in :func:`check_finite_fields`.
+    note : str
+        Shown in brackets after the range and unit (why the range ends where it does).
+
+    Examples
+    --------
+    A field out of its range is named with the range it must be in:
+
+    >>> from dataclasses import dataclass
+    >>> @dataclass
+    ... class S:
+    ...     p: float = 3100.0
+    >>> check_range(S(), "p", "(2000, 3000)", "kPa", note="interlock 3000")
+    Traceback (most recent call last):
+    ...
+    ValueError: p: must be in (2000, 3000) kPa (interlock 3000), got 3100.0
+    """
+    kind = "" if interval[:1] in "<>" else "in "
+    tail = (f" {unit}" if unit else "") + (f" ({note})" if note else "")
+    for name in (names,) if isinstance(names, str) else names:
+        v = getattr(settings, name)
+        if not _holds(float(v), interval):
+            raise ValueError(f"{label}{name}: must be {kind}{interval}{tail}, got {v!r}")
