@@ -103,7 +103,7 @@ def _float_alarms(dec) -> list[str]:
 
 def test_the_float_raises_an_alarm_that_stands_through_short_pauses():
     # the operator sees the guard act (the alarm reaches the service's status, its event
-    # log and telemetry); it stands FLOAT_ALARM_HOLD_H after the last raise, so a guard
+    # log and telemetry); it stands ALARM_HOLD_H after the last raise, so a guard
     # acting sample on, sample off does not raise and clear the alarm every minute
     ctl, _ = make_te_controller("plan", TransitionPlan("mode2"))
     plan_c = float(grade("mode2").xmeas[30])
@@ -134,11 +134,11 @@ def test_the_floats_alarm_survives_a_restart():
     again.restore(state)
     assert _float_alarms(again.step(1, 1.01, _sample(2790.0, plan_c + 2.0)))
     # a checkpoint from before the alarm, or a damaged one: no alarm, no error
-    for bad in ({}, {"float_alarm_h": math.nan, "float_alarm": "x"},
-                {"float_alarm_h": 0.3, "float_alarm": 7}):
+    for bad in (None, {"left_h": math.nan, "text": "x"}, {"left_h": 0.3, "text": 7},
+                {"left_h": True, "text": "x"}, "garbage"):
         other, _ = make_te_controller("plan", TransitionPlan("mode2"))
-        other.restore({**state, **bad} if bad else
-                      {k: v for k, v in state.items() if not k.startswith("float_alarm")})
+        other.restore({**state, "float_alarm": bad} if bad is not None else
+                      {k: v for k, v in state.items() if k != "float_alarm"})
         assert _float_alarms(other.step(1, 1.01, _sample(2790.0, plan_c + 2.0))) == []
 
 

@@ -9,7 +9,13 @@ import json
 import numpy as np
 import pytest
 
-from controller.units.te.control import TransitionGuards, make_te_controller, plant_seed_for, run_te
+from controller.units.te.control import (
+    GUARDS_MPC,
+    TransitionGuards,
+    make_te_controller,
+    plant_seed_for,
+    run_te,
+)
 from controller.units.te.grades import Leg, TransitionPlan, grade
 
 INTERLOCK_KPA = 3000.0
@@ -33,7 +39,13 @@ INTERLOCK_KPA = 3000.0
                                        ({"a_loop_hold_falling_h": -1.0},
                                         "a_loop_hold_falling_h"),
                                        ({"hold_start_kpa": 2950.0, "hold_full_kpa": 2900.0},
-                                        "hold_start_kpa/hold_full_kpa")])
+                                        "hold_start_kpa/hold_full_kpa"),
+                                       ({"a_rise_hold_kpa": 3000.0}, "a_rise_hold_kpa"),
+                                       ({"a_rise_hold_kpa": float("nan")}, "a_rise_hold_kpa"),
+                                       ({"a_rise_hold_c_short_mol": -0.5},
+                                        "a_rise_hold_c_short_mol"),
+                                       ({"a_rise_hold_c_short_mol": True},
+                                        "a_rise_hold_c_short_mol")])
 def test_bad_guards_name_their_field(kw, field):
     with pytest.raises(ValueError, match=field):
         TransitionGuards(**kw)
@@ -136,6 +148,63 @@ def test_at_a_steady_grade_the_a_loop_corrects_faster_than_through_a_change():
     assert through > 0.0
     assert _a_trim(TransitionPlan("mode0"), 0, 2.0) > 1.5 * through
     assert _a_trim(change, 0, 13.5) > 1.5 * through
+
+
+def _a_trim_at(pressure: float, c_short: float, **guards) -> tuple[float, list[str]]:
+    """The A loop's trim and the last sample's alarms after 10 samples at mode 2 with A
+    in the reactor feed 3 mol % under the grade's, the reactor pressure ``pressure`` and
+    C in the purge ``c_short`` mol % under the grade's."""
+    ctl, _ = make_te_controller("ssmpc", TransitionPlan("mode2"),
+                                guards=TransitionGuards(**guards))
+    x = _xmeas(2, pressure)
+    x[22] -= 3.0
+    x[30] -= c_short
+    for k in range(10):
+        dec = ctl.step(k, 1.0 + k * ctl.sample_h, x, None)
+        ctl.finish_sample()
+    return ctl.a_trim, list(dec.alarms)
+
+
+def test_a_high_pressure_with_c_short_holds_the_a_loops_rise():
+    # A falls in the reactor feed with C (the kinetics' drift leaves E unreacted): the
+    # A loop may not add A while the pressure is near the MPC's limit
+    free, alarms = _a_trim_at(2800.0, 2.0)
+    assert free > 0.0 and not any("trim held" in a for a in alarms)
+    held, alarms = _a_trim_at(2870.0, 2.0)
+    assert held == 0.0
+    assert any("A feed's trim held from rising: reactor pressure 2870 kPa" in a
+               for a in alarms)
+    # C at the plan's: the A is short, not diluted, and the loop acts (IDV(1))
+    assert _a_trim_at(2870.0, 0.0)[0] > 0.0
+    assert _a_trim_at(2870.0, 2.0, a_rise_hold_kpa=None)[0] > 0.0  # the guard off
+
+
+def test_the_a_loop_may_still_lower_its_trim_under_the_hold():
+    ctl, _ = make_te_controller("ssmpc", TransitionPlan("mode2"))
+    x = _xmeas(2, 2870.0)
+    x[30] -= 2.0
+    x[22] += 3.0  # A in excess: the loop lowers the A feed
+    for k in range(10):
+        ctl.step(k, 1.0 + k * ctl.sample_h, x, None)
+        ctl.finish_sample()
+    assert ctl.a_trim < 0.0
+
+
+def test_a_kinetics_drift_at_mode_2_does_not_trip_on_the_a_loops_added_a():
+    # IDV(13) at mode 2, seed 17: the A loop raised the A feed from 30 to 80 % over 3 h
+    # while C in the purge fell 14.6 -> 2.2 mol %, and the plant tripped on reactor
+    # pressure at 9.3 h; with the rise held it runs on (48 h on seeds 1-80: no trip)
+    runs = {}
+    for name, kw in (("held", {}), ("free", {"a_rise_hold_kpa": None})):
+        guards = TransitionGuards(**{**GUARDS_MPC.__dict__, **kw})
+        runs[name] = run_te("ssmpc", TransitionPlan("mode2"), 10.0, noise=True, seed=17,
+                            plant_seed=plant_seed_for(17), idv={13: 2.0}, guards=guards)
+    assert runs["free"].shutdown is not None  # the case as it was
+    held = runs["held"]
+    assert held.shutdown is None, held.shutdown
+    assert held.xmeas[:, 6].max() < 2950.0
+    assert held.xmv[:, 2].max() < runs["free"].xmv[:, 2].max() - 10.0  # less A added
+    assert any("trim held from rising" in a for a in held.alarms)
 
 
 def test_no_hold_without_a_leg_under_way():

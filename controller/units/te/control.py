@@ -58,6 +58,9 @@ Layers (seed Fig. 7.2)
          point follows a falling level (:mod:`controller.units.te.level_sag`), and
          while C is in excess in the recycle gas P_r* follows a rising pressure up to
          2850 kPa, with an alarm (:mod:`controller.units.te.floating_pressure`);
+         MPC strategies, while the pressure is near the MPC's limit and C is short in
+         the recycle gas, the A-in-feed loop may not raise the A feed (a diluted A, not
+         a short one: :class:`TransitionGuards` ``a_rise_hold_kpa``), with an alarm;
        - MPC strategies: the input targets and CV references pass through the
          steady-state targets of the active model
          (:mod:`controller.units.te.targets`): the plan's values as they stand while
@@ -174,6 +177,7 @@ from controller.units.te.floating_pressure import (
     floating_pressure_floor,
 )
 from controller.units.te.grades import TransitionPlan, limit_margins
+from controller.units.te.held_alarm import HeldAlarm
 from controller.units.te.level_sag import LevelSag, LevelSagSettings
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
 from controller.units.te.models import MODEL_GRADES, MPC_ORDER
@@ -381,12 +385,6 @@ RATIO_PATH_WINDOW_MOL = 3.0
 #: The offline run's alarm log keeps this many raises (:attr:`TERun.alarms`).
 RUN_ALARM_LOG_MAX = 200
 
-#: The floating pressure's alarm stands this long after the guard last raised P_r*, h
-#: (an alarm hold: at mode 0 under IDV(1), seed 1, the guard acts in runs of a sample or
-#: two, 14 of its 19 pauses shorter than 0.25 h; with the hold the alarm is raised 5
-#: times in 48 h, and 6 under IDV(8) at mode 2, against 20 and 7 raises without it).
-FLOAT_ALARM_HOLD_H = 0.5
-
 #: The plan-hold alarm clears this far below the hold's start pressure, kPa (an alarm
 #: deadband: a pressure noisy about the start would raise and clear it every sample).
 HOLD_ALARM_DEADBAND_KPA = 10.0
@@ -505,6 +503,32 @@ class TransitionGuards:
         kscmh against the grade's 0.211), and when the drifting kinetics raised the
         pressure again the plant tripped at 35.3 h (the purge back at 80 %, C in the
         purge at 0.2 mol %). None: no floor.
+    a_rise_hold_kpa : float or None
+        MPC strategies: while the reactor pressure (XMEAS 7) is at or above this and C
+        in the purge (XMEAS 31) stands :attr:`a_rise_hold_c_short_mol` or more under
+        the plan's, the outer A-in-feed loop (:data:`A_FEED_LOOP_STEADY`) may lower its
+        trim of the A feed's target but not raise it, with an alarm. A fall of A in the
+        reactor feed then is dilution, not a shortage: the kinetics' drift (IDV(13))
+        leaves E unreacted, and A and C fall in the recycle together. The loop raised
+        the A feed against it (seed 17 at mode 2: 30 -> 80 % over 3 h, C in the purge
+        14.6 -> 2.2 mol %), the added gas took the pressure to the interlock. None: no
+        hold. Measured (``ssmpc``, IDV(13) from 2 h, noise on, 48 h): at mode 2 on seeds
+        1-80 the trips 5 -> 0 (seeds 17, 25, 51, 60, 73 at 9.3-44.8 h; peak 2899 kPa;
+        mean cost 223.3 $/h over the 75 runs that held, 222.6 over the 80), at mode 1
+        on seeds 1-40 1 -> 0 (seed 32 at 34.1 h; peak 2892 kPa), at modes 0 and 3 on
+        seeds 1-40 none either way; the
+        other disturbance cases at modes 0, 2 and 3 (seeds 1-3) within 0.4 $/h and
+        0.005 mol % of G's deviation, but IDV(13) at mode 2, whose G deviation on seeds
+        1-3 rose 0.842 -> 1.005 mol %. ``fixed`` trips IDV(13) at mode 2 on 28 of the
+        80 seeds without the hold and 25 with it: its trips are its models'. Measured,
+        not taken: the A loop off (no trip of IDV(13), but IDV(1) at modes 0 and 2 and
+        IDV(8) at mode 3 trip); the rise held on C alone (C under the plan's, at any
+        pressure: no trip, but the cost at mode 0 up by 2-12 $/h in every case); from
+        2850 kPa with C at the plan's or under (no trip; IDV(8) at mode 0 154.5 ->
+        158.7 $/h); on E in the reactor feed 2 mol % above the plan's instead of C
+        (21 of the 80 seeds trip).
+    a_rise_hold_c_short_mol : float
+        See ``a_rise_hold_kpa``, mol % (>= 0).
     purge_floor_after_h : float
         Hours after a grade change from which the purge's floor holds (>= 0; a run
         without a change: from the start). Into mode 3 the plant closes the purge for
@@ -525,6 +549,8 @@ class TransitionGuards:
     a_loop_hold_falling_h: float = 8.0
     purge_floor_fraction: float | None = 0.25
     purge_floor_after_h: float = 24.0
+    a_rise_hold_kpa: float | None = 2860.0
+    a_rise_hold_c_short_mol: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("e_feed_margin", "e_feed_margin_held"):
@@ -553,6 +579,16 @@ class TransitionGuards:
         if not self.hold_start_kpa < self.hold_full_kpa:
             raise ValueError(f"hold_start_kpa/hold_full_kpa: need start < full, got "
                              f"{self.hold_start_kpa}, {self.hold_full_kpa}")
+        v = self.a_rise_hold_kpa
+        if v is not None and not (isinstance(v, int | float) and not isinstance(v, bool)
+                                  and math.isfinite(v) and 2000.0 < v < 3000.0):
+            raise ValueError(f"a_rise_hold_kpa: must be in (2000, 3000) kPa or None, "
+                             f"got {v!r}")
+        v = self.a_rise_hold_c_short_mol
+        if isinstance(v, bool) or not (isinstance(v, int | float) and math.isfinite(v)
+                                       and v >= 0.0):
+            raise ValueError(f"a_rise_hold_c_short_mol: must be finite and >= 0 mol %, "
+                             f"got {v!r}")
 
     def hold_fraction(self, pressure_kpa: float) -> float:
         """The share of the plan's clock held at this reactor pressure, in [0, 1]
@@ -657,10 +693,10 @@ class TEController:
         self.floating_pressure = floating_pressure or FloatingPressureSettings()
         #: the floating pressure raised P_r* this sample (status)
         self.pressure_floats = False
-        #: h the floating pressure's alarm still stands (it raised P_r* within
-        #: :data:`FLOAT_ALARM_HOLD_H`), and what it last raised it to
-        self._float_alarm_h = 0.0
-        self._float_alarm: str | None = None
+        #: the floating pressure's and the A loop's rise hold's alarms
+        #: (:mod:`controller.units.te.held_alarm`)
+        self.float_alarm = HeldAlarm(self.sample_h)
+        self.a_rise_alarm = HeldAlarm(self.sample_h)
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
                        if strategy in MPC_STRATEGIES else None)
@@ -793,9 +829,28 @@ class TEController:
             held = (A_FEED_LOOP.cv in self.outer_held or self.feeds.a_lost
                     or self._a_loop_held_by_change(since))
             lp = A_FEED_LOOP_STEADY if since >= A_LOOP_STEADY_AFTER_H else A_FEED_LOOP
+            before = self._a.value
             self._a.step(float(ym[A_FEED_LOOP.cv - 1]) - y, lp.gain, lp.ti_h, self.sample_h,
                          held)
+            if self._a.value > before and self._a_rise_held(ym, xmeas):
+                self._a.value = before
+                self.a_rise_alarm.act(
+                    f"A feed's trim held from rising: reactor pressure {float(xmeas[6]):.0f}"
+                    f" kPa, C in the purge {float(xmeas[30]):.1f} mol % against the plan's "
+                    f"{float(ym[30]):.1f} (A in the reactor feed diluted, not short)")
+                return self._a.value
+        self.a_rise_alarm.idle()
         return self._a.value
+
+    def _a_rise_held(self, ym: Sequence[float], xmeas: Sequence[float]) -> bool:
+        """Whether the A loop may not raise its trim now (:class:`TransitionGuards`
+        ``a_rise_hold_kpa``): a high pressure with C short in the recycle gas. A
+        measurement that is not finite does not hold it."""
+        g = self.guards
+        if g.a_rise_hold_kpa is None:
+            return False
+        p, c, c_ref = float(xmeas[6]), float(xmeas[30]), float(ym[30])
+        return p >= g.a_rise_hold_kpa and c <= c_ref - g.a_rise_hold_c_short_mol
 
     def _separator_trim_step(self, xmeas: Sequence[float], reference: float) -> float:
         """Separator temperature (XMEAS 11) -> the condenser's input target (XMV 11) at
@@ -864,14 +919,13 @@ class TEController:
         p_r = float(core_u[2])
         self.pressure_floats = floor is not None and p_r < floor
         if self.pressure_floats:
-            self._float_alarm_h = FLOAT_ALARM_HOLD_H
-            self._float_alarm = (
+            self.float_alarm.act(
                 f"reactor pressure set point floats at {floor:.0f} kPa (the core's "
                 f"{p_r:.0f}): C in the purge {float(xmeas[30]):.1f} mol % against the "
                 f"plan's {c_purge_ref:.1f}; the excess is left to the feeds, not purged")
             p_r = floor
         else:
-            self._float_alarm_h = max(self._float_alarm_h - self.sample_h, 0.0)
+            self.float_alarm.idle()
         g = self.guards
         margin = g.purge_track_kpa
         if g.purge_track_lift_kpa is not None and self.targets is not None \
@@ -1104,8 +1158,8 @@ class TEController:
         if self.feeds.active:
             alarms.extend(self.feeds.alarms())
         self._hold_step(t_ref, xm, alarms)
-        if self._float_alarm_h > 0.0 and self._float_alarm is not None:
-            alarms.append(self._float_alarm)
+        alarms.extend(self.float_alarm.alarms())
+        alarms.extend(self.a_rise_alarm.alarms())
         level_sp = self.level_sag.update(float(xm[6]), float(xm[7]),
                                          self.production.level_setpoint(yl[7]),
                                          float(u[1]), self._since)
@@ -1163,7 +1217,8 @@ class TEController:
                 "n_samples": self.n_samples,
                 "t_last": self._t_last, "plan_lag_h": self.plan_lag_h,
                 "track_bound_h": self._track_bound_h,
-                "float_alarm_h": self._float_alarm_h, "float_alarm": self._float_alarm,
+                "float_alarm": self.float_alarm.checkpoint(),
+                "a_rise_alarm": self.a_rise_alarm.checkpoint(),
                 "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
                 "reactants": self.reactants.checkpoint(),
                 "level_sag": self.level_sag.checkpoint(),
@@ -1184,10 +1239,8 @@ class TEController:
         bound = state.get("track_bound_h", 0.0)  # absent: a checkpoint from before it
         self._track_bound_h = float(bound) if isinstance(bound, int | float) \
             and math.isfinite(bound) and bound >= 0.0 else 0.0
-        hold, text = state.get("float_alarm_h", 0.0), state.get("float_alarm")
-        ok = isinstance(hold, int | float) and math.isfinite(hold) and isinstance(text, str)
-        self._float_alarm_h = min(max(float(hold), 0.0), FLOAT_ALARM_HOLD_H) if ok else 0.0
-        self._float_alarm = text if ok else None
+        self.float_alarm.restore(state.get("float_alarm"))
+        self.a_rise_alarm.restore(state.get("a_rise_alarm"))
         for trim, key in ((self._a, "a"), (self._p, "p"), (self._sep, "sep")):
             trim.value = float(state.get(f"{key}_trim", 0.0))
             trim.e_prev = state.get(f"e_{key}_prev")
