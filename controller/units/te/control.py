@@ -529,6 +529,12 @@ class TransitionGuards:
         (21 of the 80 seeds trip).
     a_rise_hold_c_short_mol : float
         See ``a_rise_hold_kpa``, mol % (>= 0).
+    a_rise_hold_after_h : float
+        Hours after a grade change from which the rise hold acts (>= 0; a run without
+        a change: from the start). Through a leg the plan's C reference moves ahead of
+        the plant's C, and a hold from the change on slowed the legs out of mode 3,
+        whose early A the loop supplies: 3 -> 0 11.1 -> 13.0 h (3076 -> 3677 $), 3 -> 2
+        11.3 -> 12.7 h (medians of seeds 1-3).
     purge_floor_after_h : float
         Hours after a grade change from which the purge's floor holds (>= 0; a run
         without a change: from the start). Into mode 3 the plant closes the purge for
@@ -551,6 +557,7 @@ class TransitionGuards:
     purge_floor_after_h: float = 24.0
     a_rise_hold_kpa: float | None = 2860.0
     a_rise_hold_c_short_mol: float = 1.0
+    a_rise_hold_after_h: float = 24.0
 
     def __post_init__(self) -> None:
         for name in ("e_feed_margin", "e_feed_margin_held"):
@@ -568,7 +575,8 @@ class TransitionGuards:
         if v is not None and not (isinstance(v, int | float) and math.isfinite(v)
                                   and 0.0 <= v < 1.0):
             raise ValueError(f"purge_floor_fraction: must be in [0, 1) or None, got {v!r}")
-        for name in ("a_loop_hold_h", "a_loop_hold_falling_h", "purge_floor_after_h"):
+        for name in ("a_loop_hold_h", "a_loop_hold_falling_h", "purge_floor_after_h",
+                     "a_rise_hold_after_h"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"{name}: must be finite and >= 0 h, got {v!r}")
@@ -847,7 +855,7 @@ class TEController:
         ``a_rise_hold_kpa``): a high pressure with C short in the recycle gas. A
         measurement that is not finite does not hold it."""
         g = self.guards
-        if g.a_rise_hold_kpa is None:
+        if g.a_rise_hold_kpa is None or self._since < g.a_rise_hold_after_h:
             return False
         p, c, c_ref = float(xmeas[6]), float(xmeas[30]), float(ym[30])
         return p >= g.a_rise_hold_kpa and c <= c_ref - g.a_rise_hold_c_short_mol
