@@ -526,7 +526,9 @@ class TransitionGuards:
         pressure: no trip, but the cost at mode 0 up by 2-12 $/h in every case); from
         2850 kPa with C at the plan's or under (no trip; IDV(8) at mode 0 154.5 ->
         158.7 $/h); on E in the reactor feed 2 mol % above the plan's instead of C
-        (21 of the 80 seeds trip).
+        (21 of the 80 seeds trip); from 2800 or 2700 kPa with C 1 mol % short (IDV(13) at
+        mode 2 220.1 and 219.6 $/h on seeds 1-40 against 221.5, but IDV(8) at mode 0
+        154.9 -> 168.1 and 171.6, IDV(12) at mode 0 137.0 -> 148.4 and 148.6, seeds 1-3).
     a_rise_hold_c_short_mol : float
         See ``a_rise_hold_kpa``, mol % (>= 0).
     a_rise_hold_after_h : float
