@@ -12,8 +12,9 @@ part of a name (XMEAS7, IDV(6)'s 6 inside a word) is kept.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 
-__all__ = ["alarm_key"]
+__all__ = ["alarm_key", "keyed_alarms"]
 
 #: A number standing alone (not part of a name such as XMEAS7): masked in alarm keys.
 _NUMBER = re.compile(r"(?<![A-Za-z0-9_.])[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?")
@@ -28,3 +29,17 @@ def alarm_key(text: str) -> str:
     'XMEAS7 high'
     """
     return _NUMBER.sub("#", text)
+
+
+def keyed_alarms(texts: Iterable[str]) -> dict[str, str]:
+    """One sample's alarms by key (:func:`alarm_key`), each with the first text that has
+    it: a log compares these keys with the last sample's to find what was raised or
+    cleared.
+
+    >>> keyed_alarms(["P 2901 kPa high", "P 2903 kPa high", "level low"])
+    {'P # kPa high': 'P 2901 kPa high', 'level low': 'level low'}
+    """
+    out: dict[str, str] = {}
+    for text in texts:
+        out.setdefault(alarm_key(text), text)
+    return out

@@ -56,7 +56,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from controller.alarms import alarm_key
+from controller.alarms import alarm_key, keyed_alarms
 
 __all__ = ["Event", "AlarmTracker", "SYSTEM_IDENTITY", "UNIDENTIFIED", "ALARM_RAISED",
            "ALARM_CLEARED", "now_us", "iso_utc", "parse_since_us", "identity_of",
@@ -216,9 +216,7 @@ class AlarmTracker:
         distinct. Cheap when nothing is or was in alarm."""
         if not alarms and not self.active:
             return []
-        now: dict[str, str] = {}
-        for text in alarms:
-            now.setdefault(alarm_key(text), text)
+        now = keyed_alarms(alarms)
         if now.keys() == self.active.keys():
             return []
         out = []

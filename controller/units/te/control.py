@@ -167,7 +167,7 @@ from typing import Any
 
 import numpy as np
 
-from controller.alarms import alarm_key
+from controller.alarms import keyed_alarms
 from controller.blas import single_threaded
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.units.te.cost_gradient import cost_gradient
@@ -520,15 +520,14 @@ class TransitionGuards:
         (seeds 1-3) within 0.5 $/h and 0.005 mol % of G's deviation, but IDV(13) at mode
         2, whose G deviation on seeds 1-3 rose 0.842 -> 1.005 mol %. ``fixed`` trips
         IDV(13) at mode 2 on 28 of the 80 seeds without the hold and 25 with it: its
-        trips are its models'. Measured,
-        not taken: the A loop off (no trip of IDV(13), but IDV(1) at modes 0 and 2 and
-        IDV(8) at mode 3 trip); the rise held on C alone (C under the plan's, at any
-        pressure: no trip, but the cost at mode 0 up by 2-12 $/h in every case); from
-        2850 kPa with C at the plan's or under (no trip; IDV(8) at mode 0 154.5 ->
-        158.7 $/h); on E in the reactor feed 2 mol % above the plan's instead of C
+        trips are its models'. Measured, not taken: the A loop off (no trip of IDV(13), but
+        IDV(1) at modes 0 and 2 and IDV(8) at mode 3 trip); the rise held on C alone (C
+        under the plan's, at any pressure: no trip, but the cost at mode 0 up by 2-12 $/h in
+        every case); from 2850 kPa with C at the plan's or under (no trip; IDV(8) at mode 0
+        154.5 -> 158.7 $/h); on E in the reactor feed 2 mol % above the plan's instead of C
         (21 of the 80 seeds trip); from 2800 or 2700 kPa with C 1 mol % short (IDV(13) at
-        mode 2 220.1 and 219.6 $/h on seeds 1-40 against 221.5, but IDV(8) at mode 0
-        154.9 -> 168.1 and 171.6, IDV(12) at mode 0 137.0 -> 148.4 and 148.6, seeds 1-3).
+        mode 2 220.1 and 219.6 $/h on seeds 1-40 against 221.5, but IDV(8) at mode 0 154.9
+        -> 168.1 and 171.6, IDV(12) at mode 0 137.0 -> 148.4 and 148.6, seeds 1-3).
     a_rise_hold_c_short_mol : float
         See ``a_rise_hold_kpa``, mol % (>= 0).
     a_rise_hold_after_h : float
@@ -1671,7 +1670,7 @@ class TERun:
     alarms : tuple of str
         The alarm log, ``"t=<h> h: <text>"``: each alarm when it is raised, with the
         text of that sample (an alarm standing over samples is logged once, again when
-        raised after it cleared; :func:`controller.alarms.alarm_key`), the first
+        raised after it cleared; :func:`controller.alarms.keyed_alarms`), the first
         :data:`RUN_ALARM_LOG_MAX`.
     """
 
@@ -1765,7 +1764,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     slack = np.full(n, np.nan)
     rms: np.ndarray | None = None
     alarms: list[str] = []  # each alarm as it is raised (a standing alarm once)
-    keys = {}.keys()  # the keys of the alarms standing after the last sample
+    standing: dict[str, str] = {}  # the last sample's alarms by key
     fallbacks = 0
     names: tuple[str, ...] = ()
     w0 = time.perf_counter()
@@ -1797,12 +1796,12 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
             rms[k] = r_k
         names = names or dec.model_names
         fallbacks += int(dec.fallback)
-        if dec.alarms or keys:
-            now = {alarm_key(a): a for a in dec.alarms}
+        if dec.alarms or standing:
+            now = keyed_alarms(dec.alarms)
             for key, a in now.items():
-                if key not in keys and len(alarms) < RUN_ALARM_LOG_MAX:
+                if key not in standing and len(alarms) < RUN_ALARM_LOG_MAX:
                     alarms.append(f"t={t:.2f} h: {a}")
-            keys = now.keys()
+            standing = now
         reg.run_steps(spec.sample_steps, stop_on_trip=stop_on_trip)
         if stop_on_trip and sim.shutdown is not None:
             break
