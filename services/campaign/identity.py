@@ -6,7 +6,9 @@ plant side's inner loops and the loops the core's models close
 (:mod:`controller.units.te.loops`), the MPC tuning
 (:class:`controller.units.te.control.TEMPCOptions`), the ratio loop
 (:class:`~controller.units.te.control.RatioSettings`), the separator-temperature loop
-(:data:`~controller.units.te.control.SEPARATOR_LOOP`), the transition guards
+(:data:`~controller.units.te.control.SEPARATOR_LOOP`), the production loop on the
+condenser (:data:`~controller.units.te.control.PRODUCTION_CONDENSER_LOOP`), the
+transition guards
 (:class:`~controller.units.te.control.TransitionGuards`), the guards' own settings
 (feed overrides, production index, level sag, floating pressure), the steady-state
 targets' limits and the grade references' time constants; for a unit plant its
@@ -36,7 +38,10 @@ RUN_FORMAT = "campaign-run-3"
 def _settings_json(unit: str) -> str:
     if unit == "te":
         from controller.units.te.control import (
+            CONDENSER_TRIM_WASHOUT_H,
             GUARDS_MPC,
+            PRODUCTION_CONDENSER_LOOP,
+            PRODUCTION_CONDENSER_TRIM_LIMITS,
             RATIO_MPC,
             SAMPLE_H,
             SEP_TRIM_LIMITS,
@@ -71,7 +76,11 @@ def _settings_json(unit: str) -> str:
              "floating_pressure": asdict(FloatingPressureSettings()),
              "core_targets": asdict(CoreTargetSettings()),
              "separator_loop": {**asdict(SEPARATOR_LOOP), "trim": list(SEP_TRIM_LIMITS),
-                                "after_h": SEPARATOR_LOOP_STEADY_AFTER_H}}
+                                "after_h": SEPARATOR_LOOP_STEADY_AFTER_H},
+             "production_condenser_loop": {
+                 **asdict(PRODUCTION_CONDENSER_LOOP),
+                 "trim": list(PRODUCTION_CONDENSER_TRIM_LIMITS),
+                 "washout_h": CONDENSER_TRIM_WASHOUT_H}}
     else:
         from services.registry import get_unit
 

@@ -44,7 +44,8 @@ Layers (seed Fig. 7.2)
          reactor level's set point) D feeds lowered together on the reactor pressure,
          with an alarm;
        - MPC strategies at a steady grade, the separator temperature (XMEAS 11)
-         opens the condenser's input target (XMV 11, :data:`SEPARATOR_LOOP`);
+         opens the condenser's input target (XMV 11, :data:`SEPARATOR_LOOP`) and the
+         product flow (XMEAS 17) trims it (:data:`PRODUCTION_CONDENSER_LOOP`);
        - MPC strategies, the reactant trim (:mod:`controller.units.te.reactant_trim`):
          at a steady grade, A+C short in the reactor feed with the D feed at its limit
          raises the A+C feed's target, A+C in excess lowers it, with an alarm;
@@ -268,12 +269,41 @@ SEPARATOR_LOOP_STEADY_AFTER_H = 24.0
 #: (206.8), and IDV(6) at mode 2 tripped on seed 3 at 47.9 h against no trip; the mean
 #: of the 40 cases at modes 0 and 2 183.7 against 181.5 (186.9).
 SEP_TRIM_LIMITS = (0.0, 20.0)
+#: MPC strategies at a steady grade: the product flow (XMEAS 17) trims the condenser's
+#: input target (XMV 11) as well, on top of :data:`SEPARATOR_LOOP`'s trim. The pairing
+#: is the decentralized structure's production loop (``temain_mod.f`` loop 11,
+#: :data:`controller.units.te.published_loops.TEMAIN_MOD_LOOPS`: 1.09 % per % of its
+#: 46 m3/h span, i.e. 2.37 %/(m3/h), reset 2600 s); here 3 %/(m3/h) with its 0.72 h
+#: integral time, and a washout (:data:`CONDENSER_TRIM_WASHOUT_H`). More condenser
+#: cooling condenses more in the separator and sends it to the stripper within
+#: minutes, where the A+C feed (:data:`PRODUCTION_LOOP`) takes hours through the
+#: reactor. What it does: a disturbance on the condenser's side (IDV(12), its cooling
+#: water's inlet temperature; IDV(18), its heat transfer) or on the reactor's effluent
+#: (IDV(20)) moves the production first, the loop answers it there, and the reactor
+#: level's D feed, with the E valve the ratio ties to it, is left alone; at mode 2,
+#: where that E valve runs near its range, that is what G's deviation follows (see
+#: :class:`TEController` ``production_condenser_loop`` for the measured effect).
+PRODUCTION_CONDENSER_LOOP = PILoopSpec("production -> condenser target (steady grade)",
+                                       cv=17, output=4, gain=3.0, ti_h=0.72)
+#: Washout of :data:`PRODUCTION_CONDENSER_LOOP`'s trim, h: the trim decays toward 0
+#: (:class:`~controller.units.te.velocity_trim.VelocityTrim`), so the loop answers the
+#: production's variation over hours and leaves its mean to the A+C feed's loop and
+#: the condenser's steady value to the steady-state targets' economics. Without it
+#: (a plain PI, the two loops integrating the same error) the condenser's trim drifted
+#: where the production's error left it and undid the economics: IDV(17) at mode 0
+#: 135.7 -> 148.0 $/h, IDV(12) 137.0 -> 147.0 (ssmpc, seeds 1-3, 48 h; 2 h: 137.6,
+#: 137.5).
+CONDENSER_TRIM_WASHOUT_H = 2.0
+#: Range (%) of :data:`PRODUCTION_CONDENSER_LOOP`'s trim of the condenser's target.
+PRODUCTION_CONDENSER_TRIM_LIMITS = (-20.0, 20.0)
 
 __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec",
            "TEController", "make_te_controller", "make_mpc_core", "TEMPCOptions", "TERun",
            "run_te", "plant_seed_for", "RatioSettings", "RATIO_MPC", "TransitionGuards",
            "GUARDS_MPC",
            "SEPARATOR_LOOP", "SEPARATOR_LOOP_STEADY_AFTER_H", "SEP_TRIM_LIMITS",
+           "PRODUCTION_CONDENSER_LOOP", "CONDENSER_TRIM_WASHOUT_H",
+           "PRODUCTION_CONDENSER_TRIM_LIMITS",
            "TR_LIMITS",
            "PR_LIMITS",
            "PRESSURE_LOOP", "ALARM_LIMITS"]
@@ -661,6 +691,40 @@ class TEController:
         2 220.9 -> 224.7, IDV(1) at mode 2 209.0 -> 211.6; the mean of the 40 cases
         at modes 0 and 2 186.9 -> 181.5 $/h; IDV 1-20 at mode 3 within 0.2 $/h, no
         trip anywhere.
+    production_condenser_loop : bool
+        MPC strategies: let the product flow trim the condenser's input target at a
+        steady grade as well (:data:`PRODUCTION_CONDENSER_LOOP`, washed out over
+        :data:`CONDENSER_TRIM_WASHOUT_H`; added to the separator loop's trim).
+        Measured (ssmpc, noise on, seeds 1-3, 48 h, onset 2 h; G's standard
+        deviation mol % and run-mean $/h without -> with it, the decentralized
+        structure's in brackets):
+
+        ==========  ===========================  ===========================
+        case        G std, mol %                 cost, $/h
+        ==========  ===========================  ===========================
+        IDV(12) @2  0.864 -> 0.520 (0.521)       182.8 -> 181.3 (181.5)
+        IDV(18) @2  1.030 -> 0.550 (0.522)       182.8 -> 181.4 (181.4)
+        IDV(20) @2  0.664 -> 0.539 (0.523)       178.9 -> 181.0 (181.3)
+        IDV(13) @2  1.005 -> 0.964               225.6 -> 222.0
+        IDV(12) @0  0.652 -> 0.563 (0.586)       137.0 -> 134.2 (171.2)
+        IDV(20) @0  0.558 -> 0.527 (0.510)       149.2 -> 149.6 (170.7)
+        IDV(8) @0   0.571 -> 0.551 (0.529)       154.9 -> 150.8 (174.6)
+        IDV(1) @2   0.519 -> 0.647 (0.516)       180.7 -> 182.6 (176.1)
+        IDV(1) @0   0.528 -> 0.532 (0.508)       153.1 -> 157.4 (166.0)
+        IDV(13) @0  0.718 -> 0.780 (0.824)       162.0 -> 160.5 (171.3)
+        ==========  ===========================  ===========================
+
+        Under IDV(1) at mode 2 the reactant trim cuts the A+C feed on the C that
+        gathers and the production falls by design; the loop opens the condenser
+        against it, the separator cools by 3 degC, the reactor level falls 5 % and
+        the E valve clips (seed 1, 4-6 h: G 13.8 mol %). Holding the loop while the
+        reactant trim cuts took that case to 0.514 mol % and 177.9 $/h but IDV(18)
+        at mode 2 to 0.73 mol % and 203 $/h (peak 2893 kPa); holding it above 2850
+        kPa took IDV(8) at mode 2 to 0.87 mol %: not taken. The loop alone, without
+        the separator loop: IDV(8) at mode 0 0.533 mol %, but IDV(5) at mode 0
+        152.6 $/h (with both 139.3) and every mode-0 case about 2 $/h dearer. A
+        plain proportional loop (no integral): IDV(8) at mode 2 0.550 mol %; gains
+        of 5 %/(m3/h) and more oscillate (production's deviation 3-8 %).
     guards : TransitionGuards, optional
         The E-feed limit, the plan hold and the pressure set point's tracking
         (default :class:`TransitionGuards`).
@@ -684,7 +748,8 @@ class TEController:
                  separator_loop: bool = True,
                  d_share_path: DSharePathSettings | None = None,
                  level_sag: LevelSagSettings | None = None,
-                 floating_pressure: FloatingPressureSettings | None = None) -> None:
+                 floating_pressure: FloatingPressureSettings | None = None,
+                 production_condenser_loop: bool = True) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -724,8 +789,12 @@ class TEController:
         self._a = VelocityTrim(-A_TRIM_MAX, A_TRIM_MAX)
         self._p = VelocityTrim(-P_TRIM_MAX, P_TRIM_MAX)
         self._sep = VelocityTrim(*SEP_TRIM_LIMITS)
+        self._pc = VelocityTrim(*PRODUCTION_CONDENSER_TRIM_LIMITS,
+                                washout_h=CONDENSER_TRIM_WASHOUT_H)
         self.production_loop = PRODUCTION_LOOP if production_loop else None
         self.separator_loop = SEPARATOR_LOOP if separator_loop else None
+        self.production_condenser_loop = (PRODUCTION_CONDENSER_LOOP
+                                          if production_condenser_loop else None)
         self._t_last: float | None = None
         self._since = math.inf  # h since the last grade change, at _t_last (step)
         #: h the set-point tracking has cut P_r* without a break (the wide margin's clock)
@@ -860,6 +929,26 @@ class TEController:
             return False
         p, c, c_ref = float(xmeas[6]), float(xmeas[30]), float(ym[30])
         return p >= g.a_rise_hold_kpa and c <= c_ref - g.a_rise_hold_c_short_mol
+
+    @property
+    def pc_trim(self) -> float:
+        """The production loop's trim of the condenser's target, %."""
+        return self._pc.value
+
+    def _production_condenser_step(self, ym: Sequence[float],
+                                   xmeas: Sequence[float]) -> float:
+        """Product flow (XMEAS 17) -> the condenser's input target (XMV 11) at a steady
+        grade (:data:`PRODUCTION_CONDENSER_LOOP`, washed out over
+        :data:`CONDENSER_TRIM_WASHOUT_H`); ``ym``: the plan's XMEAS references now. Held
+        as the separator loop is, and when the operator holds XMEAS 17 or 11."""
+        lp = self.production_condenser_loop
+        y, r = float(xmeas[lp.cv - 1]), float(ym[lp.cv - 1])
+        if math.isfinite(y) and math.isfinite(r):
+            held = (lp.cv in self.outer_held or 11 in self.outer_held or self.feeds.a_lost
+                    or self.production.active
+                    or self._since < SEPARATOR_LOOP_STEADY_AFTER_H)
+            self._pc.step(r - y, lp.gain, lp.ti_h, self.sample_h, held)
+        return self._pc.value
 
     def _separator_trim_step(self, xmeas: Sequence[float], reference: float) -> float:
         """Separator temperature (XMEAS 11) -> the condenser's input target (XMV 11) at
@@ -1130,11 +1219,15 @@ class TEController:
                 target, refs, shift = self._steady_targets(
                     yc, ym[_CORE_CV_INDEX], ff, target, refs, ym_all[-1, _CORE_CV_INDEX],
                     info, alarms)
-            if self.separator_loop is not None:
-                r_sep = yl[10] + (0.0 if shift is None else float(shift[1]))
+            if self.separator_loop is not None or self.production_condenser_loop is not None:
+                trim = 0.0
+                if self.separator_loop is not None:
+                    r_sep = yl[10] + (0.0 if shift is None else float(shift[1]))
+                    trim += self._separator_trim_step(xm, r_sep)
+                if self.production_condenser_loop is not None:
+                    trim += self._production_condenser_step(yl, xm)
                 target = np.array(target, dtype=float)
-                target[4] = min(max(target[4] + self._separator_trim_step(xm, r_sep),
-                                    0.0), 100.0)
+                target[4] = min(max(target[4] + trim, 0.0), 100.0)
             self._set_input_target(target)
             dec = self.core.step(k, t, yc, refs)
             core_u, status, fallback = dec.u, dec.status, dec.fallback
@@ -1205,6 +1298,7 @@ class TEController:
         error's change over the outage (the PI baseline's ``align`` does the same). The
         integral parts and the trims reached are kept."""
         self.e_g_prev = self._a.e_prev = self._p.e_prev = self._sep.e_prev = None
+        self._pc.e_prev = None
         self._refs_ahead = None
 
     def applied(self, core_u) -> None:
@@ -1221,6 +1315,7 @@ class TEController:
                 "override": self.override, "a_trim": self._a.value, "e_a_prev": self._a.e_prev,
                 "p_trim": self._p.value, "e_p_prev": self._p.e_prev,
                 "sep_trim": self._sep.value, "e_sep_prev": self._sep.e_prev,
+                "pc_trim": self._pc.value, "e_pc_prev": self._pc.e_prev,
                 "core": None if self.core is None else self.core.checkpoint(),
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
@@ -1250,7 +1345,7 @@ class TEController:
             and math.isfinite(bound) and bound >= 0.0 else 0.0
         self.float_alarm.restore(state.get("float_alarm"))
         self.a_rise_alarm.restore(state.get("a_rise_alarm"))
-        for trim, key in ((self._a, "a"), (self._p, "p"), (self._sep, "sep")):
+        for trim, key in ((self._a, "a"), (self._p, "p"), (self._sep, "sep"), (self._pc, "pc")):
             trim.value = float(state.get(f"{key}_trim", 0.0))
             trim.e_prev = state.get(f"e_{key}_prev")
         self.feeds.restore(state.get("feeds"))
@@ -1550,6 +1645,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        d_share_path: DSharePathSettings | None = None,
                        level_sag: LevelSagSettings | None = None,
                        floating_pressure: FloatingPressureSettings | None = None,
+                       production_condenser_loop: bool = True,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -1566,7 +1662,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         The plant's Euler step, s.
     mpc : TEMPCOptions, optional
         MPC tuning (strategies "fixed" and "ssmpc").
-    outer_a_loop, production_loop, separator_loop : bool
+    outer_a_loop, production_loop, separator_loop, production_condenser_loop : bool
         See :class:`TEController`.
     realtime : bool
         Keep the MPC's wall-clock budget (:func:`make_mpc_core`); False for offline
@@ -1631,7 +1727,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        guards=guards, feeds=feeds, production=production,
                        reactants=reactants, separator_loop=separator_loop,
                        d_share_path=d_share_path, level_sag=level_sag,
-                       floating_pressure=floating_pressure)
+                       floating_pressure=floating_pressure,
+                       production_condenser_loop=production_condenser_loop)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 
