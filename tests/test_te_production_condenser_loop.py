@@ -1,8 +1,9 @@
 """The MPC strategies' production loop on the condenser: at a steady grade a product
-flow (XMEAS 17) under its reference opens the condenser's input target (XMV 11), the
-trim washes out over hours, it holds through a grade change and when the operator
-holds it, it survives a restart; on the plant it takes up a condenser-side
-disturbance that otherwise reaches G through the reactor level's D feed."""
+flow (XMEAS 17) that falls below its recent mean opens the condenser's input target
+(XMV 11), a standing offset does not, the trim washes out over hours, it holds
+through a grade change and when the operator holds it, it survives a restart; on the
+plant it takes up a condenser-side disturbance that otherwise reaches G through the
+reactor level's D feed."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import pytest
 from controller.units.te.control import (
     CONDENSER_TRIM_WASHOUT_H,
     PRODUCTION_CONDENSER_LOOP,
+    PRODUCTION_CONDENSER_MEAN_H,
     SEPARATOR_LOOP_STEADY_AFTER_H,
     make_te_controller,
     plant_seed_for,
@@ -27,18 +29,24 @@ SHORT_M3_H = 0.5
 
 
 def _condenser_trims(plan: TransitionPlan, t0: float, short: float, n: int = 10,
-                     held: set[int] | None = None, separator: bool = False):
-    """The production loop's trim of the condenser's target, each of ``n`` samples from
-    ``t0``, with the product flow ``short`` m3/h under the grade's and every other
-    measurement at the grade (the separator loop off unless ``separator``)."""
+                     held: set[int] | None = None, separator: bool = False,
+                     settle: int = 20):
+    """The production loop's trim of the condenser's target, each of ``n`` samples
+    from ``t0``: the product flow at the grade's for ``settle`` samples before, then
+    ``short`` m3/h under it, every other measurement at the grade (the separator loop
+    off unless ``separator``)."""
     ctl, _ = make_te_controller("fixed", plan, separator_loop=separator)
     if held:
         ctl.hold_outer_loops(held)
     x = np.array(plan.grade_at(t0).xmeas, dtype=float)
+    dt = ctl.sample_h
+    for k in range(settle):
+        ctl.step(k, t0 + (k - settle) * dt, x, None)
+        ctl.finish_sample()
     x[16] -= short
     trims = []
     for k in range(n):
-        ctl.step(k, t0 + k * ctl.sample_h, x, None)
+        ctl.step(settle + k, t0 + k * dt, x, None)
         ctl.finish_sample()
         trims.append(ctl.pc_trim)
     return ctl, trims
@@ -48,6 +56,7 @@ def test_the_loop_is_the_decentralized_pairing():
     assert (PRODUCTION_CONDENSER_LOOP.cv, PRODUCTION_CONDENSER_LOOP.output) == (17, 4)
     assert PRODUCTION_CONDENSER_LOOP.gain > 0  # short product (e > 0) opens the condenser
     assert math.isfinite(CONDENSER_TRIM_WASHOUT_H) and CONDENSER_TRIM_WASHOUT_H > 0
+    assert math.isfinite(PRODUCTION_CONDENSER_MEAN_H) and PRODUCTION_CONDENSER_MEAN_H > 0
 
 
 def test_a_short_product_flow_opens_the_condenser_at_a_steady_grade():
@@ -56,6 +65,23 @@ def test_a_short_product_flow_opens_the_condenser_at_a_steady_grade():
     assert all(b > a for a, b in zip(trims[1:], trims[2:], strict=False))  # integral
     _, more = _condenser_trims(TransitionPlan("mode2"), 2.0, -SHORT_M3_H)
     assert more[-1] == pytest.approx(-trims[-1], rel=1e-6)  # it closes it as well
+
+
+def test_a_standing_offset_from_the_plan_is_left_to_the_a_c_feed():
+    # the product flow 0.5 m3/h under the plan's from the start: the loop's reference is
+    # the flow's own mean, so it does not move the condenser (the A+C feed's loop
+    # answers the offset)
+    _, trims = _condenser_trims(TransitionPlan("mode2"), 2.0, 0.0, settle=0)
+    assert max(abs(t) for t in trims) < 1e-12
+    plan = TransitionPlan("mode2")
+    ctl, _ = make_te_controller("fixed", plan)
+    x = np.array(grade("mode2").xmeas, dtype=float)
+    x[16] -= SHORT_M3_H
+    for k in range(30):
+        ctl.step(k, 2.0 + k * ctl.sample_h, x, None)
+        ctl.finish_sample()
+    assert abs(ctl.pc_trim) < 1e-12
+    assert ctl.p_trim > 0.0  # the A+C feed's loop raises its target
 
 
 def test_the_trim_washes_out_when_the_error_is_gone():
@@ -72,12 +98,14 @@ def test_the_trim_washes_out_when_the_error_is_gone():
         assert trim.value == pytest.approx(4.0 * math.exp(-3.0), rel=0.05)
     held = VelocityTrim(-20.0, 20.0, washout_h=2.0)
     held.value = 4.0
-    held.step(0.0, 3.0, 0.72, 0.01, held=True)
-    assert held.value == 4.0  # a held trim stands
+    for _ in range(200):
+        held.step(1.0, 3.0, 0.72, 0.01, held=True)  # the error is not followed
+    assert held.value == pytest.approx(4.0 / math.e, rel=0.03)  # the washout goes on
     plain = VelocityTrim(-20.0, 20.0)
     plain.value = 4.0
-    plain.step(0.0, 3.0, 0.72, 0.01, held=False)
-    assert plain.value == 4.0  # no washout by default
+    for held_ in (False, True):
+        plain.step(0.0, 3.0, 0.72, 0.01, held=held_)
+    assert plain.value == 4.0  # no washout by default, a held plain trim stands
 
 
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan")])
@@ -108,27 +136,33 @@ def test_the_condenser_target_carries_both_trims():
     assert trims[-1] > 0.05
 
 
-def test_a_restored_controller_goes_on_with_the_trim_it_reached():
+def test_a_restored_controller_goes_on_with_the_trim_and_mean_it_reached():
     plan = TransitionPlan("mode2")
-    x = np.array(grade("mode2").xmeas, dtype=float)
-    x[16] -= SHORT_M3_H
-    ctl, _ = make_te_controller("fixed", plan)
-    for k in range(10):
-        ctl.step(k, 2.0 + k * ctl.sample_h, x, None)
-        ctl.finish_sample()
+    ctl, _ = _condenser_trims(plan, 2.0, SHORT_M3_H)
     state = ctl.checkpoint()
-    assert state["pc_trim"] > 0.05
-    again, _ = make_te_controller("fixed", plan)
+    assert state["pc_trim"] > 0.05 and math.isfinite(state["pc_mean"])
+    again, _ = make_te_controller("fixed", plan, separator_loop=False)
     again.restore(state)
     again.take_over()
     assert again.pc_trim == ctl.pc_trim
-    a = ctl.step(10, 2.1, x, None)
-    b = again.step(10, 2.1, x, None)
+    x = np.array(grade("mode2").xmeas, dtype=float)
+    x[16] -= SHORT_M3_H
+    a = ctl.step(30, 2.1, x, None)
+    b = again.step(30, 2.1, x, None)
+    # the uninterrupted controller's next trim, but for the proportional step the
+    # take-over leaves out (the error's change over one sample as the mean follows the
+    # flow: 3 %/(m3/h) x 0.5 m3/h x 0.01 h / 4 h, under 0.01 % of the trim's 1.6 %)
+    assert again.pc_trim == pytest.approx(ctl.pc_trim, abs=0.01)
     assert b.u[10] == pytest.approx(a.u[10], abs=0.02)
-    old = {k: v for k, v in state.items() if k not in ("pc_trim", "e_pc_prev")}
-    before, _ = make_te_controller("fixed", plan)
-    before.restore(old)  # a checkpoint from before the loop: its trim starts at 0
-    assert before.pc_trim == 0.0
+    # a checkpoint from before the loop, or a damaged mean: the trim starts at 0 and
+    # the mean at the next measurement, with no error
+    for damaged in ({k: v for k, v in state.items()
+                     if k not in ("pc_trim", "e_pc_prev", "pc_mean")},
+                    {**state, "pc_mean": float("nan")}, {**state, "pc_mean": "x"}):
+        before, _ = make_te_controller("fixed", plan, separator_loop=False)
+        before.restore(damaged)
+        before.step(30, 2.1, x, None)
+        assert math.isfinite(before.checkpoint()["pc_mean"])
 
 
 def test_a_condenser_side_disturbance_is_taken_up_before_it_reaches_g():

@@ -41,6 +41,7 @@ def _settings_json(unit: str) -> str:
             CONDENSER_TRIM_WASHOUT_H,
             GUARDS_MPC,
             PRODUCTION_CONDENSER_LOOP,
+            PRODUCTION_CONDENSER_MEAN_H,
             PRODUCTION_CONDENSER_TRIM_LIMITS,
             RATIO_MPC,
             SAMPLE_H,
@@ -80,7 +81,8 @@ def _settings_json(unit: str) -> str:
              "production_condenser_loop": {
                  **asdict(PRODUCTION_CONDENSER_LOOP),
                  "trim": list(PRODUCTION_CONDENSER_TRIM_LIMITS),
-                 "washout_h": CONDENSER_TRIM_WASHOUT_H}}
+                 "washout_h": CONDENSER_TRIM_WASHOUT_H,
+                 "mean_h": PRODUCTION_CONDENSER_MEAN_H}}
     else:
         from services.registry import get_unit
 

@@ -274,7 +274,8 @@ SEP_TRIM_LIMITS = (0.0, 20.0)
 #: is the decentralized structure's production loop (``temain_mod.f`` loop 11,
 #: :data:`controller.units.te.published_loops.TEMAIN_MOD_LOOPS`: 1.09 % per % of its
 #: 46 m3/h span, i.e. 2.37 %/(m3/h), reset 2600 s); here 3 %/(m3/h) with its 0.72 h
-#: integral time, and a washout (:data:`CONDENSER_TRIM_WASHOUT_H`). More condenser
+#: integral time, on the flow's own mean (:data:`PRODUCTION_CONDENSER_MEAN_H`) and with a
+#: washout (:data:`CONDENSER_TRIM_WASHOUT_H`). More condenser
 #: cooling condenses more in the separator and sends it to the stripper within
 #: minutes, where the A+C feed (:data:`PRODUCTION_LOOP`) takes hours through the
 #: reactor. What it does: a disturbance on the condenser's side (IDV(12), its cooling
@@ -285,17 +286,35 @@ SEP_TRIM_LIMITS = (0.0, 20.0)
 #: :class:`TEController` ``production_condenser_loop`` for the measured effect).
 PRODUCTION_CONDENSER_LOOP = PILoopSpec("production -> condenser target (steady grade)",
                                        cv=17, output=4, gain=3.0, ti_h=0.72)
-#: Washout of :data:`PRODUCTION_CONDENSER_LOOP`'s trim, h: the trim decays toward 0
-#: (:class:`~controller.units.te.velocity_trim.VelocityTrim`), so the loop answers the
-#: production's variation over hours and leaves its mean to the A+C feed's loop and
-#: the condenser's steady value to the steady-state targets' economics. Without it
-#: (a plain PI, the two loops integrating the same error) the condenser's trim drifted
-#: where the production's error left it and undid the economics: IDV(17) at mode 0
-#: 135.7 -> 148.0 $/h, IDV(12) 137.0 -> 147.0 (ssmpc, seeds 1-3, 48 h; 2 h: 137.6,
-#: 137.5).
+#: Washout of :data:`PRODUCTION_CONDENSER_LOOP`'s trim, h: the trim decays toward 0,
+#: through the loop's holds too (:class:`~controller.units.te.velocity_trim.VelocityTrim`),
+#: so the loop answers the production's variation over hours, leaves the condenser's
+#: steady value to the steady-state targets' economics and carries nothing into a grade
+#: change. Measured (ssmpc, noise on, 48 h, seeds 1-3): with the plan's production as
+#: the reference and no washout, the two loops integrating the same error, the
+#: condenser's trim drifted where the error left it and undid the economics (IDV(17) at
+#: mode 0 135.7 -> 148.0 $/h, IDV(12) 137.0 -> 147.0; with the washout 137.6, 137.5);
+#: with the mean as the reference (:data:`PRODUCTION_CONDENSER_MEAN_H`) and no washout,
+#: 0 -> 2 with IDV(8) tripped on seed 2 and 3 -> 1 did not reach its grade in 48 h on
+#: seed 1.
 CONDENSER_TRIM_WASHOUT_H = 2.0
 #: Range (%) of :data:`PRODUCTION_CONDENSER_LOOP`'s trim of the condenser's target.
 PRODUCTION_CONDENSER_TRIM_LIMITS = (-20.0, 20.0)
+#: Time constant (h) of the product flow's own mean that is
+#: :data:`PRODUCTION_CONDENSER_LOOP`'s reference: the loop answers the production's
+#: moves about its recent mean and leaves the mean, and its offset from the plan's, to
+#: the A+C feed's loop. The mean follows the measurement in every sample, the loop's
+#: holds included, so the loop starts without a bump a day after a grade change.
+#: Measured against the plan's production as the reference (ssmpc, noise on, 48 h,
+#: seeds 1-3): the trim the first hour of a leg's run left (before the change) stood
+#: through the leg, the error at its end kicked the condenser, and 0 -> 2 with IDV(8)
+#: tripped on seed 2 at 36.5 h (the MPC then opened the condenser 15 -> 100 % within
+#: 0.3 h against a pressure at its limit); so it did with the trim washed out through
+#: the hold. With the mean the leg holds (40.6 h to grade, peak 2877 kPa; without the
+#: loop 42.4 h, 2873 kPa) and the disturbance cases move by at most 0.011 mol % of G
+#: (IDV(8) at mode 0 0.551 -> 0.562). A 1 h mean leaves too little to answer: IDV(1)
+#: at mode 2 0.710 mol %, IDV(8) 0.548.
+PRODUCTION_CONDENSER_MEAN_H = 4.0
 
 __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec",
            "TEController", "make_te_controller", "make_mpc_core", "TEMPCOptions", "TERun",
@@ -303,7 +322,7 @@ __all__ = ["INNER_LOOPS", "SAMPLE_H", "STRATEGIES", "CORE_XMVS", "TEControlSpec"
            "GUARDS_MPC",
            "SEPARATOR_LOOP", "SEPARATOR_LOOP_STEADY_AFTER_H", "SEP_TRIM_LIMITS",
            "PRODUCTION_CONDENSER_LOOP", "CONDENSER_TRIM_WASHOUT_H",
-           "PRODUCTION_CONDENSER_TRIM_LIMITS",
+           "PRODUCTION_CONDENSER_TRIM_LIMITS", "PRODUCTION_CONDENSER_MEAN_H",
            "TR_LIMITS",
            "PR_LIMITS",
            "PRESSURE_LOOP", "ALARM_LIMITS"]
@@ -793,6 +812,7 @@ class TEController:
                                 washout_h=CONDENSER_TRIM_WASHOUT_H)
         self.production_loop = PRODUCTION_LOOP if production_loop else None
         self.separator_loop = SEPARATOR_LOOP if separator_loop else None
+        self._pc_mean: float | None = None
         self.production_condenser_loop = (PRODUCTION_CONDENSER_LOOP
                                           if production_condenser_loop else None)
         self._t_last: float | None = None
@@ -935,15 +955,22 @@ class TEController:
         """The production loop's trim of the condenser's target, %."""
         return self._pc.value
 
-    def _production_condenser_step(self, ym: Sequence[float],
-                                   xmeas: Sequence[float]) -> float:
-        """Product flow (XMEAS 17) -> the condenser's input target (XMV 11) at a steady
-        grade (:data:`PRODUCTION_CONDENSER_LOOP`, washed out over
-        :data:`CONDENSER_TRIM_WASHOUT_H`); ``ym``: the plan's XMEAS references now. Held
-        as the separator loop is, and when the operator holds XMEAS 17 or 11."""
+    def _production_condenser_step(self, xmeas: Sequence[float]) -> float:
+        """Product flow (XMEAS 17) about its own mean
+        (:data:`PRODUCTION_CONDENSER_MEAN_H`) -> the condenser's input target (XMV 11)
+        at a steady grade (:data:`PRODUCTION_CONDENSER_LOOP`, washed out over
+        :data:`CONDENSER_TRIM_WASHOUT_H`). Held as the separator loop is, and when the
+        operator holds XMEAS 17 or 11; a measurement that is not finite leaves the trim
+        and the mean as they are."""
         lp = self.production_condenser_loop
-        y, r = float(xmeas[lp.cv - 1]), float(ym[lp.cv - 1])
-        if math.isfinite(y) and math.isfinite(r):
+        y = float(xmeas[lp.cv - 1])
+        if math.isfinite(y):
+            if self._pc_mean is None:
+                self._pc_mean = y
+            else:
+                self._pc_mean += (self.sample_h / PRODUCTION_CONDENSER_MEAN_H
+                                  * (y - self._pc_mean))
+            r = self._pc_mean
             held = (lp.cv in self.outer_held or 11 in self.outer_held or self.feeds.a_lost
                     or self.production.active
                     or self._since < SEPARATOR_LOOP_STEADY_AFTER_H)
@@ -1225,7 +1252,7 @@ class TEController:
                     r_sep = yl[10] + (0.0 if shift is None else float(shift[1]))
                     trim += self._separator_trim_step(xm, r_sep)
                 if self.production_condenser_loop is not None:
-                    trim += self._production_condenser_step(yl, xm)
+                    trim += self._production_condenser_step(xm)
                 target = np.array(target, dtype=float)
                 target[4] = min(max(target[4] + trim, 0.0), 100.0)
             self._set_input_target(target)
@@ -1316,6 +1343,7 @@ class TEController:
                 "p_trim": self._p.value, "e_p_prev": self._p.e_prev,
                 "sep_trim": self._sep.value, "e_sep_prev": self._sep.e_prev,
                 "pc_trim": self._pc.value, "e_pc_prev": self._pc.e_prev,
+                "pc_mean": self._pc_mean,
                 "core": None if self.core is None else self.core.checkpoint(),
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
@@ -1348,6 +1376,9 @@ class TEController:
         for trim, key in ((self._a, "a"), (self._p, "p"), (self._sep, "sep"), (self._pc, "pc")):
             trim.value = float(state.get(f"{key}_trim", 0.0))
             trim.e_prev = state.get(f"e_{key}_prev")
+        mean = state.get("pc_mean")  # absent or damaged: the next measurement starts it
+        self._pc_mean = (float(mean) if isinstance(mean, int | float) and math.isfinite(mean)
+                         else None)
         self.feeds.restore(state.get("feeds"))
         self.production.restore(state.get("production"))
         self.reactants.restore(state.get("reactants"))
