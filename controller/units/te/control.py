@@ -714,36 +714,32 @@ class TEController:
         MPC strategies: let the product flow trim the condenser's input target at a
         steady grade as well (:data:`PRODUCTION_CONDENSER_LOOP`, washed out over
         :data:`CONDENSER_TRIM_WASHOUT_H`; added to the separator loop's trim).
-        Measured (ssmpc, noise on, seeds 1-3, 48 h, onset 2 h; G's standard
-        deviation mol % and run-mean $/h without -> with it, the decentralized
-        structure's in brackets):
+        Measured (ssmpc, noise on, seeds 1-3, 48 h, onset 2 h, the acceptance matrix
+        ``docs/campaigns/te_matrix.json``; G's standard deviation mol % and run-mean
+        $/h without -> with it, the decentralized structure's in brackets):
 
         ==========  ===========================  ===========================
         case        G std, mol %                 cost, $/h
         ==========  ===========================  ===========================
-        IDV(12) @2  0.864 -> 0.520 (0.521)       182.8 -> 181.3 (181.5)
-        IDV(18) @2  1.030 -> 0.550 (0.522)       182.8 -> 181.4 (181.4)
-        IDV(20) @2  0.664 -> 0.539 (0.523)       178.9 -> 181.0 (181.3)
-        IDV(13) @2  1.005 -> 0.964               225.6 -> 222.0
-        IDV(12) @0  0.652 -> 0.563 (0.586)       137.0 -> 134.2 (171.2)
-        IDV(20) @0  0.558 -> 0.527 (0.510)       149.2 -> 149.6 (170.7)
-        IDV(8) @0   0.571 -> 0.551 (0.529)       154.9 -> 150.8 (174.6)
-        IDV(1) @2   0.519 -> 0.647 (0.516)       180.7 -> 182.6 (176.1)
-        IDV(1) @0   0.528 -> 0.532 (0.508)       153.1 -> 157.4 (166.0)
-        IDV(13) @0  0.718 -> 0.780 (0.824)       162.0 -> 160.5 (171.3)
+        IDV(12) @2  0.864 -> 0.521 (0.521)       182.8 -> 181.5 (181.5)
+        IDV(18) @2  1.030 -> 0.549 (0.522)       182.8 -> 181.4 (181.4)
+        IDV(20) @2  0.664 -> 0.535 (0.523)       178.9 -> 179.9 (181.3)
+        IDV(13) @2  1.005 -> 0.995               225.6 -> 222.7
+        IDV(12) @0  0.636 -> 0.540 (0.586)       136.8 -> 134.5 (171.2)
+        IDV(20) @0  0.558 -> 0.530 (0.510)       149.2 -> 149.6 (170.6)
+        IDV(8) @0   0.571 -> 0.562 (0.529)       155.0 -> 151.4 (174.6)
+        IDV(1) @2   0.519 -> 0.636 (0.516)       180.7 -> 182.8 (176.1)
+        IDV(1) @0   0.528 -> 0.532 (0.508)       153.1 -> 155.1 (166.0)
+        IDV(13) @0  0.718 -> 0.776 (0.824)       162.0 -> 159.8 (171.4)
         ==========  ===========================  ===========================
 
         Under IDV(1) at mode 2 the reactant trim cuts the A+C feed on the C that
         gathers and the production falls by design; the loop opens the condenser
         against it, the separator cools by 3 degC, the reactor level falls 5 % and
         the E valve clips (seed 1, 4-6 h: G 13.8 mol %). Holding the loop while the
-        reactant trim cuts took that case to 0.514 mol % and 177.9 $/h but IDV(18)
-        at mode 2 to 0.73 mol % and 203 $/h (peak 2893 kPa); holding it above 2850
-        kPa took IDV(8) at mode 2 to 0.87 mol %: not taken. The loop alone, without
-        the separator loop: IDV(8) at mode 0 0.533 mol %, but IDV(5) at mode 0
-        152.6 $/h (with both 139.3) and every mode-0 case about 2 $/h dearer. A
-        plain proportional loop (no integral): IDV(8) at mode 2 0.550 mol %; gains
-        of 5 %/(m3/h) and more oscillate (production's deviation 3-8 %).
+        reactant trim cuts took that case to 0.528 mol % but IDV(18) at mode 2 to 1.09
+        and IDV(20) to 0.78 mol %: not taken. The designs measured on the way are in
+        ``docs/te_matrix.md`` (the matrix's run with it).
     guards : TransitionGuards, optional
         The E-feed limit, the plan hold and the pressure set point's tracking
         (default :class:`TransitionGuards`).
