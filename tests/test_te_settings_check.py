@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from controller.units.te.settings_check import check_range
+from controller.units.te.settings_check import check_finite_fields, check_range
 
 
 @dataclass
@@ -44,3 +44,29 @@ def test_the_message_names_the_first_field_out_of_range_with_unit_label_and_note
 def test_a_malformed_range_is_a_programming_error_named(bad):
     with pytest.raises(ValueError, match="not an interval"):
         check_range(_S(), "a", bad)
+
+
+def test_an_optional_setting_may_be_off_but_not_malformed():
+    off = _S(a=None)
+    check_finite_fields(off, optional=("a",))  # None: the setting is off
+    check_range(off, ("a", "b"), "(0, 2)")  # passes its range; b is still checked
+    with pytest.raises(ValueError, match=r"^b: must be in \(0, 2\)"):
+        check_range(_S(a=None, b=3.0), ("a", "b"), "(0, 2)")
+    with pytest.raises(ValueError, match=r"^a: must be a finite number, got None"):
+        check_finite_fields(off)  # not optional: None is refused
+    for bad in (float("nan"), float("inf"), True, "1"):
+        with pytest.raises(ValueError, match=r"^a: must be a finite number or None, got "):
+            check_finite_fields(_S(a=bad), optional=("a",))
+
+
+def test_the_transition_guards_check_their_optional_limits_the_same_way():
+    from controller.units.te.control import TransitionGuards
+
+    off = TransitionGuards(a_rise_hold_kpa=None, purge_floor_fraction=None,
+                           purge_track_lift_kpa=None)
+    assert off.a_rise_hold_kpa is None
+    with pytest.raises(ValueError, match=r"^a_rise_hold_kpa: must be in \(2000, 3000\) kPa"):
+        TransitionGuards(a_rise_hold_kpa=3000.0)
+    with pytest.raises(ValueError, match=r"^purge_floor_fraction: must be a finite number "
+                                         r"or None, got nan"):
+        TransitionGuards(purge_floor_fraction=float("nan"))

@@ -193,6 +193,7 @@ from controller.units.te.pi_baseline import (
 from controller.units.te.plan_lookup import SampleReferences
 from controller.units.te.production_index import ProductionIndex, ProductionIndexSettings
 from controller.units.te.reactant_trim import ReactantTrim, ReactantTrimSettings
+from controller.units.te.settings_check import check_finite_fields, check_range
 from controller.units.te.spec import (
     ALARM_LIMITS,
     D_FULL_KG_H,
@@ -610,43 +611,20 @@ class TransitionGuards:
     a_rise_hold_after_h: float = 24.0
 
     def __post_init__(self) -> None:
-        for name in ("e_feed_margin", "e_feed_margin_held"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and 0.0 <= v <= 100.0):
-                raise ValueError(f"{name}: must be in [0, 100] %, got {v!r}")
-        for name in ("purge_track_kpa", "purge_track_lift_kpa", "purge_track_lift_h"):
-            v = getattr(self, name)
-            if v is None and name == "purge_track_lift_kpa":
-                continue
-            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0.0):
-                unit = "h" if name.endswith("_h") else "kPa"
-                raise ValueError(f"{name}: must be finite and >= 0 {unit}, got {v!r}")
-        v = self.purge_floor_fraction
-        if v is not None and not (isinstance(v, int | float) and math.isfinite(v)
-                                  and 0.0 <= v < 1.0):
-            raise ValueError(f"purge_floor_fraction: must be in [0, 1) or None, got {v!r}")
-        for name in ("a_loop_hold_h", "a_loop_hold_falling_h", "purge_floor_after_h",
-                     "a_rise_hold_after_h"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0.0):
-                raise ValueError(f"{name}: must be finite and >= 0 h, got {v!r}")
-        for name in ("hold_start_kpa", "hold_full_kpa"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and 2000.0 < v <= 3000.0):
-                raise ValueError(f"{name}: must be in (2000, 3000] kPa, got {v!r}")
+        check_finite_fields(self, optional=("purge_track_lift_kpa", "purge_floor_fraction",
+                                            "a_rise_hold_kpa"))
+        check_range(self, ("e_feed_margin", "e_feed_margin_held"), "[0, 100]", "%")
+        check_range(self, ("purge_track_kpa", "purge_track_lift_kpa"), ">= 0", "kPa")
+        check_range(self, ("purge_track_lift_h", "a_loop_hold_h", "a_loop_hold_falling_h",
+                           "purge_floor_after_h", "a_rise_hold_after_h"), ">= 0", "h")
+        check_range(self, "purge_floor_fraction", "[0, 1)")
+        check_range(self, ("hold_start_kpa", "hold_full_kpa"), "(2000, 3000]", "kPa",
+                    note="interlock 3000")
         if not self.hold_start_kpa < self.hold_full_kpa:
             raise ValueError(f"hold_start_kpa/hold_full_kpa: need start < full, got "
                              f"{self.hold_start_kpa}, {self.hold_full_kpa}")
-        v = self.a_rise_hold_kpa
-        if v is not None and not (isinstance(v, int | float) and not isinstance(v, bool)
-                                  and math.isfinite(v) and 2000.0 < v < 3000.0):
-            raise ValueError(f"a_rise_hold_kpa: must be in (2000, 3000) kPa or None, "
-                             f"got {v!r}")
-        v = self.a_rise_hold_c_short_mol
-        if isinstance(v, bool) or not (isinstance(v, int | float) and math.isfinite(v)
-                                       and v >= 0.0):
-            raise ValueError(f"a_rise_hold_c_short_mol: must be finite and >= 0 mol %, "
-                             f"got {v!r}")
+        check_range(self, "a_rise_hold_kpa", "(2000, 3000)", "kPa", note="interlock 3000")
+        check_range(self, "a_rise_hold_c_short_mol", ">= 0", "mol %")
 
     def hold_fraction(self, pressure_kpa: float) -> float:
         """The share of the plan's clock held at this reactor pressure, in [0, 1]

@@ -1,9 +1,10 @@
-"""The checks shared by the TE guards' settings dataclasses: every field a finite number,
-and each field within its range.
+"""The checks shared by the TE guards' settings dataclasses: every field a finite number
+(or None where a setting may be off), and each field within its range.
 
 The guards (:mod:`controller.units.te.overrides`, :mod:`controller.units.te.production_index`,
 :mod:`controller.units.te.reactant_trim`, :mod:`controller.units.te.level_sag`,
-:mod:`controller.units.te.floating_pressure`) hold only numeric settings; each names its
+:mod:`controller.units.te.floating_pressure`, and the transition guards of
+:class:`controller.units.te.control.TransitionGuards`) hold only numeric settings; each names its
 fields' ranges in the notation the error message shows (``"(2000, 3000)"``, ``"[0, 100]"``,
 ``"> 0"``, ``">= 0"``), so the range a user reads is the range checked.
 """
@@ -21,7 +22,7 @@ _INTERVAL = re.compile(rf"^([(\[])\s*({_NUM})\s*,\s*({_NUM})\s*([)\]])$")
 _BOUND = re.compile(rf"^(>=|>|<=|<)\s*({_NUM})$")
 
 
-def check_finite_fields(settings, label: str = "") -> None:
+def check_finite_fields(settings, label: str = "", optional=()) -> None:
     """Raise ``ValueError`` naming the first field of the dataclass ``settings`` that is
     not a finite int or float (a bool is not a number here).
 
@@ -30,11 +31,16 @@ def check_finite_fields(settings, label: str = "") -> None:
     settings : dataclass instance
     label : str
         Put before the field's name in the message (e.g. ``"level sag "``).
+    optional : sequence of str
+        Fields that may also be None (a setting that is off).
     """
     for f in fields(settings):
         v = getattr(settings, f.name)
+        if v is None and f.name in optional:
+            continue
         if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            raise ValueError(f"{label}{f.name}: must be a finite number, got {v!r}")
+            none = " or None" if f.name in optional else ""
+            raise ValueError(f"{label}{f.name}: must be a finite number{none}, got {v!r}")
 
 
 def _holds(v: float, interval: str) -> bool:
@@ -59,7 +65,8 @@ def check_range(settings, names, interval: str, unit: str = "", label: str = "",
     Parameters
     ----------
     settings : dataclass instance
-        Its fields already checked finite (:func:`check_finite_fields`).
+        Its fields already checked finite (:func:`check_finite_fields`); a field that is
+        None (an optional setting that is off) passes.
     names : str or sequence of str
         The fields that share the range.
     interval : str
@@ -89,5 +96,5 @@ def check_range(settings, names, interval: str, unit: str = "", label: str = "",
     tail = (f" {unit}" if unit else "") + (f" ({note})" if note else "")
     for name in (names,) if isinstance(names, str) else names:
         v = getattr(settings, name)
-        if not _holds(float(v), interval):
+        if v is not None and not _holds(float(v), interval):
             raise ValueError(f"{label}{name}: must be {kind}{interval}{tail}, got {v!r}")
