@@ -1,9 +1,10 @@
-"""The MPC strategies' production loop on the condenser: at a steady grade a product
-flow (XMEAS 17) that falls below its recent mean opens the condenser's input target
+"""The MPC strategies' production loop on the condenser (off by default): at a steady
+grade a product flow (XMEAS 17) that falls below its recent mean opens the condenser's input target
 (XMV 11), a standing offset does not, the trim washes out over hours, it holds
 through a grade change and when the operator holds it, it survives a restart; on the
 plant it takes up a condenser-side disturbance that otherwise reaches G through the
-reactor level's D feed."""
+reactor level's D feed; the default controller, without it, holds a kinetics-drift
+case that it tripped."""
 
 from __future__ import annotations
 
@@ -35,7 +36,8 @@ def _condenser_trims(plan: TransitionPlan, t0: float, short: float, n: int = 10,
     from ``t0``: the product flow at the grade's for ``settle`` samples before, then
     ``short`` m3/h under it, every other measurement at the grade (the separator loop
     off unless ``separator``)."""
-    ctl, _ = make_te_controller("fixed", plan, separator_loop=separator)
+    ctl, _ = make_te_controller("fixed", plan, separator_loop=separator,
+                                production_condenser_loop=True)
     if held:
         ctl.hold_outer_loops(held)
     x = np.array(plan.grade_at(t0).xmeas, dtype=float)
@@ -50,6 +52,23 @@ def _condenser_trims(plan: TransitionPlan, t0: float, short: float, n: int = 10,
         ctl.finish_sample()
         trims.append(ctl.pc_trim)
     return ctl, trims
+
+
+def test_the_loop_is_off_by_default():
+    ctl, _ = make_te_controller("ssmpc", TransitionPlan("mode2"))
+    assert ctl.production_condenser_loop is None
+    on, _ = make_te_controller("ssmpc", TransitionPlan("mode2"),
+                               production_condenser_loop=True)
+    assert on.production_condenser_loop is PRODUCTION_CONDENSER_LOOP
+
+
+def test_the_default_controller_holds_the_kinetics_drift_case_the_loop_tripped():
+    # IDV(13) at mode 1, seed 28: with the loop on, ssmpc tripped at 27.9 h (reactor
+    # pressure, the MPC opening the condenser into the separator's collapse)
+    r = run_te("ssmpc", TransitionPlan("mode1"), 30.0, noise=True, seed=28,
+               plant_seed=plant_seed_for(28), idv={13: 2.0})
+    assert r.shutdown is None
+    assert float(np.max(r.xmeas[:, 6])) < 2900.0
 
 
 def test_the_loop_is_the_decentralized_pairing():
@@ -74,7 +93,7 @@ def test_a_standing_offset_from_the_plan_is_left_to_the_a_c_feed():
     _, trims = _condenser_trims(TransitionPlan("mode2"), 2.0, 0.0, settle=0)
     assert max(abs(t) for t in trims) < 1e-12
     plan = TransitionPlan("mode2")
-    ctl, _ = make_te_controller("fixed", plan)
+    ctl, _ = make_te_controller("fixed", plan, production_condenser_loop=True)
     x = np.array(grade("mode2").xmeas, dtype=float)
     x[16] -= SHORT_M3_H
     for k in range(30):
@@ -141,7 +160,8 @@ def test_a_restored_controller_goes_on_with_the_trim_and_mean_it_reached():
     ctl, _ = _condenser_trims(plan, 2.0, SHORT_M3_H)
     state = ctl.checkpoint()
     assert state["pc_trim"] > 0.05 and math.isfinite(state["pc_mean"])
-    again, _ = make_te_controller("fixed", plan, separator_loop=False)
+    again, _ = make_te_controller("fixed", plan, separator_loop=False,
+                                  production_condenser_loop=True)
     again.restore(state)
     again.take_over()
     assert again.pc_trim == ctl.pc_trim
@@ -159,7 +179,8 @@ def test_a_restored_controller_goes_on_with_the_trim_and_mean_it_reached():
     for damaged in ({k: v for k, v in state.items()
                      if k not in ("pc_trim", "e_pc_prev", "pc_mean")},
                     {**state, "pc_mean": float("nan")}, {**state, "pc_mean": "x"}):
-        before, _ = make_te_controller("fixed", plan, separator_loop=False)
+        before, _ = make_te_controller("fixed", plan, separator_loop=False,
+                                       production_condenser_loop=True)
         before.restore(damaged)
         before.step(30, 2.1, x, None)
         assert math.isfinite(before.checkpoint()["pc_mean"])
