@@ -708,7 +708,8 @@ class TEController:
         condenser 2 or 5 % from its target (the same trips); held while C in the purge
         is 4 mol % or more off the plan's (no trip; IDV(12) at mode 0 0.631, IDV(8) at
         mode 2 0.596) or 1-2 mol % off its own 4 h mean (trips); held while a
-        kinetics-drift guard acts (trips). With it on, measured (ssmpc, noise on,
+        kinetics-drift guard acts (trips); the MPC's condenser capped 10 % above its
+        target (two of the three trips). With it on, measured (ssmpc, noise on,
         seeds 1-3, 48 h, onset 2 h, the acceptance matrix
         ``docs/campaigns/te_matrix.json``; G's standard deviation mol % and run-mean
         $/h without -> with it, the decentralized structure's in brackets):
