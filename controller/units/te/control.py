@@ -44,8 +44,9 @@ Layers (seed Fig. 7.2)
          reactor level's set point) D feeds lowered together on the reactor pressure,
          with an alarm;
        - MPC strategies at a steady grade, the separator temperature (XMEAS 11)
-         opens the condenser's input target (XMV 11, :data:`SEPARATOR_LOOP`) and the
-         product flow (XMEAS 17) trims it (:data:`PRODUCTION_CONDENSER_LOOP`);
+         opens the condenser's input target (XMV 11, :data:`SEPARATOR_LOOP`); the
+         product flow (XMEAS 17) may trim it too (:data:`PRODUCTION_CONDENSER_LOOP`, off
+         by default);
        - MPC strategies, the reactant trim (:mod:`controller.units.te.reactant_trim`):
          at a steady grade, A+C short in the reactor feed with the D feed at its limit
          raises the A+C feed's target, A+C in excess lowers it, with an alarm;
@@ -701,9 +702,10 @@ class TEController:
         under its target for hours while the kinetics raised the production, the
         pressure stood 50-80 kPa higher, and at 25.5 h the MPC opened the condenser
         against it (13 -> 80 % in 2 h, the separator 91 -> 68 degC) into the trip.
-        Tried on those three seeds and three that held (1: 15; 2: 17, 5), each leaving
-        a trip or the gains: its trim within 3 % (no trip; IDV(12) at mode 2 0.583,
-        IDV(18) 0.757 mol %), 4 or 5 % (trips); held above 2850 kPa, or not closing the
+        Tried on those three seeds and three that held (mode 1 seed 15, mode 2 seeds 5
+        and 17), each leaving a trip or losing the gains: its trim within 3 % (no trip;
+        IDV(12) at mode 2 0.583, IDV(18) 0.757 mol %), 4 or 5 % (trips); held above
+        2850 kPa, or not closing the
         condenser above 2800-2850 kPa (more trips); held while the MPC keeps the
         condenser 2 or 5 % from its target (the same trips); held while C in the purge
         is 4 mol % or more off the plan's (no trip; IDV(12) at mode 0 0.631, IDV(8) at
@@ -735,7 +737,8 @@ class TEController:
         the E valve clips (seed 1, 4-6 h: G 13.8 mol %). Holding the loop while the
         reactant trim cuts took that case to 0.528 mol % but IDV(18) at mode 2 to 1.09
         and IDV(20) to 0.78 mol %: not taken. The designs measured on the way are in
-        ``docs/te_matrix.md`` (the matrix's run with it).
+        ``docs/te_matrix.md`` ("What the matrix does not show", the product flow on the
+        condenser).
     guards : TransitionGuards, optional
         The E-feed limit, the plan hold and the pressure set point's tracking
         (default :class:`TransitionGuards`).
