@@ -1,10 +1,10 @@
 """The MPC strategies' production loop on the condenser (off by default): at a steady
-grade a product flow (XMEAS 17) that falls below its recent mean opens the condenser's input target
-(XMV 11), a standing offset does not, the trim washes out over hours, it holds
-through a grade change and when the operator holds it, it survives a restart; on the
-plant it takes up a condenser-side disturbance that otherwise reaches G through the
-reactor level's D feed; the default controller, without it, holds a kinetics-drift
-case that it tripped."""
+grade a product flow (XMEAS 17) that falls below its recent mean opens the condenser's
+input target (XMV 11), a standing offset does not, the trim washes out over hours, it
+holds through a grade change and when the operator holds it, it survives a restart; on
+the plant it takes up a condenser-side disturbance that otherwise reaches G through the
+reactor level's D feed; the default controller, without it, holds a kinetics-drift case
+that it tripped."""
 
 from __future__ import annotations
 
