@@ -172,6 +172,7 @@ import numpy as np
 from controller.alarms import keyed_alarms
 from controller.blas import single_threaded
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
+from controller.mpc.filters import FirstOrderFilter
 from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.d_share_path import DSharePath, DSharePathSettings
 from controller.units.te.floating_pressure import (
@@ -807,7 +808,8 @@ class TEController:
                                 washout_h=CONDENSER_TRIM_WASHOUT_H)
         self.production_loop = PRODUCTION_LOOP if production_loop else None
         self.separator_loop = SEPARATOR_LOOP if separator_loop else None
-        self._pc_mean: float | None = None
+        # the product flow's own mean, the production loop's reference on the condenser
+        self._pc_mean = FirstOrderFilter(min(self.sample_h / PRODUCTION_CONDENSER_MEAN_H, 1.0))
         self.production_condenser_loop = (PRODUCTION_CONDENSER_LOOP
                                           if production_condenser_loop else None)
         self._t_last: float | None = None
@@ -960,17 +962,18 @@ class TEController:
         lp = self.production_condenser_loop
         y = float(xmeas[lp.cv - 1])
         if math.isfinite(y):
-            if self._pc_mean is None:
-                self._pc_mean = y
-            else:
-                self._pc_mean += (self.sample_h / PRODUCTION_CONDENSER_MEAN_H
-                                  * (y - self._pc_mean))
-            r = self._pc_mean
-            held = (lp.cv in self.outer_held or 11 in self.outer_held or self.feeds.a_lost
-                    or self.production.active
-                    or self._since < SEPARATOR_LOOP_STEADY_AFTER_H)
-            self._pc.step(r - y, lp.gain, lp.ti_h, self.sample_h, held)
+            r = float(self._pc_mean.update((y,))[0])
+            self._pc.step(r - y, lp.gain, lp.ti_h, self.sample_h,
+                          self._condenser_trim_held(lp.cv, 11))
         return self._pc.value
+
+    def _condenser_trim_held(self, *cvs: int) -> bool:
+        """Whether the condenser's steady-grade trims hold this sample: the operator
+        holds one of ``cvs`` (XMEAS numbers), the A feed is lost, the production index
+        lowers the feeds, or the last grade change is less than
+        :data:`SEPARATOR_LOOP_STEADY_AFTER_H` ago."""
+        return (any(cv in self.outer_held for cv in cvs) or self.feeds.a_lost
+                or self.production.active or self._since < SEPARATOR_LOOP_STEADY_AFTER_H)
 
     def _separator_trim_step(self, xmeas: Sequence[float], reference: float) -> float:
         """Separator temperature (XMEAS 11) -> the condenser's input target (XMV 11) at
@@ -979,9 +982,8 @@ class TEController:
         lp = self.separator_loop
         y = float(xmeas[lp.cv - 1])
         if math.isfinite(y) and math.isfinite(reference):
-            held = (lp.cv in self.outer_held or self.feeds.a_lost or self.production.active
-                    or self._since < SEPARATOR_LOOP_STEADY_AFTER_H)
-            self._sep.step(reference - y, lp.gain, lp.ti_h, self.sample_h, held)
+            self._sep.step(reference - y, lp.gain, lp.ti_h, self.sample_h,
+                           self._condenser_trim_held(lp.cv))
         return self._sep.value
 
     def _a_loop_held_by_change(self, since: float) -> bool:
@@ -1338,7 +1340,8 @@ class TEController:
                 "p_trim": self._p.value, "e_p_prev": self._p.e_prev,
                 "sep_trim": self._sep.value, "e_sep_prev": self._sep.e_prev,
                 "pc_trim": self._pc.value, "e_pc_prev": self._pc.e_prev,
-                "pc_mean": self._pc_mean,
+                "pc_mean": (None if self._pc_mean.state is None
+                            else float(self._pc_mean.state[0])),
                 "core": None if self.core is None else self.core.checkpoint(),
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
@@ -1372,8 +1375,9 @@ class TEController:
             trim.value = float(state.get(f"{key}_trim", 0.0))
             trim.e_prev = state.get(f"e_{key}_prev")
         mean = state.get("pc_mean")  # absent or damaged: the next measurement starts it
-        self._pc_mean = (float(mean) if isinstance(mean, int | float) and math.isfinite(mean)
-                         else None)
+        ok = (isinstance(mean, int | float) and not isinstance(mean, bool)
+              and math.isfinite(mean))
+        self._pc_mean.reset((float(mean),) if ok else None)
         self.feeds.restore(state.get("feeds"))
         self.production.restore(state.get("production"))
         self.reactants.restore(state.get("reactants"))
