@@ -1,10 +1,11 @@
-"""The MPC strategies' production loop on the condenser (off by default): at a steady
-grade a product flow (XMEAS 17) that falls below its recent mean opens the condenser's
-input target (XMV 11), a standing offset does not, the trim washes out over hours, it
-holds through a grade change and when the operator holds it, it survives a restart; on
-the plant it takes up a condenser-side disturbance that otherwise reaches G through the
-reactor level's D feed; the default controller, without it, holds a kinetics-drift case
-that it tripped."""
+"""The MPC strategies' production loop on the condenser (on by default, opened by the
+condenser's cooling-water balance): at a steady grade, while the balance reports a
+condenser-side disturbance, a product flow (XMEAS 17) that falls below its recent mean
+opens the condenser's input target (XMV 11); without the report it does not, nor does a
+standing offset; the trim washes out over hours, it holds through a grade change and
+when the operator holds it, it survives a restart; on the plant it takes up a
+condenser-side disturbance that otherwise reaches G through the reactor level's D feed,
+and holds the kinetics-drift case it tripped before the balance opened it."""
 
 from __future__ import annotations
 
@@ -27,48 +28,65 @@ from controller.units.te.velocity_trim import VelocityTrim
 
 #: Product flow this far under its reference in the controller tests, m3/h.
 SHORT_M3_H = 0.5
+#: The condenser's cooling-water outlet (XMEAS 22) swings this far each sample in the
+#: controller tests (a condenser-side disturbance the balance reports), degC.
+SWING_DEGC = 2.0
+
+
+def _swing(x: np.ndarray, k: int, swing: float) -> np.ndarray:
+    """``x`` with the condenser's cooling-water outlet ``swing`` degC up or down."""
+    y = x.copy()
+    y[21] += swing if k % 2 else -swing
+    return y
 
 
 def _condenser_trims(plan: TransitionPlan, t0: float, short: float, n: int = 10,
                      held: set[int] | None = None, separator: bool = False,
-                     settle: int = 20):
+                     settle: int = 20, swing: float = SWING_DEGC):
     """The production loop's trim of the condenser's target, each of ``n`` samples
     from ``t0``: the product flow at the grade's for ``settle`` samples before, then
-    ``short`` m3/h under it, every other measurement at the grade (the separator loop
-    off unless ``separator``)."""
-    ctl, _ = make_te_controller("fixed", plan, separator_loop=separator,
-                                production_condenser_loop=True)
+    ``short`` m3/h under it, the condenser's cooling-water outlet swinging by ``swing``
+    throughout, every other measurement at the grade (the separator loop off unless
+    ``separator``)."""
+    ctl, _ = make_te_controller("fixed", plan, separator_loop=separator)
     if held:
         ctl.hold_outer_loops(held)
     x = np.array(plan.grade_at(t0).xmeas, dtype=float)
     dt = ctl.sample_h
     for k in range(settle):
-        ctl.step(k, t0 + (k - settle) * dt, x, None)
+        ctl.step(k, t0 + (k - settle) * dt, _swing(x, k, swing), None)
         ctl.finish_sample()
     x[16] -= short
     trims = []
     for k in range(n):
-        ctl.step(settle + k, t0 + k * dt, x, None)
+        ctl.step(settle + k, t0 + k * dt, _swing(x, settle + k, swing), None)
         ctl.finish_sample()
         trims.append(ctl.pc_trim)
     return ctl, trims
 
 
-def test_the_loop_is_off_by_default():
+def test_the_loop_is_on_by_default():
     ctl, _ = make_te_controller("ssmpc", TransitionPlan("mode2"))
-    assert ctl.production_condenser_loop is None
-    on, _ = make_te_controller("ssmpc", TransitionPlan("mode2"),
-                               production_condenser_loop=True)
-    assert on.production_condenser_loop is PRODUCTION_CONDENSER_LOOP
+    assert ctl.production_condenser_loop is PRODUCTION_CONDENSER_LOOP
+    off, _ = make_te_controller("ssmpc", TransitionPlan("mode2"),
+                                production_condenser_loop=False)
+    assert off.production_condenser_loop is None
 
 
 def test_the_default_controller_holds_the_kinetics_drift_case_the_loop_tripped():
-    # IDV(13) at mode 1, seed 28: with the loop on, ssmpc tripped at 27.9 h (reactor
-    # pressure, the MPC opening the condenser into the separator's collapse)
+    # IDV(13) at mode 1, seed 28: with the loop always open, ssmpc tripped at 27.9 h
+    # (reactor pressure, the MPC opening the condenser into the separator's collapse);
+    # the balance does not open it for the kinetics' drift
     r = run_te("ssmpc", TransitionPlan("mode1"), 30.0, noise=True, seed=28,
                plant_seed=plant_seed_for(28), idv={13: 2.0})
     assert r.shutdown is None
     assert float(np.max(r.xmeas[:, 6])) < 2900.0
+
+
+def test_without_a_condenser_side_disturbance_the_loop_does_not_act():
+    ctl, trims = _condenser_trims(TransitionPlan("mode2"), 2.0, SHORT_M3_H, swing=0.0)
+    assert not ctl.condenser_balance.active
+    assert max(abs(t) for t in trims) < 1e-12
 
 
 def test_the_loop_is_the_decentralized_pairing():
@@ -79,7 +97,8 @@ def test_the_loop_is_the_decentralized_pairing():
 
 
 def test_a_short_product_flow_opens_the_condenser_at_a_steady_grade():
-    _, trims = _condenser_trims(TransitionPlan("mode2"), 2.0, SHORT_M3_H)
+    ctl, trims = _condenser_trims(TransitionPlan("mode2"), 2.0, SHORT_M3_H)
+    assert ctl.condenser_balance.active
     assert trims[-1] > 0.05
     assert all(b > a for a, b in zip(trims[1:], trims[2:], strict=False))  # integral
     _, more = _condenser_trims(TransitionPlan("mode2"), 2.0, -SHORT_M3_H)
@@ -90,15 +109,17 @@ def test_a_standing_offset_from_the_plan_is_left_to_the_a_c_feed():
     # the product flow 0.5 m3/h under the plan's from the start: the loop's reference is
     # the flow's own mean, so it does not move the condenser (the A+C feed's loop
     # answers the offset)
-    _, trims = _condenser_trims(TransitionPlan("mode2"), 2.0, 0.0, settle=0)
+    ctl, trims = _condenser_trims(TransitionPlan("mode2"), 2.0, 0.0, settle=0, n=40)
+    assert ctl.condenser_balance.active
     assert max(abs(t) for t in trims) < 1e-12
     plan = TransitionPlan("mode2")
-    ctl, _ = make_te_controller("fixed", plan, production_condenser_loop=True)
+    ctl, _ = make_te_controller("fixed", plan)
     x = np.array(grade("mode2").xmeas, dtype=float)
     x[16] -= SHORT_M3_H
-    for k in range(30):
-        ctl.step(k, 2.0 + k * ctl.sample_h, x, None)
+    for k in range(40):
+        ctl.step(k, 2.0 + k * ctl.sample_h, _swing(x, k, SWING_DEGC), None)
         ctl.finish_sample()
+    assert ctl.condenser_balance.active
     assert abs(ctl.pc_trim) < 1e-12
     assert ctl.p_trim > 0.0  # the A+C feed's loop raises its target
 
@@ -165,6 +186,8 @@ def test_a_restored_controller_goes_on_with_the_trim_and_mean_it_reached():
     again.restore(state)
     again.take_over()
     assert again.pc_trim == ctl.pc_trim
+    assert again.condenser_balance.state() == ctl.condenser_balance.state()
+    assert again.condenser_balance.active
     x = np.array(grade("mode2").xmeas, dtype=float)
     x[16] -= SHORT_M3_H
     a = ctl.step(30, 2.1, x, None)

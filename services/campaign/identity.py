@@ -7,7 +7,8 @@ plant side's inner loops and the loops the core's models close
 (:class:`controller.units.te.control.TEMPCOptions`), the ratio loop
 (:class:`~controller.units.te.control.RatioSettings`), the separator-temperature loop
 (:data:`~controller.units.te.control.SEPARATOR_LOOP`), the production loop on the
-condenser (:data:`~controller.units.te.control.PRODUCTION_CONDENSER_LOOP`), the
+condenser (:data:`~controller.units.te.control.PRODUCTION_CONDENSER_LOOP`, whether it is
+on, and the cooling-water balance that opens it), the
 transition guards
 (:class:`~controller.units.te.control.TransitionGuards`), the guards' own settings
 (feed overrides, production index, level sag, floating pressure), the steady-state
@@ -22,6 +23,7 @@ hex digits: a case renamed keeps its runs, a case whose legs move gets new ones.
 from __future__ import annotations
 
 import hashlib
+import inspect
 import json
 from dataclasses import asdict, dataclass
 from functools import cached_property, lru_cache
@@ -37,6 +39,7 @@ RUN_FORMAT = "campaign-run-3"
 @lru_cache(maxsize=8)
 def _settings_json(unit: str) -> str:
     if unit == "te":
+        from controller.units.te.condenser_balance import CondenserBalanceSettings
         from controller.units.te.control import (
             CONDENSER_TRIM_WASHOUT_H,
             GUARDS_MPC,
@@ -51,6 +54,7 @@ def _settings_json(unit: str) -> str:
             RatioSettings,
             TEMPCOptions,
             TransitionGuards,
+            make_te_controller,
         )
         from controller.units.te.d_share_path import DSharePathSettings
         from controller.units.te.floating_pressure import FloatingPressureSettings
@@ -82,12 +86,20 @@ def _settings_json(unit: str) -> str:
                  **asdict(PRODUCTION_CONDENSER_LOOP),
                  "trim": list(PRODUCTION_CONDENSER_TRIM_LIMITS),
                  "washout_h": CONDENSER_TRIM_WASHOUT_H,
-                 "mean_h": PRODUCTION_CONDENSER_MEAN_H}}
+                 "mean_h": PRODUCTION_CONDENSER_MEAN_H,
+                 "on": _default_of(make_te_controller, "production_condenser_loop"),
+                 "condenser_balance": asdict(CondenserBalanceSettings())}}
     else:
         from services.registry import get_unit
 
         s = {"unit_config": asdict(get_unit(unit))}
     return json.dumps(s, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def _default_of(func, name: str):
+    """The default of ``func``'s keyword ``name`` (the options a campaign run leaves as
+    they are)."""
+    return inspect.signature(func).parameters[name].default
 
 
 def run_settings(unit: str) -> dict:

@@ -44,9 +44,10 @@ Layers (seed Fig. 7.2)
          reactor level's set point) D feeds lowered together on the reactor pressure,
          with an alarm;
        - MPC strategies at a steady grade, the separator temperature (XMEAS 11)
-         opens the condenser's input target (XMV 11, :data:`SEPARATOR_LOOP`); the
-         product flow (XMEAS 17) may trim it too (:data:`PRODUCTION_CONDENSER_LOOP`, off
-         by default);
+         opens the condenser's input target (XMV 11, :data:`SEPARATOR_LOOP`); while the
+         condenser's cooling-water balance reports a disturbance on its side
+         (:mod:`controller.units.te.condenser_balance`), the product flow (XMEAS 17)
+         trims it too (:data:`PRODUCTION_CONDENSER_LOOP`);
        - MPC strategies, the reactant trim (:mod:`controller.units.te.reactant_trim`):
          at a steady grade, A+C short in the reactor feed with the D feed at its limit
          raises the A+C feed's target, A+C in excess lowers it, with an alarm;
@@ -173,6 +174,7 @@ from controller.alarms import keyed_alarms
 from controller.blas import single_threaded
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.mpc.filters import FirstOrderFilter
+from controller.units.te.condenser_balance import CondenserBalance
 from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.d_share_path import DSharePath, DSharePathSettings
 from controller.units.te.floating_pressure import (
@@ -282,12 +284,14 @@ SEP_TRIM_LIMITS = (0.0, 20.0)
 #: cooling condenses more in the separator and sends it to the stripper within
 #: minutes, where the A+C feed (:data:`PRODUCTION_LOOP`) takes hours through the
 #: reactor. What it does: a disturbance on the condenser's side (IDV(12), its cooling
-#: water's inlet temperature; IDV(18), its heat transfer) or on the reactor's effluent
-#: (IDV(20)) moves the production first, the loop answers it there, and the reactor
-#: level's D feed, with the E valve the ratio ties to it, is left alone; at mode 2,
-#: where that E valve runs near its range, that is what G's deviation follows (see
-#: :class:`TEController` ``production_condenser_loop`` for the measured effect, and why
-#: it is off by default).
+#: water's inlet temperature; IDV(18), its heat transfer) moves the production first,
+#: the loop answers it there, and the reactor level's D feed, with the E valve the
+#: ratio ties to it, is left alone; at mode 2, where that E valve runs near its
+#: range, that is what G's deviation follows (see
+#: :class:`TEController` ``production_condenser_loop`` for the measured effect). It acts
+#: only while the condenser's cooling-water balance reports a disturbance on the
+#: condenser's side (:mod:`controller.units.te.condenser_balance`): the kinetics' drift
+#: moves the production too, and there the loop tripped the plant.
 PRODUCTION_CONDENSER_LOOP = PILoopSpec("production -> condenser target (steady grade)",
                                        cv=17, output=4, gain=3.0, ti_h=0.72)
 #: Washout of :data:`PRODUCTION_CONDENSER_LOOP`'s trim, h: the trim decays toward 0,
@@ -694,52 +698,41 @@ class TEController:
     production_condenser_loop : bool
         MPC strategies: let the product flow trim the condenser's input target at a
         steady grade as well (:data:`PRODUCTION_CONDENSER_LOOP`, washed out over
-        :data:`CONDENSER_TRIM_WASHOUT_H`; added to the separator loop's trim). Off by
-        default: under the kinetics' drift it trips where the controller without it
-        holds. IDV(13) at modes 0-3 on seeds 1-40 (``docs/campaigns/te_kinetics_drift.json``,
-        48 h): ``ssmpc`` tripped 3 of the 160 runs with it (mode 1 seeds 28 and 32 at
-        27.9 and 33.2 h, mode 2 seed 25 at 45.4 h; without it none), ``fixed`` 12
-        against 9. On seed 28 at mode 1 the loop had held the condenser 0.3-0.6 %
-        under its target for hours while the kinetics raised the production, the
-        pressure stood 50-80 kPa higher, and at 25.5 h the MPC opened the condenser
-        against it (13 -> 80 % in 2 h, the separator 91 -> 68 degC) into the trip.
-        Tried on those three seeds and three that held (mode 1 seed 15, mode 2 seeds 5
-        and 17), each leaving a trip or losing the gains: its trim within 3 % (no trip;
-        IDV(12) at mode 2 0.583, IDV(18) 0.757 mol %), 4 or 5 % (trips); held above
-        2850 kPa, or not closing the
-        condenser above 2800-2850 kPa (more trips); held while the MPC keeps the
-        condenser 2 or 5 % from its target (the same trips); held while C in the purge
-        is 4 mol % or more off the plan's (no trip; IDV(12) at mode 0 0.631, IDV(8) at
-        mode 2 0.596) or 1-2 mol % off its own 4 h mean (trips); held while a
-        kinetics-drift guard acts (trips); the MPC's condenser capped 10 % above its
-        target (two of the three trips). With it on, measured (ssmpc, noise on,
+        :data:`CONDENSER_TRIM_WASHOUT_H`; added to the separator loop's trim), while the
+        condenser's cooling-water balance reports a condenser-side disturbance
+        (:attr:`condenser_balance`,
+        :class:`~controller.units.te.condenser_balance.CondenserBalance`); otherwise the
+        loop is held and its trim washes out. On by default. Measured (ssmpc, noise on,
         seeds 1-3, 48 h, onset 2 h, the acceptance matrix
         ``docs/campaigns/te_matrix.json``; G's standard deviation mol % and run-mean
-        $/h without -> with it, the decentralized structure's in brackets):
+        $/h without the loop -> with it, the decentralized structure's in brackets):
 
         ==========  ===========================  ===========================
         case        G std, mol %                 cost, $/h
         ==========  ===========================  ===========================
-        IDV(12) @2  0.864 -> 0.521 (0.521)       182.8 -> 181.5 (181.5)
-        IDV(18) @2  1.030 -> 0.549 (0.522)       182.8 -> 181.4 (181.4)
-        IDV(20) @2  0.664 -> 0.535 (0.523)       178.9 -> 179.9 (181.3)
-        IDV(13) @2  1.005 -> 0.995               225.6 -> 222.7
-        IDV(12) @0  0.636 -> 0.540 (0.586)       136.8 -> 134.5 (171.2)
-        IDV(20) @0  0.558 -> 0.530 (0.510)       149.2 -> 149.6 (170.6)
-        IDV(8) @0   0.571 -> 0.562 (0.529)       155.0 -> 151.4 (174.6)
-        IDV(1) @2   0.519 -> 0.636 (0.516)       180.7 -> 182.8 (176.1)
-        IDV(1) @0   0.528 -> 0.532 (0.508)       153.1 -> 155.1 (166.0)
-        IDV(13) @0  0.718 -> 0.776 (0.824)       162.0 -> 159.8 (171.4)
+        IDV(12) @2  0.864 -> 0.527 (0.521)       182.8 -> 181.6 (181.5)
+        IDV(18) @2  1.030 -> 0.550 (0.522)       182.8 -> 181.4 (181.4)
+        IDV(12) @0  0.636 -> 0.538 (0.586)       136.8 -> 134.5 (171.2)
+        IDV(5) @0   0.512 -> 0.513 (0.513)       140.5 -> 139.5 (170.6)
+        IDV(5) @2   0.505 -> 0.513 (0.516)       181.8 -> 182.1 (181.2)
         ==========  ===========================  ===========================
 
-        Under IDV(1) at mode 2 the reactant trim cuts the A+C feed on the C that
-        gathers and the production falls by design; the loop opens the condenser
-        against it, the separator cools by 3 degC, the reactor level falls 5 % and
-        the E valve clips (seed 1, 4-6 h: G 13.8 mol %). Holding the loop while the
-        reactant trim cuts took that case to 0.528 mol % but IDV(18) at mode 2 to 1.09
-        and IDV(20) to 0.78 mol %: not taken. The designs measured on the way are in
-        ``docs/te_matrix.md`` ("What the matrix does not show", the product flow on the
-        condenser).
+        Every other case of the matrix, and its 14 transitions, to the digit: the
+        balance reports only IDV(5), (12) and (18), the condenser's side. Always open
+        (the loop as first built), it met IDV(12) at mode 2 with 0.521 mol % and took
+        IDV(18) and IDV(20) at mode 2 to 0.549 and 0.535, but IDV(1) at mode 2 to
+        0.636 (the reactant trim cuts the A+C feed, the production falls by design and
+        the loop opened the condenser against it), and under the kinetics' drift
+        (IDV(13) at modes 0-3, seeds 1-40, ``docs/campaigns/te_kinetics_drift.json``)
+        it tripped ``ssmpc`` on 3 of the 160 runs (mode 1 seeds 28 and 32 at 27.9 and
+        33.2 h, mode 2 seed 25 at 45.4 h): on seed 28 it held the condenser 0.3-0.6 %
+        under its target for hours while the kinetics raised the production, the
+        pressure stood 50-80 kPa higher, and at 25.5 h the MPC opened the condenser
+        against it (13 -> 80 % in 2 h) into the trip. Opened by the balance, that
+        campaign has no ``ssmpc`` trip and every row as without the loop: the balance
+        never reported the drift. Holds and limits tried before the balance each left
+        a trip or lost the gains (``docs/te_matrix.md``, "What the matrix does not
+        show", the product flow on the condenser).
     guards : TransitionGuards, optional
         The E-feed limit, the plan hold and the pressure set point's tracking
         (default :class:`TransitionGuards`).
@@ -764,7 +757,7 @@ class TEController:
                  d_share_path: DSharePathSettings | None = None,
                  level_sag: LevelSagSettings | None = None,
                  floating_pressure: FloatingPressureSettings | None = None,
-                 production_condenser_loop: bool = False) -> None:
+                 production_condenser_loop: bool = True) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -810,6 +803,9 @@ class TEController:
         self.separator_loop = SEPARATOR_LOOP if separator_loop else None
         # the product flow's own mean, the production loop's reference on the condenser
         self._pc_mean = FirstOrderFilter(min(self.sample_h / PRODUCTION_CONDENSER_MEAN_H, 1.0))
+        #: the condenser's cooling-water balance: the production loop acts only while it
+        #: reports a condenser-side disturbance
+        self.condenser_balance = CondenserBalance(sample_h=self.sample_h)
         self.production_condenser_loop = (PRODUCTION_CONDENSER_LOOP
                                           if production_condenser_loop else None)
         self._t_last: float | None = None
@@ -964,7 +960,8 @@ class TEController:
         if math.isfinite(y):
             r = float(self._pc_mean.update((y,))[0])
             self._pc.step(r - y, lp.gain, lp.ti_h, self.sample_h,
-                          self._condenser_trim_held(lp.cv, 11))
+                          self._condenser_trim_held(lp.cv, 11)
+                          or not self.condenser_balance.active)
         return self._pc.value
 
     def _condenser_trim_held(self, *cvs: int) -> bool:
@@ -1290,6 +1287,8 @@ class TEController:
                                          self.production.level_setpoint(yl[7]),
                                          float(u[1]), self._since)
         alarms.extend(self.level_sag.alarms())
+        if self.production_condenser_loop is not None:
+            self.condenser_balance.update(xm[21], xm[8], float(u[10]), xm[4])
         setpoints = np.array([core_u[3], level_sp, yl[11], yl[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy(),
                  "pressure_floats": self.pressure_floats}
@@ -1342,6 +1341,7 @@ class TEController:
                 "pc_trim": self._pc.value, "e_pc_prev": self._pc.e_prev,
                 "pc_mean": (None if self._pc_mean.state is None
                             else float(self._pc_mean.state[0])),
+                "condenser_balance": self.condenser_balance.state(),
                 "core": None if self.core is None else self.core.checkpoint(),
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
@@ -1378,6 +1378,7 @@ class TEController:
         ok = (isinstance(mean, int | float) and not isinstance(mean, bool)
               and math.isfinite(mean))
         self._pc_mean.reset((float(mean),) if ok else None)
+        self.condenser_balance.restore(state.get("condenser_balance"))
         self.feeds.restore(state.get("feeds"))
         self.production.restore(state.get("production"))
         self.reactants.restore(state.get("reactants"))
@@ -1675,7 +1676,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        d_share_path: DSharePathSettings | None = None,
                        level_sag: LevelSagSettings | None = None,
                        floating_pressure: FloatingPressureSettings | None = None,
-                       production_condenser_loop: bool = False,
+                       production_condenser_loop: bool = True,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
