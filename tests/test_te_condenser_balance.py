@@ -59,6 +59,15 @@ def _plant(valves, dt=0.01, t0=92.2, ua_scale=1.0, inlet=lambda t: 40.0):
     return np.array(out)
 
 
+def _wandering_inlet(seed: int, until_h: float):
+    """An inlet temperature that wanders about its design 40 degC (standard deviation
+    4 degC, a new value each 0.1 h, linear between) until ``until_h``, then stays at
+    40 degC."""
+    knots_h = np.arange(0.0, until_h + 1e-9, 0.1)
+    knots = 40.0 + 4.0 * np.random.default_rng(seed).standard_normal(knots_h.size)
+    return lambda t: float(np.interp(t, knots_h, knots, right=40.0))
+
+
 def _feed(balance, t22, valves):
     active = []
     for y, v in zip(t22, valves, strict=True):
@@ -94,9 +103,7 @@ def test_the_balance_at_rest_is_ricker_s_steady_state(mode):
 def test_a_varying_inlet_temperature_is_reported():
     # the inlet wanders over tens of minutes, the outlet by about 1 degC (as under
     # IDV(12) on the plant), the valve still
-    rng = np.random.default_rng(3)
-    knots = 40.0 + 4.0 * rng.standard_normal(40)
-    inlet = lambda t: float(np.interp(t, np.arange(40) * 0.1, knots))  # noqa: E731
+    inlet = _wandering_inlet(3, 4.0)
     valves = [VALVE] * 200
     t22 = _plant(valves, inlet=inlet)
     b = CondenserBalance()
@@ -121,10 +128,7 @@ def test_the_valve_s_own_moves_are_not_reported_though_the_balance_is_off():
 
 
 def test_the_report_holds_then_ends():
-    rng = np.random.default_rng(5)
-    knots = 40.0 + 4.0 * rng.standard_normal(20)
-    inlet = lambda t: float(np.interp(t, np.arange(20) * 0.1, knots,  # noqa: E731
-                                      right=40.0))
+    inlet = _wandering_inlet(5, 1.9)  # then at its design value
     valves = [VALVE] * 800
     t22 = _plant(valves, inlet=inlet)
     b = CondenserBalance(CondenserBalanceSettings(hold_h=2.0))
@@ -168,9 +172,7 @@ def test_a_bad_sample_time_is_refused(dt):
 
 
 def test_a_restart_goes_on_where_it_was():
-    rng = np.random.default_rng(7)
-    knots = 40.0 + 4.0 * rng.standard_normal(20)
-    inlet = lambda t: float(np.interp(t, np.arange(20) * 0.1, knots))  # noqa: E731
+    inlet = _wandering_inlet(7, 1.9)
     valves = [VALVE] * 150
     t22 = _plant(valves, inlet=inlet)
     b = CondenserBalance()
