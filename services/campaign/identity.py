@@ -7,8 +7,10 @@ plant side's inner loops and the loops the core's models close
 (:class:`controller.units.te.control.TEMPCOptions`), the ratio loop
 (:class:`~controller.units.te.control.RatioSettings`), the separator-temperature loop
 (:data:`~controller.units.te.control.SEPARATOR_LOOP`), the production loop on the
-condenser (:data:`~controller.units.te.control.PRODUCTION_CONDENSER_LOOP`, whether it is
-on, and the cooling-water balance that opens it), the
+condenser (:data:`~controller.units.te.control.PRODUCTION_CONDENSER_LOOP`) and the
+condenser-side disturbance loop
+(:data:`~controller.units.te.control.CONDENSER_DISTURBANCE_LOOP`), whether each is on,
+and the cooling-water balance that opens them, the
 transition guards
 (:class:`~controller.units.te.control.TransitionGuards`), the guards' own settings
 (feed overrides, production index, level sag, floating pressure), the steady-state
@@ -41,6 +43,8 @@ def _settings_json(unit: str) -> str:
     if unit == "te":
         from controller.units.te.condenser_balance import CondenserBalanceSettings
         from controller.units.te.control import (
+            CONDENSER_DISTURBANCE_LOOP,
+            CONDENSER_DISTURBANCE_TRIM_LIMITS,
             CONDENSER_TRIM_WASHOUT_H,
             GUARDS_MPC,
             PRODUCTION_CONDENSER_LOOP,
@@ -87,8 +91,12 @@ def _settings_json(unit: str) -> str:
                  "trim": list(PRODUCTION_CONDENSER_TRIM_LIMITS),
                  "washout_h": CONDENSER_TRIM_WASHOUT_H,
                  "mean_h": PRODUCTION_CONDENSER_MEAN_H,
-                 "on": _default_of(make_te_controller, "production_condenser_loop"),
-                 "condenser_balance": asdict(CondenserBalanceSettings())}}
+                 "on": _default_of(make_te_controller, "production_condenser_loop")},
+             "condenser_disturbance_loop": {
+                 **asdict(CONDENSER_DISTURBANCE_LOOP),
+                 "trim": list(CONDENSER_DISTURBANCE_TRIM_LIMITS),
+                 "on": _default_of(make_te_controller, "condenser_disturbance_loop")},
+             "condenser_balance": asdict(CondenserBalanceSettings())}
     else:
         from services.registry import get_unit
 

@@ -1,15 +1,18 @@
 """The condenser's cooling-water energy balance: a soft sensor that tells a
 condenser-side disturbance from one inside the reactor.
 
-The production loop on the condenser (``TEController`` ``production_condenser_loop``)
-helps where the condenser's cooling is what varies (IDV(12), the cooling water's inlet
-temperature at random; IDV(18), the condenser's heat transfer in spikes) and trips the
-plant under the kinetics' slow drift (IDV(13)), which also moves the product flow. The
-separator temperature, the purge's C and the pressure move alike in both; the cooling
-water's outlet temperature (XMEAS 22) does not, once what the controller itself does to
-it is taken out. This module predicts XMEAS 22 from the measured inputs of the
-condenser's cooling-water side and reports how much of its variation the
-prediction does not explain over the last half hour.
+Loops that move the condenser hard help where the condenser's cooling is what varies
+(IDV(12), the cooling water's inlet temperature at random; IDV(18), the condenser's heat
+transfer in spikes) and hurt elsewhere: the product flow on the condenser
+(``TEController`` ``production_condenser_loop``) tripped the plant under the kinetics'
+slow drift (IDV(13)), which also moves the product flow, and the separator temperature
+on it at the PI baseline's tuning (``condenser_disturbance_loop``) took G's deviation up
+under IDV(20) and IDV(8). The separator temperature, the purge's C and the pressure move
+alike under all of them; the cooling water's outlet temperature (XMEAS 22) does not,
+once what the controller itself does to it is taken out. This module predicts XMEAS 22
+from the measured inputs of the condenser's cooling-water side and reports how much of
+its variation the prediction does not explain over the last half hour; the controller
+opens those loops only while it reports.
 
 The balance, Downs & Vogel (1993), the TE model's condenser (its FORTRAN ``TEFUNC``)::
 
@@ -37,31 +40,33 @@ error grows with how far its inputs move it). :attr:`CondenserBalance.active` is
 while the indicator is at or above :attr:`CondenserBalanceSettings.on_degc` and for
 :attr:`CondenserBalanceSettings.hold_h` after (the spikes of IDV(18) come and go).
 
-Measured (``ssmpc`` as shipped, the loop opened by this balance; noise on, seed 1 unless
-named, 48 h, onset 2 h; the indicator from 3 h on, degC, and the share of that time
-reported):
+Measured (``ssmpc`` as shipped, the condenser-side disturbance loop opened by this
+balance; noise on, seed 1 unless named, 48 h, onset 2 h; the indicator from 3 h on, degC,
+and the share of that time reported):
 
 =======================  ==================  ==========================  ========
 case                     seeds               indicator p50 / p90 / max   reported
 =======================  ==================  ==========================  ========
 no disturbance, mode 0   1                   0.04 / 0.05 / 0.09          0
 no disturbance, mode 2   1                   0.03 / 0.04 / 0.06          0
-IDV(12) at mode 0        1                   1.10 / 1.68 / 2.33          1.00
-IDV(12) at mode 2        1                   0.74 / 1.15 / 1.77          1.00
-IDV(18) at modes 0, 2    1                   0.57 / 1.06 / 1.51 (mode 0) 0.92
-IDV(5) at modes 0, 2     1                   max 0.61, 0.36 (the step)   0.06
+IDV(12) at mode 0        1                   1.20 / 1.70 / 2.30          1.00
+IDV(12) at mode 2        1                   0.85 / 1.20 / 1.68          1.00
+IDV(18) at mode 0        1                   0.52 / 0.95 / 1.19          0.92
+IDV(18) at mode 2        1                   0.65 / 1.21 / 1.51          0.92
+IDV(5) at modes 0, 2     1                   max 0.68, 0.46 (the step)   0.05
 IDV(13) at mode 1        28, 32              max 0.05                    0
 IDV(13) at mode 2        5, 17, 25           max 0.05                    0
 IDV(1), (8), (15), (20)  1, at mode 2        max 0.04-0.06               0
 =======================  ==================  ==========================  ========
 
-On seed 1 at modes 0 and 2, IDV 1-20 alone: the indicator passed 0.16 degC only under
-IDV(5), (12) and (18), the condenser's side. The steps to it, on the same runs with the
-loop off (1 h window): the residual's standard deviation alone, with UA held at its
-start value, was 0.76-1.06 degC at the 10th percentile under IDV(12) and up to 1.7 degC
-under IDV(13) (the effluent's flow moves UA); with UA from the recycle flow, up to 1.1
-degC under IDV(13), in the MPC's large moves of the condenser, whose effect the balance
-then follows only in part; less half the prediction's own deviation, at most 0.14 degC.
+On seed 1 at modes 0 and 2, IDV 1-20 alone (the loops off): the indicator passed
+0.16 degC only under IDV(5), (12) and (18), the condenser's side. The steps to it, on
+runs with the loops off (1 h window): the residual's standard deviation alone, with UA
+held at its start value, was 0.76-1.06 degC at the 10th percentile under IDV(12) and up
+to 1.7 degC under IDV(13) (the effluent's flow moves UA); with UA from the recycle flow,
+up to 1.1 degC under IDV(13), in the MPC's large moves of the condenser, whose effect
+the balance then follows only in part; less half the prediction's own deviation, at
+most 0.14 degC.
 The effluent's flow from the reactor-separator pressure difference instead (f =
 385 sqrt(XMEAS 7 - XMEAS 13)) reads IDV(20)'s spikes of the effluent's flow coefficient
 as well (a residual deviation of 1.1 degC at the median): not taken.
