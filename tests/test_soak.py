@@ -191,3 +191,38 @@ def test_fault_free_twin_replays_the_idvs_of_a_run():
     trip = fault_free_twin(cfg, 1.0, False, empty, [{"t_h": 0.1, "idv": 1, "on": True}],
                            12 * 3600.0)
     assert trip is not None and 2 * 3600.0 < trip < 5 * 3600.0
+
+
+def test_an_api_port_taken_before_the_api_binds_it_is_replaced(tmp_path, monkeypatch):
+    # the port the soak picks for the api is free when picked; here something binds it
+    # before the api starts (as an outgoing connection's ephemeral port may)
+    import socket
+    import sys as _sys
+
+    from services.io import zenoh_session
+
+    taker = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    taker.bind(("127.0.0.1", 0))
+    taker.listen(1)
+    taken = taker.getsockname()[1]
+    real = zenoh_session.free_port
+    handed = []
+
+    def free_port(host="127.0.0.1"):
+        if _sys._getframe(1).f_code.co_name == "run" and not handed:
+            handed.append(taken)
+            return taken
+        return real(host)
+
+    monkeypatch.setattr(zenoh_session, "free_port", free_port)
+    try:
+        r = run_soak(SoakSettings(unit="te", hours=0.3, speed=1800.0, seed=3, faults=(),
+                                  transition_gap_h=1000.0, idv_gap_h=1000.0,
+                                  state_dir=str(tmp_path / "state")))
+    finally:
+        taker.close()
+    assert handed == [taken]
+    _check_shape(r)
+    assert r["records_lost"] == 0 and r["unhandled_errors"] == 0
+    log = (tmp_path / "state" / "api.log").read_text()
+    assert "in use" in log and log.count("--- start") == 2

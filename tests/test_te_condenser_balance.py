@@ -211,3 +211,13 @@ def test_on_the_plant_it_reports_the_condenser_s_cooling_water_not_the_kinetics(
                    plant_seed=plant_seed_for(28), idv={13: 2.0})
     assert drift.shutdown is None
     assert not _replay(drift).any()
+
+
+def test_a_frozen_outlet_measurement_reports_only_when_the_valve_moves_hard():
+    # the sensor stuck at its last value: still valve, no report; the valve swung hard
+    # (the prediction varies by more than 0.6 degC), a report
+    still = CondenserBalance()
+    assert not _feed(still, [92.2] * 200, [VALVE] * 200).any()
+    moving = CondenserBalance()
+    valves = ([VALVE] * 30 + [40.0] * 30) * 4
+    assert _feed(moving, [92.2] * len(valves), valves).any()

@@ -182,3 +182,18 @@ def test_a_reactor_side_disturbance_is_left_to_the_rest_of_the_controller():
                    condenser_disturbance_loop=on) for on in (True, False)]
     assert all(r.shutdown is None for r in runs)
     np.testing.assert_array_equal(runs[0].xmv, runs[1].xmv)
+
+
+def test_an_alarm_stands_while_the_balance_reports():
+    plan = TransitionPlan("mode2")
+    ctl = _controller(plan)
+    x = np.array(plan.grade_at(2.0).xmeas, dtype=float)
+    quiet = ctl.step(0, 2.0, x, None)
+    ctl.finish_sample()
+    assert not any("condenser cooling water" in a for a in quiet.alarms)
+    _run(ctl, plan, 2.01, 40, HOT_DEGC, SWING_DEGC, k0=1)
+    y = x.copy()
+    y[10] += HOT_DEGC
+    d = ctl.step(41, 2.41, y, None)
+    said = [a for a in d.alarms if a.startswith("condenser cooling water")]
+    assert len(said) == 1 and "XMEAS 22" in said[0] and "+" in said[0]

@@ -436,6 +436,33 @@ class Soak:
             self._recent_mv.append(u)
 
     # -- REST ---------------------------------------------------------------------------------
+    #: Ports the api node is started on before the soak gives up: a port found free may
+    #: be taken (an outgoing connection's ephemeral port) before the api binds it.
+    API_PORT_TRIES = 3
+
+    def _start_api(self, port: int, ep_ctrl: str, state: Path, env: dict,
+                   timeout_s: float) -> int:
+        """Start the api node on ``port``, or on another free port if that one was
+        taken meanwhile; return the port it serves on."""
+        from services.io.zenoh_session import free_port
+
+        for attempt in range(self.API_PORT_TRIES):
+            self.api = _NodeProcess(
+                "api", ["-m", "services.cli", "api", "--connect", ep_ctrl, "--lease-ms",
+                        str(LEASE_MS), "--port", str(port)], state / "api.log", env=env)
+            try:
+                self.api.start(timeout_s)
+            except RuntimeError:
+                log_text = (state / "api.log").read_text(errors="replace")
+                if "in use" not in log_text.rsplit("--- start", 1)[-1] \
+                        or attempt == self.API_PORT_TRIES - 1:
+                    raise
+                port = free_port()
+                continue
+            self.http.base_url = f"http://127.0.0.1:{port}"
+            return port
+        raise AssertionError("unreachable")
+
     def _rest(self, method: str, path: str, *, auth: bool = True, **kw):
         """One REST call; None when the api node is unreachable (counted)."""
         import httpx
@@ -748,11 +775,8 @@ class Soak:
                                str(state), *stall, "--stall-factor", str(stall_factor)],
                 state / "controller.log")
             env = {**os.environ, "SSMPC_API_TOKEN": self.token}
-            self.api = _NodeProcess(
-                "api", ["-m", "services.cli", "api", "--connect", ep_ctrl, "--lease-ms",
-                        str(LEASE_MS), "--port", str(port)], state / "api.log", env=env)
             self.ctrl.start(s.ready_timeout_s)
-            self.api.start(s.ready_timeout_s)
+            port = self._start_api(port, ep_ctrl, state, env, s.ready_timeout_s)
             self.plant_seed = float(1 + s.seed % 10_000)
             runner = (make_runner(self.cfg, noise=s.noise, seed=self.plant_seed)
                       if self.cfg.plant == "te" else make_runner(self.cfg))

@@ -70,6 +70,11 @@ most 0.14 degC.
 The effluent's flow from the reactor-separator pressure difference instead (f =
 385 sqrt(XMEAS 7 - XMEAS 13)) reads IDV(20)'s spikes of the effluent's flow coefficient
 as well (a residual deviation of 1.1 degC at the median): not taken.
+
+A failed XMEAS 22 can open the loops, not move the plant by itself: frozen, its residual
+mirrors the prediction and reports once the prediction varies by 0.6 degC or more (the
+valve moving hard); noisy, it reports. The loops it opens act on their own measurements
+within their trims' ranges. A sample that is not finite is skipped.
 """
 
 from __future__ import annotations

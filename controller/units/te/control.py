@@ -781,8 +781,8 @@ class TEController:
         0.64 mol %. A washout of the trim (4 or 8 h, report or not) cost IDV(5) at mode
         0 3 $/h (139.3 against 136.3): a step of the cooling water's inlet needs its
         opening as long as it lasts. Gains of -1 and -3 %/degC (seeds 1-3, ``run_te``):
-        IDV(12) at mode 2 0.520
-        and 0.505, IDV(18) 0.559 and 0.514 mol %; Ti 1 h: 0.507 and 0.522.
+        IDV(12) at mode 2 0.520 and 0.505, IDV(18) 0.559 and 0.514 mol %; Ti 1 h: 0.507
+        and 0.522. While the balance reports, an alarm says so, with the trim.
     guards : TransitionGuards, optional
         The E-feed limit, the plan hold and the pressure set point's tracking
         (default :class:`TransitionGuards`).
@@ -1327,6 +1327,12 @@ class TEController:
                     trim += self._production_condenser_step(xm)
                 if self.condenser_disturbance_loop is not None:
                     trim += self._condenser_disturbance_step(xm, r_sep)
+                    if self.condenser_balance.active:
+                        alarms.append(
+                            "condenser cooling water: XMEAS 22 varies "
+                            f"{max(self.condenser_balance.indicator, 0.0):.1f} degC beyond "
+                            "its balance; the separator temperature moves the condenser's "
+                            f"target ({self._cd.value:+.1f} %)")
                 target = np.array(target, dtype=float)
                 target[4] = min(max(target[4] + trim, 0.0), 100.0)
             self._set_input_target(target)
