@@ -446,22 +446,21 @@ class Soak:
         taken meanwhile; return the port it serves on."""
         from services.io.zenoh_session import free_port
 
-        for attempt in range(self.API_PORT_TRIES):
+        for attempt in range(1, self.API_PORT_TRIES + 1):
             self.api = _NodeProcess(
                 "api", ["-m", "services.cli", "api", "--connect", ep_ctrl, "--lease-ms",
                         str(LEASE_MS), "--port", str(port)], state / "api.log", env=env)
             try:
                 self.api.start(timeout_s)
+                break
             except RuntimeError:
-                log_text = (state / "api.log").read_text(errors="replace")
-                if "in use" not in log_text.rsplit("--- start", 1)[-1] \
-                        or attempt == self.API_PORT_TRIES - 1:
+                last_start = (state / "api.log").read_text(errors="replace")
+                if "in use" not in last_start.rsplit("--- start", 1)[-1] \
+                        or attempt == self.API_PORT_TRIES:
                     raise
                 port = free_port()
-                continue
-            self.http.base_url = f"http://127.0.0.1:{port}"
-            return port
-        raise AssertionError("unreachable")
+        self.http.base_url = f"http://127.0.0.1:{port}"
+        return port
 
     def _rest(self, method: str, path: str, *, auth: bool = True, **kw):
         """One REST call; None when the api node is unreachable (counted)."""

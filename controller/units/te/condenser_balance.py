@@ -83,7 +83,11 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from controller.units.te.settings_check import check_finite_fields, check_range
+from controller.units.te.settings_check import (
+    check_finite_fields,
+    check_range,
+    is_finite_number,
+)
 
 __all__ = ["CondenserBalanceSettings", "CondenserBalance", "CW_FLOW_PER_PCT",
            "CW_HEAT_CAPACITY", "HEAT_UNIT", "CW_HOLDUP", "UA_MAX", "UA_FLOW"]
@@ -213,9 +217,10 @@ class CondenserBalance:
         self.since_on_h += self.sample_h
         if not all(map(math.isfinite, (t_cw_out, t_reactor, cw_valve_pct, recycle))):
             return self.active
+        fc, us = self._rates(cw_valve_pct, recycle)
         if self.prediction is None:
             # started at rest: an offset of the balance from the plant is no variation
-            self.prediction = self._steady(t_reactor, cw_valve_pct, recycle)
+            self.prediction = self._steady(t_reactor, fc, us)
             self.mean, self.var = t_cw_out - self.prediction, 0.0
             self.pred_mean, self.pred_var = self.prediction, 0.0
         else:
@@ -225,7 +230,7 @@ class CondenserBalance:
                                                      self.prediction, a)
             if self.indicator >= s.on_degc:
                 self.since_on_h = 0.0
-        self.prediction = self._advance(self.prediction, t_reactor, cw_valve_pct, recycle)
+        self.prediction = self._advance(self.prediction, t_reactor, fc, us)
         return self.active
 
     def _rates(self, cw_valve_pct: float, recycle: float) -> tuple[float, float]:
@@ -233,20 +238,18 @@ class CondenserBalance:
         fc = CW_FLOW_PER_PCT * min(max(cw_valve_pct, 0.0), 100.0) * CW_HEAT_CAPACITY
         return fc, self.ua(recycle) * HEAT_UNIT
 
-    def _steady(self, t_reactor: float, cw_valve_pct: float, recycle: float) -> float:
-        """The balance's outlet temperature at rest with these inputs, degC."""
-        fc, us = self._rates(cw_valve_pct, recycle)
+    def _steady(self, t_reactor: float, fc: float, us: float) -> float:
+        """The balance's outlet temperature at rest with the rates ``fc``, ``us``
+        (:meth:`_rates`), degC."""
         if fc + us <= 0.0:  # no cooling water and no effluent: the design inlet
             return self.settings.inlet_degc
         return (fc * self.settings.inlet_degc + us * t_reactor) / (fc + us)
 
-    def _advance(self, t: float, t_reactor: float, cw_valve_pct: float,
-                 recycle: float) -> float:
+    def _advance(self, t: float, t_reactor: float, fc: float, us: float) -> float:
         """The balance's outlet temperature one sample on from ``t``, inputs held."""
-        fc, us = self._rates(cw_valve_pct, recycle)
         if fc + us <= 0.0:
             return t
-        t_ss = self._steady(t_reactor, cw_valve_pct, recycle)
+        t_ss = self._steady(t_reactor, fc, us)
         return t_ss + (t - t_ss) * math.exp(-(fc + us) / CW_HOLDUP * self.sample_h)
 
     def state(self) -> dict[str, Any]:
@@ -262,17 +265,13 @@ class CondenserBalance:
             return
         keys = ("prediction", "mean", "var", "pred_mean", "pred_var")
         vals = [state.get(k) for k in keys]
-        if not (all(_is_finite(v) for v in vals) and vals[2] >= 0.0 and vals[4] >= 0.0):
+        if not (all(map(is_finite_number, vals)) and vals[2] >= 0.0 and vals[4] >= 0.0):
             return
         (self.prediction, self.mean, self.var, self.pred_mean,
          self.pred_var) = (float(v) for v in vals)
         since = state.get("since_on_h")
-        if _is_finite(since) and since >= 0.0:
+        if is_finite_number(since) and since >= 0.0:
             self.since_on_h = float(since)
-
-
-def _is_finite(v: Any) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _ew_step(mean: float, var: float, x: float, a: float) -> tuple[float, float]:

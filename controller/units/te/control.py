@@ -199,7 +199,11 @@ from controller.units.te.pi_baseline import (
 from controller.units.te.plan_lookup import SampleReferences
 from controller.units.te.production_index import ProductionIndex, ProductionIndexSettings
 from controller.units.te.reactant_trim import ReactantTrim, ReactantTrimSettings
-from controller.units.te.settings_check import check_finite_fields, check_range
+from controller.units.te.settings_check import (
+    check_finite_fields,
+    check_range,
+    is_finite_number,
+)
 from controller.units.te.spec import (
     ALARM_LIMITS,
     D_FULL_KG_H,
@@ -1464,9 +1468,7 @@ class TEController:
             trim.value = float(state.get(f"{key}_trim", 0.0))
             trim.e_prev = state.get(f"e_{key}_prev")
         mean = state.get("pc_mean")  # absent or damaged: the next measurement starts it
-        ok = (isinstance(mean, int | float) and not isinstance(mean, bool)
-              and math.isfinite(mean))
-        self._pc_mean.reset((float(mean),) if ok else None)
+        self._pc_mean.reset((float(mean),) if is_finite_number(mean) else None)
         self.condenser_balance.restore(state.get("condenser_balance"))
         self.feeds.restore(state.get("feeds"))
         self.production.restore(state.get("production"))

@@ -15,8 +15,9 @@ mode 2, against 20 and 7 raises without it.
 
 from __future__ import annotations
 
-import math
 from typing import Any
+
+from controller.units.te.settings_check import is_finite_number
 
 __all__ = ["ALARM_HOLD_H", "HeldAlarm"]
 
@@ -57,7 +58,6 @@ class HeldAlarm:
         """From :meth:`checkpoint`; anything else (absent, damaged) leaves no alarm."""
         state = state if isinstance(state, dict) else {}
         left, text = state.get("left_h", 0.0), state.get("text")
-        ok = (isinstance(left, int | float) and not isinstance(left, bool)
-              and math.isfinite(left) and isinstance(text, str))
+        ok = is_finite_number(left) and isinstance(text, str)
         self.left_h = min(max(float(left), 0.0), ALARM_HOLD_H) if ok else 0.0
         self.text = text if ok else None

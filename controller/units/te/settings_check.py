@@ -15,11 +15,17 @@ import math
 import re
 from dataclasses import fields
 
-__all__ = ["check_finite_fields", "check_range"]
+__all__ = ["check_finite_fields", "check_range", "is_finite_number"]
 
 _NUM = r"[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?"
 _INTERVAL = re.compile(rf"^([(\[])\s*({_NUM})\s*,\s*({_NUM})\s*([)\]])$")
 _BOUND = re.compile(rf"^(>=|>|<=|<)\s*({_NUM})$")
+
+
+def is_finite_number(v) -> bool:
+    """Whether ``v`` is a finite int or float (a bool is not a number here): the test
+    of a setting, and of a value read back from a checkpoint."""
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def check_finite_fields(settings, label: str = "", optional=()) -> None:
@@ -38,7 +44,7 @@ def check_finite_fields(settings, label: str = "", optional=()) -> None:
         v = getattr(settings, f.name)
         if v is None and f.name in optional:
             continue
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        if not is_finite_number(v):
             none = " or None" if f.name in optional else ""
             raise ValueError(f"{label}{f.name}: must be a finite number{none}, got {v!r}")
 
