@@ -15,7 +15,9 @@ The cost ``Σ‖Y − R‖²_Ξ + ‖ΔU‖²_Λ`` (eq. 6.6), halved, is the QP 
     S_u ΔU - s ε <= y_max - S_x x_a,  S_u ΔU + s ε >= y_min - S_x x_a
 
 with one shared slack ε ≥ 0 on the soft output limits (exact penalty ρ ε plus a small
-quadratic term). Everything that depends only on the model and the settings is built
+quadratic term). The output rows hold for the predictions ``y(k+j)`` with ``j >=``
+:attr:`~controller.mpc.settings.MPCSettings.output_limit_start` (the constraint window;
+1 by default: every prediction). Everything that depends only on the model and the settings is built
 once in :func:`build_formulation`; a sample only forms the vectors
 (:meth:`DeltaUFormulation.qp_vectors`). :class:`FormulationCache` keeps one
 formulation per model so a model switch costs a dictionary look-up.
@@ -411,8 +413,10 @@ def _settings_parts(s: MPCSettings) -> _SettingsParts:
     finite_u = np.isfinite(np.tile(s.u_min, s.M)) | np.isfinite(np.tile(s.u_max, s.M))
     input_rows = np.flatnonzero(finite_u)
     input_block = np.hstack([T[input_rows], np.zeros((input_rows.size, nz - nmv))])
-    ymax_rows = np.flatnonzero(np.isfinite(np.tile(s.y_max, s.P)))
-    ymin_rows = np.flatnonzero(np.isfinite(np.tile(s.y_min, s.P)))
+    # the constraint window: no output limit on the predictions before output_limit_start
+    window = np.repeat(np.arange(1, s.P + 1) >= s.output_limit_start, s.ny)
+    ymax_rows = np.flatnonzero(np.isfinite(np.tile(s.y_max, s.P)) & window)
+    ymin_rows = np.flatnonzero(np.isfinite(np.tile(s.y_min, s.P)) & window)
     scale = np.tile(s.slack_scale, s.P) if has_slack else None
     bl0, bu0 = _row_bounds(s, input_rows, ymax_rows, ymin_rows)
     parts = _SettingsParts(

@@ -98,6 +98,13 @@ class MPCSettings:
         control horizon, so redundant inputs settle at their targets.
     u_target_weight : array_like, shape (nu,)
         Diagonal W, >= 0 (default 0: no input targets).
+    output_limit_start : int
+        The first predicted sample, 1 ... ``P``, on which the soft output limits act
+        (the constraint window of industrial MPC; 1, the default: every prediction,
+        eq. 6.9). The first prediction ``y(k+1)`` starts from the measured ``y(k)``:
+        a limit on it makes a measurement beyond the limit, noise included, demand
+        that one move bring the output back within one sample, and a handle whose
+        effect on the output is small in one sample is moved by its whole rate limit.
     """
 
     nu: int
@@ -122,15 +129,19 @@ class MPCSettings:
     fallback: str = "shift"
     u_target: np.ndarray = None
     u_target_weight: np.ndarray = None
+    output_limit_start: int = 1
 
     def __post_init__(self) -> None:
-        for name in ("nu", "ny", "P", "M", "max_iter"):
+        for name in ("nu", "ny", "P", "M", "max_iter", "output_limit_start"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
                 raise MPCSettingsError(f"{name}: must be a positive integer, got {v!r}")
         if self.M > self.P:
             raise MPCSettingsError(f"M: control horizon {self.M} exceeds prediction horizon "
                                    f"P = {self.P}")
+        if self.output_limit_start > self.P:
+            raise MPCSettingsError(f"output_limit_start: {self.output_limit_start} is beyond "
+                                   f"the prediction horizon P = {self.P}")
         nu, ny = int(self.nu), int(self.ny)
         set_ = lambda k, v: object.__setattr__(self, k, v)
         set_("Xi", _vector("Xi", self.Xi, ny, allow_inf=False, default=1.0))
