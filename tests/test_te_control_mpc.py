@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from controller.units.te import models as te_models
-from controller.units.te.control import ALARM_LIMITS, TEMPCOptions, make_te_controller, run_te
+from controller.units.te.control import (
+    ALARM_LIMITS,
+    TEMPCOptions,
+    make_te_controller,
+    plant_seed_for,
+    run_te,
+)
 from controller.units.te.grades import Leg, TransitionPlan, grade
 
 G_BAND = 1.0  # mol%, R7.14/R7.16 check
@@ -250,8 +256,6 @@ def test_constraint_window_keeps_t_r_steady_at_the_pressure_limit():
     # on every prediction each noisy sample above it asks for the pressure back within
     # 36 s and the MPC kicks T_r* (0.16 degC a sample on average, up to 0.5); with the
     # window from the third prediction the limit holds as well with T_r* nearly still
-    from controller.units.te.control import plant_seed_for
-
     kw = dict(noise=True, seed=1, plant_seed=plant_seed_for(1), idv={1: 1.0})
     every = run_te("ssmpc", TransitionPlan("mode3"), 8.0,
                    mpc=TEMPCOptions(pressure_limit_start=1), **kw)

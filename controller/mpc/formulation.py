@@ -17,8 +17,8 @@ The cost ``Σ‖Y − R‖²_Ξ + ‖ΔU‖²_Λ`` (eq. 6.6), halved, is the QP 
 with one shared slack ε ≥ 0 on the soft output limits (exact penalty ρ ε plus a small
 quadratic term). The output rows hold for the predictions ``y(k+j)`` with ``j >=``
 :attr:`~controller.mpc.settings.MPCSettings.output_limit_start` (the constraint window;
-1 by default: every prediction). Everything that depends only on the model and the settings is built
-once in :func:`build_formulation`; a sample only forms the vectors
+1 by default: every prediction). Everything that depends only on the model and the
+settings is built once in :func:`build_formulation`; a sample only forms the vectors
 (:meth:`DeltaUFormulation.qp_vectors`). :class:`FormulationCache` keeps one
 formulation per model so a model switch costs a dictionary look-up.
 """
