@@ -1,6 +1,7 @@
 """The TE reactant trim: A+C short in the reactor feed with the D feed at its limit raises
-the A+C feed's target, A+C in excess lowers it, at a steady grade only; the trim returns
-when the deficit or excess is gone, and does nothing otherwise."""
+the A+C feed's target (through a grade change too), A+C in excess lowers it at a steady
+grade only; the trim returns when the deficit or excess is gone, and does nothing
+otherwise."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from controller.units.te.spec import D_FULL_KG_H
                                        ({"gain": 0.0}, "gain"),
                                        ({"trim_max": 200.0}, "trim_max"),
                                        ({"settle_h": float("nan")}, "settle_h"),
+                                       ({"raise_settle_h": -1.0}, "raise_settle_h"),
                                        ({"excess_max": -1.0}, "excess_max"),
                                        ({"excess_max": 101.0}, "excess_max"),
                                        ({"excess_deadband": -1.0}, "excess_deadband"),
@@ -57,11 +59,29 @@ def test_a_short_feed_with_the_d_valve_at_its_limit_raises_the_target_then_it_re
 
 @pytest.mark.parametrize("d_pct, short, since", [(80.0, 3.0, np.inf),   # D valve has room
                                                  (97.0, 0.5, np.inf),   # within the deadband
-                                                 (97.0, 3.0, 5.0)])     # a grade change 5 h ago
+                                                 (80.0, 3.0, 5.0)])     # the same in a change
 def test_nothing_is_done_otherwise(d_pct, short, since):
     trim = ReactantTrim(sample_h=0.01)
     x, ym = _xmeas(d_pct, short)
     assert _run(trim, x, ym, 200, since) == 0.0 and not trim.active
+
+
+def test_the_raise_acts_through_a_grade_change_unless_told_to_wait():
+    # a grade change 5 h ago, the D valve at its limit and C 3 mol % short: the raise
+    # (2 mol % beyond the deadband, 5 %/(mol % h), 2 h: 20 % by hand) does not wait
+    # for the steady grade the cut waits for
+    x, ym = _xmeas(97.0, 3.0)
+    trim = ReactantTrim(sample_h=0.01)
+    assert _run(trim, x, ym, 200, 5.0) == pytest.approx(20.0, abs=1e-9)
+    waiting = ReactantTrim(ReactantTrimSettings(raise_settle_h=24.0), sample_h=0.01)
+    assert _run(waiting, x, ym, 200, 5.0) == 0.0 and not waiting.active
+    assert _run(waiting, x, ym, 200, 24.0) > 0.0
+
+
+def test_no_cut_through_a_grade_change():
+    x, ym = _xmeas(60.0, -5.0)                       # A+C in excess, a change 5 h ago
+    trim = ReactantTrim(sample_h=0.01)
+    assert _run(trim, x, ym, 200, 5.0) == 0.0
 
 
 def _settled(excess_max=None):

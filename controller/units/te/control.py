@@ -51,8 +51,9 @@ Layers (seed Fig. 7.2)
          (:data:`CONDENSER_DISTURBANCE_LOOP`), or, as an option, the product flow
          (XMEAS 17, :data:`PRODUCTION_CONDENSER_LOOP`);
        - MPC strategies, the reactant trim (:mod:`controller.units.te.reactant_trim`):
-         at a steady grade, A+C short in the reactor feed with the D feed at its limit
-         raises the A+C feed's target, A+C in excess lowers it, with an alarm;
+         A+C short in the reactor feed with the D feed at its limit raises the A+C
+         feed's target (through a grade change too), at a steady grade A+C in excess
+         lowers it, with an alarm;
        - the transition guards (:class:`TransitionGuards`, all strategies but
          "decentralized"): the E feed at most 5 % above the plan's, the plan held
          while the reactor pressure is near the interlock, P_r* at most 10 kPa above
@@ -66,6 +67,11 @@ Layers (seed Fig. 7.2)
          MPC strategies, while the pressure is near the MPC's limit and C is short in
          the recycle gas, the A-in-feed loop may not raise the A feed (a diluted A, not
          a short one: :class:`TransitionGuards` ``a_rise_hold_kpa``), with an alarm;
+         MPC strategies, through a grade change while C in the purge is under half the
+         plan's, P_r* may not rise (the purge takes the gas that no longer reacts),
+         with an alarm, and the A loop may cut the A feed through its hold
+         (``pressure_hold_c_fraction``, ``a_loop_cut_c_fraction``; the reactant trim's
+         raise acts through the change as well);
        - MPC strategies: the input targets and CV references pass through the
          steady-state targets of the active model
          (:mod:`controller.units.te.targets`): the plan's values as they stand while
@@ -613,6 +619,30 @@ class TransitionGuards:
         -> 168.1 and 171.6, IDV(12) at mode 0 137.0 -> 148.4 and 148.6, seeds 1-3).
     a_rise_hold_c_short_mol : float
         See ``a_rise_hold_kpa``, mol % (>= 0).
+    a_loop_cut_c_fraction : float or None
+        MPC strategies: through the hold of ``a_loop_hold_falling_h``, while C in the
+        purge (XMEAS 31) is below this fraction of the plan's, the A loop may lower its
+        trim of the A feed's target, not raise it. A surplus of A while C is short is
+        A and C out of balance, not the inerts' dilution the hold is for (that lowers
+        both). Under IDV(8) (stream 4's A/C split swinging) through a leg into mode 3
+        the held loop left the A feed where it was while C ran out: see
+        ``pressure_hold_c_fraction``. None: the hold holds both ways.
+    pressure_hold_c_fraction : float or None
+        For ``pressure_hold_h`` after a grade change, while C in the purge (XMEAS 31)
+        is below this fraction of the plan's, P_r* may not rise above the value applied
+        the sample before, with an alarm: the pressure loop then opens the purge as the
+        pressure rises. C run out leaves the E and D fed since unreacted, and they
+        gather as gas: the pressure rebounds from the dip of the leg's start by 400
+        kPa in half an hour, and P_r*, following it 10 kPa above the measured pressure
+        (``purge_track_kpa``), kept the purge at 17-20 % until the MPC's pressure limit
+        cut the A+C feed, which starved the reaction further (1 -> 3 with IDV(8), seed
+        2: the reactor temperature fell from 124 to 73 degC and the pressure reached
+        the interlock at 3.3 h). None: no hold (the baselines). Measured with
+        ``a_loop_cut_c_fraction`` and the reactant trim's raise through a change
+        (:class:`~controller.units.te.reactant_trim.ReactantTrimSettings`
+        ``raise_settle_h``): see :data:`GUARDS_MPC`.
+    pressure_hold_h : float
+        See ``pressure_hold_c_fraction``, h (>= 0).
     a_rise_hold_after_h : float
         Hours after a grade change from which the rise hold acts (>= 0; a run without
         a change: from the start). Through a leg the plan's C reference moves ahead of
@@ -642,15 +672,21 @@ class TransitionGuards:
     a_rise_hold_kpa: float | None = 2860.0
     a_rise_hold_c_short_mol: float = 1.0
     a_rise_hold_after_h: float = 24.0
+    a_loop_cut_c_fraction: float | None = 0.5
+    pressure_hold_c_fraction: float | None = None
+    pressure_hold_h: float = 12.0
 
     def __post_init__(self) -> None:
         check_finite_fields(self, optional=("purge_track_lift_kpa", "purge_floor_fraction",
-                                            "a_rise_hold_kpa"))
+                                            "a_rise_hold_kpa", "a_loop_cut_c_fraction",
+                                            "pressure_hold_c_fraction"))
         check_range(self, ("e_feed_margin", "e_feed_margin_held"), "[0, 100]", "%")
         check_range(self, ("purge_track_kpa", "purge_track_lift_kpa"), ">= 0", "kPa")
         check_range(self, ("purge_track_lift_h", "a_loop_hold_h", "a_loop_hold_falling_h",
-                           "purge_floor_after_h", "a_rise_hold_after_h"), ">= 0", "h")
+                           "purge_floor_after_h", "a_rise_hold_after_h", "pressure_hold_h"),
+                    ">= 0", "h")
         check_range(self, "purge_floor_fraction", "[0, 1)")
+        check_range(self, ("a_loop_cut_c_fraction", "pressure_hold_c_fraction"), "(0, 1]")
         check_range(self, ("hold_start_kpa", "hold_full_kpa"), "(2000, 3000]", "kPa",
                     note="interlock 3000")
         if not self.hold_start_kpa < self.hold_full_kpa:
@@ -678,8 +714,38 @@ class TransitionGuards:
 #: to 2870 kPa (limit 2870) kept 3 -> 0 off its grade for 48 h on every seed (the plan
 #: held while the purge stood open); from 2860 to 2890 kPa 3 -> 0 took 12.5 instead
 #: of 9.9 h (seed 1, order 12). The baselines keep :class:`TransitionGuards`' defaults.
+#:
+#: C short in the purge through a grade change (``pressure_hold_c_fraction``, with
+#: ``a_loop_cut_c_fraction`` and the reactant trim's raise through the change,
+#: :class:`~controller.units.te.reactant_trim.ReactantTrimSettings` ``raise_settle_h``).
+#: IDV(8) from 0.5 h through a leg at 1 h, noise on, 24 h; trips of 75 runs over 1 -> 3,
+#: 2 -> 3, 0 -> 3, 2 -> 1 and 2 -> 0 on seeds 1-15 (the other seven legs, seeds 1-5:
+#: none either way):
+#:
+#: =====================  ======  =====================================================
+#: strategy               trips   where
+#: =====================  ======  =====================================================
+#: ssmpc before           21      1 -> 3 on seeds 1-5, 2 -> 3, 0 -> 3, 2 -> 1, 2 -> 0
+#: ssmpc                  2       2 -> 3 on seeds 8 and 13 (2.7-2.9 h: E left
+#:                                unreacted while the D-share path waits on the D valve)
+#: fixed before / now     16 / 3
+#: pi / plan / decent.    1 / 23 / 61  (their guards are the defaults: no such hold)
+#: =====================  ======  =====================================================
+#:
+#: The pieces (ssmpc, seeds 1-5, 25 runs): the raise alone 10 trips, the P_r* hold alone
+#: 8, the two together 6 (all into mode 3, where the A loop stood held), all three 0. The
+#: legs requested at 13 h instead (seeds 1-3, 1 -> 3, 2 -> 3, 0 -> 3, 2 -> 0, 2 -> 1,
+#: 3 -> 0, 3 -> 2): 1 -> 3 on seed 3 tripped at 16.0 h before, none now, 1 -> 3's peaks
+#: 2873-2882 -> 2836-2845 kPa. Tried and not taken: the falling-A hold off into mode 3
+#: (0 trips, but 1 -> 3 11.8 h against 10.5), the A loop's cut through the hold on
+#: every falling leg whatever C (0 trips, 2 -> 0 with IDV(8) 8.7 -> 12.2 h), the raise
+#: only below 2650 or 2750 kPa (5 and 3 of 75), P_r* held whatever C for 12 h (alone: 8
+#: of 25), the D-share path waiting while C is short (alone: 10-12 of 25), the
+#: condenser's target kept from opening below 2600-2700 kPa (1 -> 3: 3-5 of 5) or
+#: trimmed by the separator temperature through the leg (14 of 25). ``plan`` with the
+#: P_r* hold: 12 of 75.
 GUARDS_MPC = TransitionGuards(hold_start_kpa=2850.0, hold_full_kpa=2900.0,
-                              purge_track_lift_kpa=40.0)
+                              purge_track_lift_kpa=40.0, pressure_hold_c_fraction=0.5)
 
 
 class TEController:
@@ -834,6 +900,11 @@ class TEController:
         #: (:mod:`controller.units.te.held_alarm`)
         self.float_alarm = HeldAlarm(self.sample_h)
         self.a_rise_alarm = HeldAlarm(self.sample_h)
+        #: the pressure set point's hold while C is short through a grade change
+        #: (TransitionGuards.pressure_hold_c_fraction): its alarm, and P_r* as applied
+        #: the sample before (kPa; None before the first sample)
+        self.pressure_hold_alarm = HeldAlarm(self.sample_h)
+        self._pr_applied: float | None = None
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
                        if strategy in MPC_STRATEGIES else None)
@@ -975,12 +1046,18 @@ class TEController:
             # held by the operator, while the A feed is lost (FeedOverrides), or
             # through a grade change (TransitionGuards)
             since = self._since
+            by_change = self._a_loop_held_by_change(since)
+            # through the falling-A hold with C short: the loop may cut, not raise
+            cut_only = (by_change and not since < self.guards.a_loop_hold_h
+                        and self._c_short(ym, xmeas, self.guards.a_loop_cut_c_fraction))
             held = (A_FEED_LOOP.cv in self.outer_held or self.feeds.a_lost
-                    or self._a_loop_held_by_change(since))
+                    or (by_change and not cut_only))
             lp = A_FEED_LOOP_STEADY if since >= A_LOOP_STEADY_AFTER_H else A_FEED_LOOP
             before = self._a.value
             self._a.step(float(ym[A_FEED_LOOP.cv - 1]) - y, lp.gain, lp.ti_h, self.sample_h,
                          held)
+            if cut_only and self._a.value > before:
+                self._a.value = before
             if self._a.value > before and self._a_rise_held(ym, xmeas):
                 self._a.value = before
                 self.a_rise_alarm.act(
@@ -990,6 +1067,14 @@ class TEController:
                 return self._a.value
         self.a_rise_alarm.idle()
         return self._a.value
+
+    @staticmethod
+    def _c_short(ym: Sequence[float], xmeas: Sequence[float], fraction: float | None) -> bool:
+        """Whether C in the purge (XMEAS 31) is below ``fraction`` of the plan's (None:
+        never; a measurement or reference that is not finite: not short)."""
+        if fraction is None:
+            return False
+        return bool(float(xmeas[30]) < fraction * float(ym[30]))
 
     def _a_rise_held(self, ym: Sequence[float], xmeas: Sequence[float]) -> bool:
         """Whether the A loop may not raise its trim now (:class:`TransitionGuards`
@@ -1143,7 +1228,21 @@ class TEController:
             p_r = cap
         else:
             self._track_bound_h = 0.0
-        if not (capped or self.pressure_floats):
+        # through a grade change with C run short: P_r* no higher than the sample before
+        prev, c = self._pr_applied, float(xmeas[30])
+        held = (g.pressure_hold_c_fraction is not None and self._since < g.pressure_hold_h
+                and prev is not None and p_r > prev
+                and c < g.pressure_hold_c_fraction * c_purge_ref)
+        if held:
+            p_r = prev
+            self.pressure_hold_alarm.act(
+                f"reactor pressure set point held at {p_r:.0f} kPa: C in the purge "
+                f"{c:.1f} mol % against the plan's {c_purge_ref:.1f}; the purge takes the "
+                "gas that does not react")
+        else:
+            self.pressure_hold_alarm.idle()
+        self._pr_applied = p_r
+        if not (capped or held or self.pressure_floats):
             return core_u
         core_u = np.array(core_u, dtype=float)
         core_u[2] = p_r
@@ -1373,6 +1472,7 @@ class TEController:
         self._hold_step(t_ref, xm, alarms)
         alarms.extend(self.float_alarm.alarms())
         alarms.extend(self.a_rise_alarm.alarms())
+        alarms.extend(self.pressure_hold_alarm.alarms())
         level_sp = self.level_sag.update(float(xm[6]), float(xm[7]),
                                          self.production.level_setpoint(yl[7]),
                                          float(u[1]), self._since)
@@ -1441,6 +1541,8 @@ class TEController:
                 "track_bound_h": self._track_bound_h,
                 "float_alarm": self.float_alarm.checkpoint(),
                 "a_rise_alarm": self.a_rise_alarm.checkpoint(),
+                "pressure_hold_alarm": self.pressure_hold_alarm.checkpoint(),
+                "pr_applied": self._pr_applied,
                 "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
                 "reactants": self.reactants.checkpoint(),
                 "level_sag": self.level_sag.checkpoint(),
@@ -1463,6 +1565,9 @@ class TEController:
             and math.isfinite(bound) and bound >= 0.0 else 0.0
         self.float_alarm.restore(state.get("float_alarm"))
         self.a_rise_alarm.restore(state.get("a_rise_alarm"))
+        self.pressure_hold_alarm.restore(state.get("pressure_hold_alarm"))
+        pr = state.get("pr_applied")  # absent or damaged: no hold until the next sample
+        self._pr_applied = float(pr) if is_finite_number(pr) else None
         for trim, key in ((self._a, "a"), (self._p, "p"), (self._sep, "sep"), (self._pc, "pc"),
                           (self._cd, "cd")):
             trim.value = float(state.get(f"{key}_trim", 0.0))

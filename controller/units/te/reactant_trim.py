@@ -1,17 +1,18 @@
-"""The TE reactant trim: at a steady grade, A+C short in the reactor feed while the
-reactor level's D feed is at its limit raises the A+C feed's target, and A+C in excess
-lowers it (after the A+C-in-feed loop on the C feed of Ricker's 1996 decentralized
-control of the Tennessee Eastman process).
+"""The TE reactant trim: A+C short in the reactor feed while the reactor level's D feed
+is at its limit raises the A+C feed's target (through a grade change too), and at a
+steady grade A+C in excess lowers it (after the A+C-in-feed loop on the C feed of
+Ricker's 1996 decentralized control of the Tennessee Eastman process).
 
 Method
     Every sample the deficit ``e = (y_A* + y_C*) - (y_A + y_C)`` of A and C in the
     reactor feed (XMEAS 23 + 25 against the plan's references, mol %) integrates into
     a trim ``c`` of the MPC's input target for the A+C feed (XMV 4, %):
 
-    - it starts only at a steady grade (``settle_h`` after the last grade change, or
-      none) with the D feed (XMEAS 2) above ``d_limit`` % of its range and
-      ``e > deadband``: the reactor level's loop then has no D left to give, so the
-      liquid it is short of must come from more reaction of the D already there;
+    - it starts with the D feed (XMEAS 2) above ``d_limit`` % of its range and
+      ``e > deadband``, ``raise_settle_h`` after the last grade change or later (0: at
+      any time, through a change too): the reactor level's loop then has no D left to
+      give, so the liquid it is short of must come from more reaction of the D already
+      there;
     - while ``c > 0``: ``dc/dt = gain (e - deadband)`` for ``e > deadband``,
       ``gain e`` (back toward 0) for ``e < 0``, within ``[0, trim_max]``;
     - a cut (``c < 0``) acts on the excess beyond the one the grade settled with:
@@ -80,6 +81,19 @@ seed      trip    reactor pressure     largest trim
 2         none    at most 2901 kPa     0 (not needed)
 3         none    at most 2913 kPa     7.1 %
 ========  ======  ===================  ==============
+
+Through a grade change
+    Into a grade richer in G (mode 3) the D share rises while the E of the grade
+    before still reacts, the reactor level falls as the pressure dips, the level loop
+    drives the D valve to its range and A and C run short: C in the purge went to 0
+    on 1 -> 3 without a disturbance, and with IDV(8) the plant tripped (see
+    :data:`controller.units.te.control.GUARDS_MPC`). The raise then acts from the
+    change on (``raise_settle_h = 0``); before, it waited the cut's 24 h. With the
+    guards on C short in the purge, IDV(8) from 0.5 h through five legs at 1 h (1 -> 3,
+    2 -> 3, 0 -> 3, 2 -> 1, 2 -> 0; seeds 1-15, 24 h) tripped ``ssmpc`` in 2 of 75
+    runs, against 21 before; with the raise alone 10 of the 25 runs on seeds 1-5
+    tripped (14 before). On the acceptance matrix's legs, alone, it took 1 -> 3
+    from 10.5 to 13.1 h; with the guards 10.8 h (``docs/te_matrix.md``).
 """
 
 from __future__ import annotations
@@ -110,8 +124,14 @@ class ReactantTrimSettings:
     trim_max : float
         Largest trim of the A+C feed's target, %.
     settle_h : float
-        Hours after a grade change before the trim may start (a moving plan's
-        references are not a deficit).
+        Hours after a grade change before a cut may start, and from which the excess
+        the grade settled with is kept (a moving plan's references are not an excess).
+    raise_settle_h : float
+        Hours after a grade change before a raise may start (0: through the change
+        too). Into a grade richer in G the D feed reaches its range while the E left
+        from the grade before still reacts, and A+C runs short: with 24 h (the cut's
+        wait) IDV(8) through a leg into mode 3 tripped the plant (see the module
+        docstring, "Through a grade change").
     excess_max : float
         Largest cut of the A+C feed's target for A+C in excess in the reactor feed, %
         (0: the trim only raises it).
@@ -124,13 +144,15 @@ class ReactantTrimSettings:
     gain: float = 5.0
     trim_max: float = 30.0
     settle_h: float = 24.0
+    raise_settle_h: float = 0.0
     excess_max: float = 15.0
     excess_deadband: float = 1.5
 
     def __post_init__(self) -> None:
         check_finite_fields(self)
         check_range(self, "d_limit", "(0, 100)", "%")
-        check_range(self, ("deadband", "settle_h", "excess_max", "excess_deadband"), ">= 0")
+        check_range(self, ("deadband", "settle_h", "raise_settle_h", "excess_max",
+                           "excess_deadband"), ">= 0")
         check_range(self, ("gain", "trim_max"), "> 0")
         check_range(self, ("trim_max", "excess_max"), "<= 100", "%")
 
@@ -180,7 +202,8 @@ class ReactantTrim:
         x = e - self.settled if math.isfinite(self.settled) else 0.0
         rate = s.gain * self.sample_h
         if self.trim >= 0.0:
-            if e > s.deadband and (self.trim > 0.0 or (d > s.d_limit and steady)):
+            if e > s.deadband and (self.trim > 0.0 or (
+                    d > s.d_limit and hours_since_change >= s.raise_settle_h)):
                 self.trim += rate * (e - s.deadband)
             elif e < 0.0 and self.trim > 0.0:
                 self.trim = max(self.trim + rate * e, 0.0)
