@@ -632,8 +632,8 @@ class TransitionGuards:
         is below this fraction of the plan's, P_r* may not rise above the value applied
         the sample before, with an alarm: the pressure loop then opens the purge as the
         pressure rises. C run out leaves the E and D fed since unreacted, and they
-        gather as gas: the pressure rebounds from the dip of the leg's start by 400
-        kPa in half an hour, and P_r*, following it 10 kPa above the measured pressure
+        gather as gas: the pressure rebounds from the dip of the leg's start by 450
+        kPa in 0.8 h, and P_r*, following it 10 kPa above the measured pressure
         (``purge_track_kpa``), kept the purge at 17-20 % until the MPC's pressure limit
         cut the A+C feed, which starved the reaction further (1 -> 3 with IDV(8), seed
         2: the reactor temperature fell from 124 to 73 degC and the pressure reached
