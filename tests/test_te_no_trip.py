@@ -52,7 +52,9 @@ INTERLOCK_KPA = 3000.0
                                         "pressure_hold_c_fraction"),
                                        ({"pressure_hold_c_fraction": float("nan")},
                                         "pressure_hold_c_fraction"),
-                                       ({"pressure_hold_h": -1.0}, "pressure_hold_h")])
+                                       ({"pressure_hold_h": -1.0}, "pressure_hold_h"),
+                                       ({"a_loop_raise_c_excess_mol": 0.0},
+                                        "a_loop_raise_c_excess_mol")])
 def test_bad_guards_name_their_field(kw, field):
     with pytest.raises(ValueError, match=field):
         TransitionGuards(**kw)
@@ -147,12 +149,15 @@ def test_a_leg_that_lowers_the_a_in_feed_holds_the_a_loop(start, to, falls):
     assert _a_trim(TransitionPlan(f"mode{start}"), start, 1.0) > 0.0  # no leg: it acts
 
 
-def _a_trim_in_leg(a_error: float, c_purge: float, **guards) -> float:
-    """The A loop's trim 1 h into 1 -> 3 (the falling-A hold), after 10 samples with A in
-    the reactor feed ``a_error`` mol % off mode 1's and C in the purge ``c_purge`` mol %."""
-    ctl, _ = make_te_controller("ssmpc", TransitionPlan("mode1", (Leg(1.0, "mode3"),)),
+def _a_trim_in_leg(a_error: float, c_purge: float, start: int = 1, to: int = 3,
+                   **guards) -> float:
+    """The A loop's trim 1 h into ``start`` -> ``to`` (a falling-A leg: its hold), after 10
+    samples with A in the reactor feed ``a_error`` mol % off the start grade's and C in
+    the purge ``c_purge`` mol %."""
+    ctl, _ = make_te_controller("ssmpc",
+                                TransitionPlan(f"mode{start}", (Leg(1.0, f"mode{to}"),)),
                                 guards=TransitionGuards(**guards))
-    x = _xmeas(1, 2800.0)
+    x = _xmeas(start, 2800.0)
     x[22] += a_error
     x[30] = c_purge
     for k in range(10):
@@ -168,6 +173,27 @@ def test_with_c_short_the_held_a_loop_may_cut_the_a_feed_but_not_raise_it():
     assert _a_trim_in_leg(-3.0, 3.0) == 0.0                 # A short: never raised here
     assert _a_trim_in_leg(3.0, 3.0, a_loop_cut_c_fraction=None) == 0.0  # the guard off
     assert _a_trim_in_leg(3.0, float("nan")) == 0.0         # no analyzer: held
+
+
+def test_with_c_gathering_the_held_a_loop_may_raise_the_a_feed_but_not_cut_it():
+    # 2 -> 0: the plan's C in the purge is about 17.5 mol % an hour in; 30 is 12.5 above
+    assert _a_trim_in_leg(-3.0, 30.0, 2, 0) > 0.0            # A short, C gathering: raise
+    assert _a_trim_in_leg(-3.0, 18.0, 2, 0) == 0.0           # C near the plan's: held
+    assert _a_trim_in_leg(3.0, 30.0, 2, 0) == 0.0            # A in excess: never cut here
+    assert _a_trim_in_leg(-3.0, 30.0, 2, 0, a_loop_raise_c_excess_mol=None) == 0.0
+
+
+def test_idv1_through_a_leg_that_lowers_the_a_does_not_trip():
+    # IDV(1) (stream 4's A/C ratio down) from 0.5 h, 2 -> 0 at 1 h (seed 1): with the A
+    # loop held through the leg A fell to 14 mol % in the reactor feed, C gathered (39 mol
+    # % in the purge) and the plant tripped at 7.2 h; the loop may raise A while C gathers
+    plan = TransitionPlan("mode2", (Leg(1.0, "mode0"),))
+    kw = dict(noise=True, seed=1, plant_seed=plant_seed_for(1), idv={1: 0.5})
+    off = TransitionGuards(**{**GUARDS_MPC.__dict__, "a_loop_raise_c_excess_mol": None})
+    assert run_te("ssmpc", plan, 8.0, guards=off, **kw).shutdown is not None
+    r = run_te("ssmpc", plan, 8.0, **kw)
+    assert r.shutdown is None, r.shutdown
+    assert r.xmeas[:, 22].min() > 20.0  # A in the reactor feed kept
 
 
 def _pr_setpoints(c_purge: float, t0: float = 2.0, **guards) -> tuple[list[float], list]:

@@ -627,6 +627,19 @@ class TransitionGuards:
         both). Under IDV(8) (stream 4's A/C split swinging) through a leg into mode 3
         the held loop left the A feed where it was while C ran out: see
         ``pressure_hold_c_fraction``. None: the hold holds both ways.
+    a_loop_raise_c_excess_mol : float or None
+        MPC strategies: the mirror of ``a_loop_cut_c_fraction``. Through the same hold,
+        while C in the purge is more than this above the plan's (mol %), the A loop may
+        raise its trim, not lower it: A short with C gathering is A and C out of balance
+        the other way. Under IDV(1) (stream 4's A/C ratio stepped down) through 2 -> 0 or
+        2 -> 1 the held loop left the A feed where it was while A in the reactor feed
+        fell 34.7 -> 13.8 mol % and C in the purge rose 14.5 -> 39 (the plan's 21-22);
+        the purge stood at 100 % from 4.8 h and the plant tripped at 7.0-7.7 h (seeds
+        1-3). With it IDV(1), (8) and (13) through each of the 12 legs (seeds 1-3, 24 h)
+        trip none (4 trips without). An excess, not a ratio: into mode 3 the plan's C
+        falls ahead of the plant's (13 -> 9 mol %), and with the raise from 1.5 times
+        the plan's C, 1 -> 3 with IDV(8) tripped on seed 9 at 15.9 h. None: the hold
+        holds both ways.
     pressure_hold_c_fraction : float or None
         For ``pressure_hold_h`` after a grade change, while C in the purge (XMEAS 31)
         is below this fraction of the plan's, P_r* may not rise above the value applied
@@ -673,12 +686,14 @@ class TransitionGuards:
     a_rise_hold_c_short_mol: float = 1.0
     a_rise_hold_after_h: float = 24.0
     a_loop_cut_c_fraction: float | None = 0.5
+    a_loop_raise_c_excess_mol: float | None = 8.0
     pressure_hold_c_fraction: float | None = None
     pressure_hold_h: float = 12.0
 
     def __post_init__(self) -> None:
         check_finite_fields(self, optional=("purge_track_lift_kpa", "purge_floor_fraction",
                                             "a_rise_hold_kpa", "a_loop_cut_c_fraction",
+                                            "a_loop_raise_c_excess_mol",
                                             "pressure_hold_c_fraction"))
         check_range(self, ("e_feed_margin", "e_feed_margin_held"), "[0, 100]", "%")
         check_range(self, ("purge_track_kpa", "purge_track_lift_kpa"), ">= 0", "kPa")
@@ -687,6 +702,7 @@ class TransitionGuards:
                     ">= 0", "h")
         check_range(self, "purge_floor_fraction", "[0, 1)")
         check_range(self, ("a_loop_cut_c_fraction", "pressure_hold_c_fraction"), "(0, 1]")
+        check_range(self, "a_loop_raise_c_excess_mol", "> 0", "mol %")
         check_range(self, ("hold_start_kpa", "hold_full_kpa"), "(2000, 3000]", "kPa",
                     note="interlock 3000")
         if not self.hold_start_kpa < self.hold_full_kpa:
@@ -1046,17 +1062,23 @@ class TEController:
             # held by the operator, while the A feed is lost (FeedOverrides), or
             # through a grade change (TransitionGuards)
             since = self._since
+            g = self.guards
             by_change = self._a_loop_held_by_change(since)
-            # through the falling-A hold with C short: the loop may cut, not raise
-            cut_only = (by_change and not since < self.guards.a_loop_hold_h
-                        and self._c_short(ym, xmeas, self.guards.a_loop_cut_c_fraction))
+            # through the falling-A hold with A and C out of balance (C in the purge far
+            # from the plan's): the loop acts, only toward the balance
+            c, c_ref = float(xmeas[30]), float(ym[30])
+            falling = by_change and not since < g.a_loop_hold_h
+            cut_only = falling and g.a_loop_cut_c_fraction is not None \
+                and self._c_purge_ratio(c, c_ref) < g.a_loop_cut_c_fraction
+            raise_only = falling and g.a_loop_raise_c_excess_mol is not None \
+                and c > c_ref + g.a_loop_raise_c_excess_mol
             held = (A_FEED_LOOP.cv in self.outer_held or self.feeds.a_lost
-                    or (by_change and not cut_only))
+                    or (by_change and not (cut_only or raise_only)))
             lp = A_FEED_LOOP_STEADY if since >= A_LOOP_STEADY_AFTER_H else A_FEED_LOOP
             before = self._a.value
             self._a.step(float(ym[A_FEED_LOOP.cv - 1]) - y, lp.gain, lp.ti_h, self.sample_h,
                          held)
-            if cut_only and self._a.value > before:
+            if (cut_only and self._a.value > before) or (raise_only and self._a.value < before):
                 self._a.value = before
             if self._a.value > before and self._a_rise_held(ym, xmeas):
                 self._a.value = before
@@ -1069,12 +1091,10 @@ class TEController:
         return self._a.value
 
     @staticmethod
-    def _c_short(ym: Sequence[float], xmeas: Sequence[float], fraction: float | None) -> bool:
-        """Whether C in the purge (XMEAS 31) is below ``fraction`` of the plan's (None:
-        never; a measurement or reference that is not finite: not short)."""
-        if fraction is None:
-            return False
-        return bool(float(xmeas[30]) < fraction * float(ym[30]))
+    def _c_purge_ratio(c: float, ref: float) -> float:
+        """C in the purge (XMEAS 31, mol %) over the plan's ``ref`` (NaN for a value that
+        is not finite or a reference that is not positive: no guard acts on it)."""
+        return c / ref if ref > 0.0 and math.isfinite(c) and math.isfinite(ref) else math.nan
 
     def _a_rise_held(self, ym: Sequence[float], xmeas: Sequence[float]) -> bool:
         """Whether the A loop may not raise its trim now (:class:`TransitionGuards`
@@ -1232,7 +1252,7 @@ class TEController:
         prev, c = self._pr_applied, float(xmeas[30])
         held = (g.pressure_hold_c_fraction is not None and self._since < g.pressure_hold_h
                 and prev is not None and p_r > prev
-                and c < g.pressure_hold_c_fraction * c_purge_ref)
+                and self._c_purge_ratio(c, c_purge_ref) < g.pressure_hold_c_fraction)
         if held:
             p_r = prev
             self.pressure_hold_alarm.act(
