@@ -69,8 +69,9 @@ Layers (seed Fig. 7.2)
          a short one: :class:`TransitionGuards` ``a_rise_hold_kpa``), with an alarm;
          MPC strategies, through a grade change while C in the purge is under half the
          plan's, P_r* may not rise (the purge takes the gas that no longer reacts),
-         with an alarm, and the A loop may cut the A feed through its hold
-         (``pressure_hold_c_fraction``, ``a_loop_cut_c_fraction``; the reactant trim's
+         with an alarm, and the A loop may cut the A feed through its hold; while C
+         gathers 8 mol % above the plan's it may raise it (``pressure_hold_c_fraction``,
+         ``a_loop_cut_c_fraction``, ``a_loop_raise_c_excess_mol``; the reactant trim's
          raise acts through the change as well);
        - MPC strategies: the input targets and CV references pass through the
          steady-state targets of the active model
