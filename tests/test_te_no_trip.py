@@ -111,12 +111,16 @@ def test_the_plan_waits_while_the_pressure_is_at_the_full_hold_and_goes_on_after
     assert again.plan_lag_h == 0.0
 
 
-def _a_trim(plan, start: int, t0: float, n: int = 10, **guards) -> float:
+def _a_trim(plan, start: int, t0: float, n: int = 10, a_error: float = -3.0,
+            c_purge: float | None = None, **guards) -> float:
     """The A loop's trim after ``n`` samples from ``t0`` with A in the reactor feed
-    (XMEAS 23) 3 mol % under the start grade's."""
+    (XMEAS 23) ``a_error`` mol % off the start grade's and, if given, C in the purge
+    (XMEAS 31) at ``c_purge`` mol %."""
     ctl, _ = make_te_controller("fixed", plan, guards=TransitionGuards(**guards))
     x = _xmeas(start, 2705.0)
-    x[22] -= 3.0
+    x[22] += a_error
+    if c_purge is not None:
+        x[30] = c_purge
     for k in range(n):
         ctl.step(k, t0 + k * ctl.sample_h, x, None)
         ctl.finish_sample()
@@ -154,16 +158,8 @@ def _a_trim_in_leg(a_error: float, c_purge: float, start: int = 1, to: int = 3,
     """The A loop's trim 1 h into ``start`` -> ``to`` (a falling-A leg: its hold), after 10
     samples with A in the reactor feed ``a_error`` mol % off the start grade's and C in
     the purge ``c_purge`` mol %."""
-    ctl, _ = make_te_controller("ssmpc",
-                                TransitionPlan(f"mode{start}", (Leg(1.0, f"mode{to}"),)),
-                                guards=TransitionGuards(**guards))
-    x = _xmeas(start, 2800.0)
-    x[22] += a_error
-    x[30] = c_purge
-    for k in range(10):
-        ctl.step(k, 2.0 + k * ctl.sample_h, x, None)
-        ctl.finish_sample()
-    return ctl.a_trim
+    plan = TransitionPlan(f"mode{start}", (Leg(1.0, f"mode{to}"),))
+    return _a_trim(plan, start, 2.0, a_error=a_error, c_purge=c_purge, **guards)
 
 
 def test_with_c_short_the_held_a_loop_may_cut_the_a_feed_but_not_raise_it():

@@ -1216,18 +1216,18 @@ class TEController:
         :data:`PR_LIMITS`), and no lower than the floating pressure's floor
         (:mod:`controller.units.te.floating_pressure`; ``c_purge_ref``: the plan's C in
         the purge, mol %); a core whose move was changed is told what was applied."""
-        p = float(xmeas[6])
+        p, c = float(xmeas[6]), float(xmeas[30])
         # an operator's high limit on the pressure (the targets' y_max) caps the float too
         limit = float(self.targets.y_max[0]) if self.targets is not None else math.inf
         floor = floating_pressure_floor(
-            self.floating_pressure, p, float(xmeas[30]), c_purge_ref, self._since,
+            self.floating_pressure, p, c, c_purge_ref, self._since,
             held_down=self.feeds.a_lost or self.production.active, limit_kpa=limit)
         p_r = float(core_u[2])
         self.pressure_floats = floor is not None and p_r < floor
         if self.pressure_floats:
             self.float_alarm.act(
                 f"reactor pressure set point floats at {floor:.0f} kPa (the core's "
-                f"{p_r:.0f}): C in the purge {float(xmeas[30]):.1f} mol % against the "
+                f"{p_r:.0f}): C in the purge {c:.1f} mol % against the "
                 f"plan's {c_purge_ref:.1f}; the excess is left to the feeds, not purged")
             p_r = floor
         else:
@@ -1250,7 +1250,7 @@ class TEController:
         else:
             self._track_bound_h = 0.0
         # through a grade change with C run short: P_r* no higher than the sample before
-        prev, c = self._pr_applied, float(xmeas[30])
+        prev = self._pr_applied
         held = (g.pressure_hold_c_fraction is not None and self._since < g.pressure_hold_h
                 and prev is not None and p_r > prev
                 and self._c_purge_ratio(c, c_purge_ref) < g.pressure_hold_c_fraction)
