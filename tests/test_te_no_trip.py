@@ -4,6 +4,7 @@ before them, each run only as long as it took to trip then."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -54,7 +55,10 @@ INTERLOCK_KPA = 3000.0
                                         "pressure_hold_c_fraction"),
                                        ({"pressure_hold_h": -1.0}, "pressure_hold_h"),
                                        ({"a_loop_raise_c_excess_mol": 0.0},
-                                        "a_loop_raise_c_excess_mol")])
+                                        "a_loop_raise_c_excess_mol"),
+                                       ({"plan_hold_a_lost": 1}, "plan_hold_a_lost"),
+                                       ({"pressure_hold_a_lost": "yes"},
+                                        "pressure_hold_a_lost")])
 def test_bad_guards_name_their_field(kw, field):
     with pytest.raises(ValueError, match=field):
         TransitionGuards(**kw)
@@ -385,6 +389,42 @@ def test_the_recycle_valve_closes_more_slowly_than_it_opens():
 
     assert moved(out, 4) < 0.5 * moved(out, 2)             # XMV(5) against the A feed
     assert moved(into, 4) == pytest.approx(moved(into, 2))  # opening: the valves' pace
+
+
+#: IDV(6) (A feed lost) from 0.5 h through a leg at 1 h, seed 1: the guards that the case
+#: needs off, and how long it runs (past the trip without them)
+A_LOST_LEGS = [(3, 2, {"plan_hold_a_lost": False, "pressure_hold_a_lost": False}, 12.5),
+               (1, 3, {"pressure_hold_a_lost": False}, 12.5)]
+
+
+@pytest.mark.parametrize("start, to, off, hours", A_LOST_LEGS,
+                         ids=[f"{a}-{b}" for a, b, _, _ in A_LOST_LEGS])
+def test_a_grade_change_waits_while_the_a_feed_is_lost(start, to, off, hours):
+    # 3 -> 2: the leg went on beneath the production index, the plan closed the condenser
+    # with the purge at 100 % and the pressure reached the interlock (12.2 h). 1 -> 3 with
+    # the plan held but P_r* following the pressure up from its dip: C without A gathered
+    # with the purge shut (11.9 h). Both guards: the plan waits at the old grade, the purge
+    # takes what does not react
+    plan = TransitionPlan(f"mode{start}", (Leg(1.0, f"mode{to}"),))
+    kw = dict(noise=True, seed=1, plant_seed=plant_seed_for(1), idv={6: 0.5})
+    without = run_te("ssmpc", plan, hours, guards=dataclasses.replace(GUARDS_MPC, **off), **kw)
+    assert without.shutdown is not None  # the case as it was
+    r = run_te("ssmpc", plan, hours, **kw)
+    assert r.shutdown is None, r.shutdown
+    assert any("A feed lost: grade plan held" in a for a in r.alarms)
+    assert any("set point held" in a and "the A feed lost" in a for a in r.alarms)
+
+
+def test_a_leg_requested_while_the_a_feed_is_lost_starts_once_it_is_back():
+    # IDV(6) from 0.5 h to 4 h, 2 -> 1 requested at 1 h (seed 1)
+    plan = TransitionPlan("mode2", (Leg(1.0, "mode1"),))
+    r = run_te("ssmpc", plan, 14.0, noise=True, seed=1, plant_seed=plant_seed_for(1),
+               idv={6: 0.5}, idv_off={6: 4.0})
+    assert r.shutdown is None, r.shutdown
+    g = r.xmeas[:, 39]
+    g1, g2 = grade("mode1").g_mol, grade("mode2").g_mol  # 53.8 and 11.7 mol %
+    assert np.all(np.abs(g[(r.t > 1.5) & (r.t < 4.0)] - g2) < 3.0)  # waited at mode 2
+    assert abs(float(np.mean(g[r.t > 13.0])) - g1) < 1.5  # then went to mode 1
 
 
 # -- the reduced no-trip matrix --------------------------------------------------------------

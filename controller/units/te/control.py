@@ -72,7 +72,10 @@ Layers (seed Fig. 7.2)
          with an alarm, and the A loop may cut the A feed through its hold; while C
          gathers 8 mol % above the plan's it may raise it (``pressure_hold_c_fraction``,
          ``a_loop_cut_c_fraction``, ``a_loop_raise_c_excess_mol``; the reactant trim's
-         raise acts through the change as well);
+         raise acts through the change as well); MPC strategies, while the A feed is
+         lost the grade plan stands (a leg due then starts once the A feed is back) and
+         P_r* may not rise, each with an alarm (``plan_hold_a_lost``,
+         ``pressure_hold_a_lost``);
        - MPC strategies: the input targets and CV references pass through the
          steady-state targets of the active model
          (:mod:`controller.units.te.targets`): the plan's values as they stand while
@@ -657,6 +660,23 @@ class TransitionGuards:
         ``raise_settle_h``): see :data:`GUARDS_MPC`.
     pressure_hold_h : float
         See ``pressure_hold_c_fraction``, h (>= 0).
+    plan_hold_a_lost : bool
+        While the A feed is lost (:class:`~controller.units.te.overrides.FeedOverrides`),
+        the plan's clock stops (the plan hold at its full share, before a leg too: a leg
+        requested then starts once the A feed is back), with an alarm. A grade the plant
+        cannot make without A is not started: the production index
+        (:mod:`controller.units.te.production_index`) lowers the feeds it found at the
+        loss, and the legs went on beneath it toward the new grade's E, D and condenser.
+        False: no hold (the baselines).
+    pressure_hold_a_lost : bool
+        While the A feed is lost (:class:`~controller.units.te.overrides.FeedOverrides`),
+        P_r* may not rise above the value applied the sample before, with an alarm:
+        the C fed without A does not react and gathers as gas, and the purge must take
+        it. Through a grade change P_r* otherwise follows the pressure up from the leg's
+        dip 10 kPa above it (``purge_track_kpa``), which keeps the purge shut: IDV(6)
+        from 0.5 h through 2 -> 1 at 1 h (seed 1) held the purge at 2-10 % for five
+        hours while C in the purge rose from 17 to 32 mol % and the pressure climbed
+        from 2425 kPa to the interlock (12.0 h). False: no hold (the baselines).
     a_rise_hold_after_h : float
         Hours after a grade change from which the rise hold acts (>= 0; a run without
         a change: from the start). Through a leg the plan's C reference moves ahead of
@@ -690,12 +710,15 @@ class TransitionGuards:
     a_loop_raise_c_excess_mol: float | None = 8.0
     pressure_hold_c_fraction: float | None = None
     pressure_hold_h: float = 12.0
+    plan_hold_a_lost: bool = False
+    pressure_hold_a_lost: bool = False
 
     def __post_init__(self) -> None:
         check_finite_fields(self, optional=("purge_track_lift_kpa", "purge_floor_fraction",
                                             "a_rise_hold_kpa", "a_loop_cut_c_fraction",
                                             "a_loop_raise_c_excess_mol",
-                                            "pressure_hold_c_fraction"))
+                                            "pressure_hold_c_fraction"),
+                            flags=("plan_hold_a_lost", "pressure_hold_a_lost"))
         check_range(self, ("e_feed_margin", "e_feed_margin_held"), "[0, 100]", "%")
         check_range(self, ("purge_track_kpa", "purge_track_lift_kpa"), ">= 0", "kPa")
         check_range(self, ("purge_track_lift_h", "a_loop_hold_h", "a_loop_hold_falling_h",
@@ -761,8 +784,17 @@ class TransitionGuards:
 #: condenser's target kept from opening below 2600-2700 kPa (1 -> 3: 3-5 of 5) or
 #: trimmed by the separator temperature through the leg (14 of 25). ``plan`` with the
 #: P_r* hold: 12 of 75.
+#:
+#: The A feed lost through a grade change (``plan_hold_a_lost``, ``pressure_hold_a_lost``).
+#: IDV(6) from 0.5 h through each of the 12 legs at 1 h, noise on, 24 h, seed 1: 3 trips
+#: without (2 -> 1, 3 -> 1, 3 -> 2 at 9-12 h), 2 with the P_r* hold alone (3 -> 1, 3 -> 2:
+#: the purge at 100 % from 9 h while the plan closed the condenser leaving mode 3), 2
+#: with the plan hold alone (1 -> 3 and 2 -> 3, at 11.9 and 14.8 h: held at the old grade
+#: with P_r* following the pressure up), none with both, on seeds 1-3 (36 runs) nor
+#: with the onset at 3 h, inside the leg (seeds 1-2, 24 runs).
 GUARDS_MPC = TransitionGuards(hold_start_kpa=2850.0, hold_full_kpa=2900.0,
-                              purge_track_lift_kpa=40.0, pressure_hold_c_fraction=0.5)
+                              purge_track_lift_kpa=40.0, pressure_hold_c_fraction=0.5,
+                              plan_hold_a_lost=True, pressure_hold_a_lost=True)
 
 
 class TEController:
@@ -1183,17 +1215,37 @@ class TEController:
         before, after = self.plan.change_at(self._t_last)
         return bool(after.xmeas[22] < before.xmeas[22] - A_FALLING_MOL)
 
+    def _plan_held_by_a(self) -> bool:
+        """Whether the plan stands while the A feed is lost
+        (:attr:`TransitionGuards.plan_hold_a_lost`)."""
+        return self.guards.plan_hold_a_lost and self.feeds.a_lost
+
+    def _hold_fraction(self, xmeas: Sequence[float]) -> float:
+        """The share of the plan's clock held now: 1 while the A feed is lost (where
+        the guard is on), else that of the reactor pressure."""
+        if self._plan_held_by_a():
+            return 1.0
+        return self.guards.hold_fraction(float(xmeas[6]))
+
     def _e_feed_margin(self, xmeas: Sequence[float]) -> float:
         """How far (%) the E valve may go above the plan's (:class:`TransitionGuards`)."""
         g = self.guards
-        f = g.hold_fraction(float(xmeas[6]))
+        f = self._hold_fraction(xmeas)
         return g.e_feed_margin + f * (g.e_feed_margin_held - g.e_feed_margin)
 
     def _hold_step(self, t_ref: float, xmeas: Sequence[float], alarms: list) -> None:
         """The plan hold (:class:`TransitionGuards`): while a leg is under way, the
         plan's clock of the next sample falls behind by the held share of this one."""
         legs = getattr(self.plan, "legs", ())  # a held plan (an abort) has none
-        if not legs or t_ref - self.plan_lag_h < legs[0].t_h:
+        if not legs:
+            return
+        if self._plan_held_by_a():  # a leg due now waits too: it starts once A is back
+            if t_ref - self.plan_lag_h + self.sample_h > legs[0].t_h:
+                self.plan_lag_h += self.sample_h
+                alarms.append(f"A feed lost: grade plan held (behind by "
+                              f"{self.plan_lag_h:.2f} h)")
+            return
+        if t_ref - self.plan_lag_h < legs[0].t_h:
             return
         p = float(xmeas[6])
         f = self.guards.hold_fraction(p)
@@ -1251,15 +1303,18 @@ class TEController:
             self._track_bound_h = 0.0
         # through a grade change with C run short: P_r* no higher than the sample before
         prev = self._pr_applied
-        held = (g.pressure_hold_c_fraction is not None and self._since < g.pressure_hold_h
-                and prev is not None and p_r > prev
-                and self._c_purge_ratio(c, c_purge_ref) < g.pressure_hold_c_fraction)
+        rising = prev is not None and p_r > prev
+        c_short = (g.pressure_hold_c_fraction is not None and self._since < g.pressure_hold_h
+                   and self._c_purge_ratio(c, c_purge_ref) < g.pressure_hold_c_fraction)
+        a_lost = g.pressure_hold_a_lost and self.feeds.a_lost
+        held = rising and (c_short or a_lost)
         if held:
             p_r = prev
+            why = ("the A feed lost" if a_lost else
+                   f"C in the purge {c:.1f} mol % against the plan's {c_purge_ref:.1f}")
             self.pressure_hold_alarm.act(
-                f"reactor pressure set point held at {p_r:.0f} kPa: C in the purge "
-                f"{c:.1f} mol % against the plan's {c_purge_ref:.1f}; the purge takes the "
-                "gas that does not react")
+                f"reactor pressure set point held at {p_r:.0f} kPa: {why}; the purge "
+                "takes the gas that does not react")
         else:
             self.pressure_hold_alarm.idle()
         self._pr_applied = p_r
@@ -1295,7 +1350,7 @@ class TEController:
             return ff
         if not getattr(self.plan, "legs", ()):  # held (an abort): the share stays
             return path.value
-        return path.step(g.d_fraction, self.guards.hold_fraction(float(xmeas[6])),
+        return path.step(g.d_fraction, self._hold_fraction(xmeas),
                          float(xmeas[1]), float(xmeas[7]),
                          float(self.production.level_setpoint(ym[7])), float(xmeas[39]),
                          float(g.g_mol))

@@ -28,7 +28,7 @@ def is_finite_number(v) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def check_finite_fields(settings, label: str = "", optional=()) -> None:
+def check_finite_fields(settings, label: str = "", optional=(), flags=()) -> None:
     """Raise ``ValueError`` naming the first field of the dataclass ``settings`` that is
     not a finite int or float (a bool is not a number here).
 
@@ -39,9 +39,15 @@ def check_finite_fields(settings, label: str = "", optional=()) -> None:
         Put before the field's name in the message (e.g. ``"level sag "``).
     optional : sequence of str
         Fields that may also be None (a setting that is off).
+    flags : sequence of str
+        Fields that must be a bool instead.
     """
     for f in fields(settings):
         v = getattr(settings, f.name)
+        if f.name in flags:
+            if not isinstance(v, bool):
+                raise ValueError(f"{label}{f.name}: must be true or false, got {v!r}")
+            continue
         if v is None and f.name in optional:
             continue
         if not is_finite_number(v):
