@@ -56,6 +56,9 @@ INTERLOCK_KPA = 3000.0
                                        ({"pressure_hold_h": -1.0}, "pressure_hold_h"),
                                        ({"a_loop_raise_c_excess_mol": 0.0},
                                         "a_loop_raise_c_excess_mol"),
+                                       ({"e_cap_c_fraction": 1.5}, "e_cap_c_fraction"),
+                                       ({"e_cap_c_fraction": float("nan")},
+                                        "e_cap_c_fraction"),
                                        ({"plan_hold_a_lost": 1}, "plan_hold_a_lost"),
                                        ({"pressure_hold_a_lost": "yes"},
                                         "pressure_hold_a_lost")])
@@ -389,6 +392,52 @@ def test_the_recycle_valve_closes_more_slowly_than_it_opens():
 
     assert moved(out, 4) < 0.5 * moved(out, 2)             # XMV(5) against the A feed
     assert moved(into, 4) == pytest.approx(moved(into, 2))  # opening: the valves' pace
+
+
+def _e_valves(c_purge: float, t0: float = 2.0, **guards) -> tuple[list[float], list]:
+    """The E valve written over 10 samples from ``t0`` on 2 -> 3 (requested at 1 h) with
+    the D feed at 5000 kg/h (the level's loop raising it) and C in the purge ``c_purge``
+    mol %; the last alarms."""
+    ctl, _ = make_te_controller("plan", TransitionPlan("mode2", (Leg(1.0, "mode3"),)),
+                                guards=TransitionGuards(**guards))
+    out, dec = [], None
+    for k in range(10):
+        x = _xmeas(2, 2600.0)
+        x[1], x[30] = 5000.0, c_purge
+        dec = ctl.step(k, t0 + k * ctl.sample_h, x, None)
+        ctl.finish_sample()
+        out.append(float(dec.u[1]))
+    return out, list(dec.alarms)
+
+
+def test_with_c_short_in_a_grade_change_the_e_valve_goes_no_higher_than_the_new_grades():
+    cap = float(grade("mode3").xmv[1]) + TransitionGuards().e_feed_margin  # 8 % + 10 %
+    capped, alarms = _e_valves(2.0, e_cap_c_fraction=0.3)
+    assert max(capped) == pytest.approx(cap)
+    assert any(f"E feed held at {cap:.0f} %" in a for a in alarms)
+    # C as planned (13 mol % on this leg), or past pressure_hold_h: as with the guard off
+    free, _ = _e_valves(2.0)
+    assert min(free) > cap + 20.0
+    for c, t0 in ((13.0, 2.0), (2.0, 14.0)):
+        on, alarms = _e_valves(c, t0, e_cap_c_fraction=0.3)
+        assert on == _e_valves(c, t0)[0]
+        assert not any("E feed held" in a for a in alarms)
+
+
+def test_idv8_through_a_leg_into_mode_3_with_the_d_feed_rising_does_not_trip():
+    # IDV(8) from 0.5 h, 2 -> 3 at 1 h (seed 8): the plan lowered the E valve over hours
+    # while the level's loop raised the D feed to 96 %; with C out of the purge E stayed
+    # at 58-60 % and gathered, the purge at 100 % from 2.2 h, and the plant tripped at
+    # 2.7 h. E held to mode 3's and its margin while C is short: no trip (of 75 runs over
+    # five legs, seeds 1-15: 2 trips -> 0)
+    plan = TransitionPlan("mode2", (Leg(1.0, "mode3"),))
+    kw = dict(noise=True, seed=8, plant_seed=plant_seed_for(8), idv={8: 0.5})
+    off = dataclasses.replace(GUARDS_MPC, e_cap_c_fraction=None)
+    assert run_te("ssmpc", plan, 3.5, guards=off, **kw).shutdown is not None
+    r = run_te("ssmpc", plan, 6.0, **kw)
+    assert r.shutdown is None, r.shutdown
+    assert r.xmeas[:, 6].max() < 2895.0
+    assert any("E feed held" in a for a in r.alarms)
 
 
 #: IDV(6) (A feed lost) from 0.5 h through a leg at 1 h, seed 1: the guards that the case

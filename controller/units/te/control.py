@@ -660,6 +660,15 @@ class TransitionGuards:
         ``raise_settle_h``): see :data:`GUARDS_MPC`.
     pressure_hold_h : float
         See ``pressure_hold_c_fraction``, h (>= 0).
+    e_cap_c_fraction : float or None
+        For ``pressure_hold_h`` after a grade change, while C in the purge (XMEAS 31) is
+        below this fraction of the plan's, the E feed valve goes no higher than the new
+        grade's E valve and ``e_feed_margin``, with an alarm: E fed without the C to
+        react gathers as gas. Into mode 3 the plan lowers the E valve over hours while
+        the reactor level's loop raises the D feed: IDV(8) from 0.5 h through 2 -> 3 at
+        1 h held E at 58-60 % (mode 3's: 8 %) with C out of the purge, the purge at 100 %
+        from 2.2 h, and the plant tripped at 2.7 h (seeds 8 and 13 of 1-15). None: no
+        cap (the baselines).
     plan_hold_a_lost : bool
         While the A feed is lost (:class:`~controller.units.te.overrides.FeedOverrides`),
         the plan's clock stops (the plan hold at its full share, before a leg too: a leg
@@ -710,6 +719,7 @@ class TransitionGuards:
     a_loop_raise_c_excess_mol: float | None = 8.0
     pressure_hold_c_fraction: float | None = None
     pressure_hold_h: float = 12.0
+    e_cap_c_fraction: float | None = None
     plan_hold_a_lost: bool = False
     pressure_hold_a_lost: bool = False
 
@@ -717,7 +727,7 @@ class TransitionGuards:
         check_finite_fields(self, optional=("purge_track_lift_kpa", "purge_floor_fraction",
                                             "a_rise_hold_kpa", "a_loop_cut_c_fraction",
                                             "a_loop_raise_c_excess_mol",
-                                            "pressure_hold_c_fraction"),
+                                            "pressure_hold_c_fraction", "e_cap_c_fraction"),
                             flags=("plan_hold_a_lost", "pressure_hold_a_lost"))
         check_range(self, ("e_feed_margin", "e_feed_margin_held"), "[0, 100]", "%")
         check_range(self, ("purge_track_kpa", "purge_track_lift_kpa"), ">= 0", "kPa")
@@ -725,7 +735,8 @@ class TransitionGuards:
                            "purge_floor_after_h", "a_rise_hold_after_h", "pressure_hold_h"),
                     ">= 0", "h")
         check_range(self, "purge_floor_fraction", "[0, 1)")
-        check_range(self, ("a_loop_cut_c_fraction", "pressure_hold_c_fraction"), "(0, 1]")
+        check_range(self, ("a_loop_cut_c_fraction", "pressure_hold_c_fraction",
+                           "e_cap_c_fraction"), "(0, 1]")
         check_range(self, "a_loop_raise_c_excess_mol", "> 0", "mol %")
         check_range(self, ("hold_start_kpa", "hold_full_kpa"), "(2000, 3000]", "kPa",
                     note="interlock 3000")
@@ -792,9 +803,16 @@ class TransitionGuards:
 #: with the plan hold alone (1 -> 3 and 2 -> 3, at 11.9 and 14.8 h: held at the old grade
 #: with P_r* following the pressure up), none with both, on seeds 1-3 (36 runs) nor
 #: with the onset at 3 h, inside the leg (seeds 1-2, 24 runs).
+#:
+#: E held to the new grade's while C is short (``e_cap_c_fraction``): the 75 runs of
+#: IDV(8) through a leg above, ssmpc 2 -> 0 trips, fixed 3 -> 0. Without a disturbance
+#: (the matrix's seeds 1-3, 48 h, medians) it acts on 1 -> 3 and 2 -> 3 only: 1 -> 3
+#: 10.8 -> 10.9 h and 660 -> 633 $, 2 -> 3 10.3 -> 10.8 h and 705 -> 669 $. At 0.5 of the
+#: plan's C: the same trips, but 2 -> 3 11.8 h (627 $).
 GUARDS_MPC = TransitionGuards(hold_start_kpa=2850.0, hold_full_kpa=2900.0,
                               purge_track_lift_kpa=40.0, pressure_hold_c_fraction=0.5,
-                              plan_hold_a_lost=True, pressure_hold_a_lost=True)
+                              plan_hold_a_lost=True, pressure_hold_a_lost=True,
+                              e_cap_c_fraction=0.3)
 
 
 class TEController:
@@ -953,6 +971,8 @@ class TEController:
         #: (TransitionGuards.pressure_hold_c_fraction): its alarm, and P_r* as applied
         #: the sample before (kPa; None before the first sample)
         self.pressure_hold_alarm = HeldAlarm(self.sample_h)
+        #: the E valve held to the new grade's while C is short (e_cap_c_fraction)
+        self.e_cap_alarm = HeldAlarm(self.sample_h)
         self._pr_applied: float | None = None
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
@@ -1215,6 +1235,28 @@ class TEController:
         before, after = self.plan.change_at(self._t_last)
         return bool(after.xmeas[22] < before.xmeas[22] - A_FALLING_MOL)
 
+    def _e_cap_c_short(self, u2: float, xmeas: Sequence[float], ym: Sequence[float],
+                       t_ref: float) -> float:
+        """The E valve (%) within the new grade's while C runs short through a grade
+        change (:attr:`TransitionGuards.e_cap_c_fraction`)."""
+        g = self.guards
+        c, c_ref = float(xmeas[30]), float(ym[30])
+        if (g.e_cap_c_fraction is None or not self._since < g.pressure_hold_h
+                or not self._c_purge_ratio(c, c_ref) < g.e_cap_c_fraction):
+            self.e_cap_alarm.idle()
+            return u2
+        cap = max(float(self.plan.grade_at(t_ref - self.plan_lag_h).xmv[1])
+                  + g.e_feed_margin, 0.0)
+        if u2 > cap:
+            u2 = cap
+            self.e_cap_alarm.act(
+                f"E feed held at {cap:.0f} %, the new grade's and its margin: C in the "
+                f"purge {c:.1f} mol % against the plan's {c_ref:.1f}; E without C to react "
+                "gathers as gas")
+        else:
+            self.e_cap_alarm.idle()
+        return u2
+
     def _plan_held_by_a(self) -> bool:
         """Whether the plan stands while the A feed is lost
         (:attr:`TransitionGuards.plan_hold_a_lost`)."""
@@ -1466,6 +1508,7 @@ class TEController:
         d_meas = xm[1] if math.isfinite(xm[1]) else xv[0] * D_FULL_KG_H / 100
         u[1] = min(max(d_meas * (1.0 - s) / s / E_FULL_KG_H * 100.0, 0.0), 100.0,
                    max(xv[1] + self._e_feed_margin(xm), 0.0))
+        u[1] = self._e_cap_c_short(u[1], xm, yl, t_ref)
         u[4], u[8], u[11] = xv[4], xv[8], xv[11]
         ff = self._core_ff(xv, yl)
         info: dict[str, Any] = {}
@@ -1549,6 +1592,7 @@ class TEController:
         alarms.extend(self.float_alarm.alarms())
         alarms.extend(self.a_rise_alarm.alarms())
         alarms.extend(self.pressure_hold_alarm.alarms())
+        alarms.extend(self.e_cap_alarm.alarms())
         level_sp = self.level_sag.update(float(xm[6]), float(xm[7]),
                                          self.production.level_setpoint(yl[7]),
                                          float(u[1]), self._since)
@@ -1618,6 +1662,7 @@ class TEController:
                 "float_alarm": self.float_alarm.checkpoint(),
                 "a_rise_alarm": self.a_rise_alarm.checkpoint(),
                 "pressure_hold_alarm": self.pressure_hold_alarm.checkpoint(),
+                "e_cap_alarm": self.e_cap_alarm.checkpoint(),
                 "pr_applied": self._pr_applied,
                 "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
                 "reactants": self.reactants.checkpoint(),
@@ -1642,6 +1687,7 @@ class TEController:
         self.float_alarm.restore(state.get("float_alarm"))
         self.a_rise_alarm.restore(state.get("a_rise_alarm"))
         self.pressure_hold_alarm.restore(state.get("pressure_hold_alarm"))
+        self.e_cap_alarm.restore(state.get("e_cap_alarm"))
         pr = state.get("pr_applied")  # absent or damaged: no hold until the next sample
         self._pr_applied = float(pr) if is_finite_number(pr) else None
         for trim, key in ((self._a, "a"), (self._p, "p"), (self._sep, "sep"), (self._pc, "pc"),
