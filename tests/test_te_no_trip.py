@@ -476,6 +476,30 @@ def test_a_leg_requested_while_the_a_feed_is_lost_starts_once_it_is_back():
     assert abs(float(np.mean(g[r.t > 13.0])) - g1) < 1.5  # then went to mode 1
 
 
+def test_a_leg_held_at_its_start_counts_its_hours_from_when_it_goes_on():
+    # the guards' windows after a change (the A loop's hold, the P_r* hold) start when
+    # the leg does, not when it was due; the wait survives a restart
+    plan = TransitionPlan("mode2", (Leg(1.0, "mode1"),))
+    ctl, _ = make_te_controller("plan", plan, guards=TransitionGuards(plan_hold_a_lost=True))
+    x = np.array(grade("mode2").xmeas, dtype=float)
+    lost = x.copy()
+    lost[0] = 0.0  # XMEAS 1: no A delivered at the A valve's opening
+    k = 0
+    for k in range(250):  # 0.5 h to 3.0 h
+        ctl.step(k, 0.5 + k * ctl.sample_h, lost, None)
+        ctl.finish_sample()
+    assert ctl.plan_lag_h == pytest.approx(2.0)
+    assert ctl.since_change_h == np.inf  # still waiting
+    state = json.loads(json.dumps(ctl.checkpoint()))
+    again, _ = make_te_controller("plan", plan, guards=TransitionGuards(plan_hold_a_lost=True))
+    again.restore(state)
+    for j in range(1, 51):  # the A feed back: 3.0 h to 3.5 h
+        again.step(k + j, 0.5 + (k + j) * again.sample_h, x, None)
+        again.finish_sample()
+    assert 0.3 < again.since_change_h < 0.5  # the leg went on when A was back
+    assert again.plan_lag_h == pytest.approx(2.0, abs=0.1)
+
+
 # -- the reduced no-trip matrix --------------------------------------------------------------
 #: (strategy, start mode, leg mode, IDV, hours): before the guards these tripped on
 #: reactor pressure (noise on, seed 1) at 3.8 h (ssmpc 3 -> 0), 2.9 h (3 -> 1), 2.6 h

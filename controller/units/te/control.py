@@ -800,7 +800,7 @@ class TransitionGuards:
 #: IDV(6) from 0.5 h through each of the 12 legs at 1 h, noise on, 24 h, seed 1: 3 trips
 #: without (2 -> 1, 3 -> 1, 3 -> 2 at 9-12 h), 2 with the P_r* hold alone (3 -> 1, 3 -> 2:
 #: the purge at 100 % from 9 h while the plan closed the condenser leaving mode 3), 2
-#: with the plan hold alone (1 -> 3 and 2 -> 3, at 11.9 and 14.8 h: held at the old grade
+#: with the plan hold alone (1 -> 3 and 2 -> 3, at 12.0 and 15.2 h: held at the old grade
 #: with P_r* following the pressure up), none with both, on seeds 1-3 (36 runs) nor
 #: with the onset at 3 h, inside the leg (seeds 1-2, 24 runs).
 #:
@@ -979,6 +979,9 @@ class TEController:
                        if strategy in MPC_STRATEGIES else None)
         #: h the plan's clock is behind real time (the plan hold, TransitionGuards)
         self.plan_lag_h = 0.0
+        #: the part of plan_lag_h spent before the first leg started (the A feed lost as
+        #: it was due): the hours since the change count from its real start
+        self._lag_before_leg_h = 0.0
         self._hold_alarm = False
         #: steady-state targets of the MPC core (:class:`controller.units.te.targets.CoreTargets`)
         self.targets = targets
@@ -1023,6 +1026,7 @@ class TEController:
         previous plan is dropped)."""
         self.plan = plan
         self.plan_lag_h = 0.0
+        self._lag_before_leg_h = 0.0
         self._hold_alarm = False
 
     # -- operator hooks (controller.units.te.operator) ------------------------------------
@@ -1088,6 +1092,12 @@ class TEController:
     def p_trim(self) -> float:
         """The production loop's trim of the A+C feed's target, %."""
         return self._p.value
+
+    @property
+    def since_change_h(self) -> float:
+        """Hours from the last grade change's start to the last sample (inf before the
+        first): a leg held at its start while the A feed is lost starts when it goes on."""
+        return self._since
 
     @property
     def sep_trim(self) -> float:
@@ -1282,7 +1292,10 @@ class TEController:
         if not legs:
             return
         if self._plan_held_by_a():  # a leg due now waits too: it starts once A is back
-            if t_ref - self.plan_lag_h + self.sample_h > legs[0].t_h:
+            tau = t_ref - self.plan_lag_h  # the plan's clock
+            if tau + self.sample_h > legs[0].t_h:
+                if tau <= legs[0].t_h + self.GRID_TOL_H:  # at the leg's start: it waits
+                    self._lag_before_leg_h += self.sample_h
                 self.plan_lag_h += self.sample_h
                 alarms.append(f"A feed lost: grade plan held (behind by "
                               f"{self.plan_lag_h:.2f} h)")
@@ -1499,7 +1512,7 @@ class TEController:
         self._t_last = t
         # the hours since the last grade change, read once a sample by the outer loops,
         # the reactant trim and the targets' economics
-        self._since = self.plan.hours_since_change(t)
+        self._since = self.plan.hours_since_change(t - self._lag_before_leg_h)
         self.feeds.observe(xm)
         xv, ym = xv_all[0], ym_all[0]
         yl = ym.tolist()  # as xm
@@ -1658,6 +1671,7 @@ class TEController:
                 "targets": None if self.targets is None else self.targets.checkpoint(),
                 "n_samples": self.n_samples,
                 "t_last": self._t_last, "plan_lag_h": self.plan_lag_h,
+                "lag_before_leg_h": self._lag_before_leg_h,
                 "track_bound_h": self._track_bound_h,
                 "float_alarm": self.float_alarm.checkpoint(),
                 "a_rise_alarm": self.a_rise_alarm.checkpoint(),
@@ -1681,6 +1695,9 @@ class TEController:
         self._refs_ahead = None
         self.override = float(state.get("override", 0.0))
         self.plan_lag_h = float(state.get("plan_lag_h", 0.0))
+        before = state.get("lag_before_leg_h", 0.0)  # absent: a checkpoint from before it
+        self._lag_before_leg_h = float(before) if is_finite_number(before) \
+            and 0.0 <= before <= self.plan_lag_h else 0.0
         bound = state.get("track_bound_h", 0.0)  # absent: a checkpoint from before it
         self._track_bound_h = float(bound) if isinstance(bound, int | float) \
             and math.isfinite(bound) and bound >= 0.0 else 0.0
