@@ -1159,6 +1159,13 @@ class TEController:
         is not finite or a reference that is not positive: no guard acts on it)."""
         return c / ref if ref > 0.0 and math.isfinite(c) and math.isfinite(ref) else math.nan
 
+    def _c_short_in_change(self, c: float, ref: float, fraction: float | None) -> bool:
+        """Whether, within :attr:`TransitionGuards.pressure_hold_h` of a grade change,
+        C in the purge ``c`` is under ``fraction`` of the plan's ``ref`` (mol %; None:
+        never)."""
+        return (fraction is not None and self._since < self.guards.pressure_hold_h
+                and self._c_purge_ratio(c, ref) < fraction)
+
     def _a_rise_held(self, ym: Sequence[float], xmeas: Sequence[float]) -> bool:
         """Whether the A loop may not raise its trim now (:class:`TransitionGuards`
         ``a_rise_hold_kpa``): a high pressure with C short in the recycle gas. A
@@ -1251,8 +1258,7 @@ class TEController:
         change (:attr:`TransitionGuards.e_cap_c_fraction`)."""
         g = self.guards
         c, c_ref = float(xmeas[30]), float(ym[30])
-        if (g.e_cap_c_fraction is None or not self._since < g.pressure_hold_h
-                or not self._c_purge_ratio(c, c_ref) < g.e_cap_c_fraction):
+        if not self._c_short_in_change(c, c_ref, g.e_cap_c_fraction):
             self.e_cap_alarm.idle()
             return u2
         cap = max(float(self.plan.grade_at(t_ref - self.plan_lag_h).xmv[1])
@@ -1359,8 +1365,7 @@ class TEController:
         # through a grade change with C run short: P_r* no higher than the sample before
         prev = self._pr_applied
         rising = prev is not None and p_r > prev
-        c_short = (g.pressure_hold_c_fraction is not None and self._since < g.pressure_hold_h
-                   and self._c_purge_ratio(c, c_purge_ref) < g.pressure_hold_c_fraction)
+        c_short = self._c_short_in_change(c, c_purge_ref, g.pressure_hold_c_fraction)
         a_lost = g.pressure_hold_a_lost and self.feeds.a_lost
         held = rising and (c_short or a_lost)
         if held:
