@@ -217,7 +217,8 @@ def test_ssmpc_does_not_depend_on_the_adaptive_slot_position(monkeypatch):
     from controller.state_shared import ModelSpec
 
     plan = TransitionPlan("mode0", (Leg(0.5, "mode2"),))
-    first = run_te("ssmpc", plan, 4.0)
+    # the core's models alone (the composition core builds its own controller)
+    first = run_te("ssmpc", plan, 4.0, composition=False)
     build = te_models.state_shared_model
 
     def adaptive_last(dt_h, adaptive, *a, **kw):
@@ -233,7 +234,7 @@ def test_ssmpc_does_not_depend_on_the_adaptive_slot_position(monkeypatch):
 
     monkeypatch.setattr(te_models, "state_shared_model", adaptive_last)
     monkeypatch.setattr(mmod, "MultiModelController", Last)
-    last = run_te("ssmpc", plan, 4.0)
+    last = run_te("ssmpc", plan, 4.0, composition=False)
     def active_names(run):
         return [run.model_names[i] for i in run.active]
 

@@ -186,6 +186,11 @@ from controller.alarms import keyed_alarms
 from controller.blas import single_threaded
 from controller.interfaces import QP_WORK_KEYS, ControlDecision
 from controller.mpc.filters import FirstOrderFilter
+from controller.units.te.composition_core import (
+    CompositionCore,
+    CompositionCoreSettings,
+    share_bounds,
+)
 from controller.units.te.condenser_balance import CondenserBalance
 from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.d_share_path import DSharePath, DSharePathSettings
@@ -945,7 +950,8 @@ class TEController:
                  level_sag: LevelSagSettings | None = None,
                  floating_pressure: FloatingPressureSettings | None = None,
                  production_condenser_loop: bool = False,
-                 condenser_disturbance_loop: bool = True) -> None:
+                 condenser_disturbance_loop: bool = True,
+                 composition: CompositionCoreSettings | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -977,6 +983,19 @@ class TEController:
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
                        if strategy in MPC_STRATEGIES else None)
+        #: MPC strategies: the composition core's tuning (None: the D-share path and the
+        #: G loop make the grade change; :mod:`controller.units.te.composition_core`)
+        self.composition_settings = composition if strategy in MPC_STRATEGIES else None
+        #: the composition core (built at the first sample, from the share in force)
+        self.composition: CompositionCore | None = None
+        #: the share the composition core plans, in force while it is active (else None)
+        self._comp_share: float | None = None
+        #: supervisory samples per composition sample, and those left until the next
+        self._comp_every = (max(int(round(composition.sample_h / self.sample_h)), 1)
+                            if self.composition_settings is not None else 0)
+        self._comp_left = 0
+        #: the measured D share summed over the composition sample under way, and its count
+        self._comp_sum, self._comp_n = 0.0, 0
         #: h the plan's clock is behind real time (the plan hold, TransitionGuards)
         self.plan_lag_h = 0.0
         #: the part of plan_lag_h spent before the first leg started (the A feed lost as
@@ -1415,9 +1434,63 @@ class TEController:
                          float(self.production.level_setpoint(ym[7])), float(xmeas[39]),
                          float(g.g_mol))
 
+    def _composition_step(self, t_ref: float, xv, ym: Sequence[float],
+                          xmeas: Sequence[float]) -> None:
+        """The composition core (:mod:`controller.units.te.composition_core`): one of its
+        0.25 h samples when due, run at every grade (its shared state and index follow
+        the plant); its share is in force (``_comp_share``) from a grade change for
+        ``active_h``, beneath a plan with legs."""
+        st = self.composition_settings
+        d, e = float(xmeas[1]), float(xmeas[2])
+        if math.isfinite(d) and math.isfinite(e) and d + e > 0.0:
+            self._comp_sum += d / (d + e)
+            self._comp_n += 1
+        t_plan = self._t_last - self.plan_lag_h
+        active = (bool(getattr(self.plan, "legs", ())) and 0.0 <= self._since < st.active_h
+                  and all(g.xmv[1] <= st.e_valve_free_max
+                          for g in self.plan.change_at(t_plan)))
+        if self._comp_left > 0:
+            self._comp_left -= 1
+        else:
+            self._comp_left = self._comp_every - 1
+            share_in = self.s if self.s is not None else self.plan.d_fraction_ref(t_ref)
+            applied = self._comp_sum / self._comp_n if self._comp_n else math.nan
+            # a share above the one in force is the E valve cut by a guard (the E cap, the
+            # production index): the core goes on from its own, as the path does
+            applied = min(applied, share_in)
+            self._comp_sum, self._comp_n = 0.0, 0
+            if self.composition is None:
+                self.composition = CompositionCore(self.strategy, share_in,
+                                                   (self.ratio.s_min, self.ratio.s_max), st)
+            path = self.d_path.settings if self.d_path is not None else DSharePathSettings()
+            rise_waits = (d >= path.d_feed_high * D_FULL_KG_H
+                          and xmeas[7] < self.production.level_setpoint(ym[7])
+                          - path.level_low_pct)
+            hold = self._hold_fraction(xmeas)
+            if not active or 40 in self.outer_held:
+                hold = 1.0  # beside the G loop, or held: the core follows the share in force
+            bounds = share_bounds(d, xv[1] + self._e_feed_margin(xmeas), share_in,
+                                  self.ratio.s_min, self.ratio.s_max,
+                                  rise_waits=rise_waits, hold=hold, step_max=st.du_max)
+            g_ref = float(self.plan.grade_at(t_plan).g_mol)
+            share = self.composition.step(float(xmeas[39]), applied, g_ref, bounds)
+            if active:
+                self._comp_share = share
+        if not active:
+            if self._comp_share is not None:  # handed back: the G loop from here
+                self.e_g_prev = None
+            self._comp_share = None
+        elif self._comp_share is None:
+            self._comp_share = self.s  # until the core's next sample
+
     def _ratio_step(self, ff: float, ym: Sequence[float], xmeas: Sequence[float]) -> float:
         if self.s is None:
             self.s, self.s_ff_prev = ff, ff
+        if self._comp_share is not None:  # the composition core plans the share
+            self.s_ff_prev = ff
+            self.e_g_prev = None
+            self.s = min(max(self._comp_share, self.ratio.s_min), self.ratio.s_max)
+            return self.s
         s = self.s + (ff - self.s_ff_prev)
         self.s_ff_prev = ff
         g = float(xmeas[39])
@@ -1521,6 +1594,8 @@ class TEController:
         self.feeds.observe(xm)
         xv, ym = xv_all[0], ym_all[0]
         yl = ym.tolist()  # as xm
+        if self.composition_settings is not None:
+            self._composition_step(t_ref, xv, yl, xm)
         s = self._ratio_step(self._d_share_ff(ff, t_ref, yl, xm), yl, xm)
         u = _NO_XMVS.copy()  # NaN: not written
         d_meas = xm[1] if math.isfinite(xm[1]) else xv[0] * D_FULL_KG_H / 100
@@ -1686,7 +1761,11 @@ class TEController:
                 "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
                 "reactants": self.reactants.checkpoint(),
                 "level_sag": self.level_sag.checkpoint(),
-                "d_path": None if self.d_path is None else self.d_path.checkpoint()}
+                "d_path": None if self.d_path is None else self.d_path.checkpoint(),
+                "composition": (None if self.composition is None else
+                                {"core": self.composition.checkpoint(),
+                                 "share": self._comp_share, "left": self._comp_left,
+                                 "sum": self._comp_sum, "n": self._comp_n})}
 
     def restore(self, state: dict[str, Any]) -> None:
         self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
@@ -1727,6 +1806,17 @@ class TEController:
             self.d_path.restore(state.get("d_path"))
             if self.d_path.value is None and self.s_ff_prev is not None:
                 self.d_path.start(self.s_ff_prev)  # a checkpoint from before the path
+        comp = state.get("composition")
+        if self.composition_settings is not None and comp:
+            share0 = self.s if self.s is not None else 0.5
+            self.composition = CompositionCore(self.strategy, share0,
+                                               (self.ratio.s_min, self.ratio.s_max),
+                                               self.composition_settings)
+            self.composition.restore(comp.get("core"))
+            share = comp.get("share")
+            self._comp_share = float(share) if is_finite_number(share) else None
+            self._comp_left = int(comp.get("left", 0))
+            self._comp_sum, self._comp_n = float(comp.get("sum", 0.0)), int(comp.get("n", 0))
 
 
 def _core_limits():
@@ -1943,6 +2033,22 @@ class TEMPCOptions:
                              f"got {self.pressure_limit_start!r}")
 
 
+#: The MPC strategies' composition core (:mod:`controller.units.te.composition_core`).
+COMPOSITION_MPC = CompositionCoreSettings()
+
+
+def _composition_settings(value) -> CompositionCoreSettings | None:
+    """``make_te_controller``'s ``composition``: True -> :data:`COMPOSITION_MPC`, False ->
+    None (the D-share path and the G loop make every grade change), or settings."""
+    if value is True:
+        return COMPOSITION_MPC
+    if value is False:
+        return None
+    if isinstance(value, CompositionCoreSettings):
+        return value
+    raise ValueError(f"composition: must be true, false or a CompositionCoreSettings, got "
+                     f"{value!r}")
+
 #: Wall-clock budget of one MPC step in real time, ms (the 36 s sample leaves far more;
 #: a step over it takes the previous plan, :class:`controller.mpc.MPCController`).
 REALTIME_BUDGET_MS = 50.0
@@ -2038,6 +2144,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        floating_pressure: FloatingPressureSettings | None = None,
                        production_condenser_loop: bool = False,
                        condenser_disturbance_loop: bool = True,
+                       composition: CompositionCoreSettings | bool = True,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -2082,6 +2189,10 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         MPC strategies: the A+C feed's target raised where A+C is short in the reactor
         feed with the D feed at its limit, lowered where A+C is in excess
         (:mod:`controller.units.te.reactant_trim`).
+    composition : bool or CompositionCoreSettings
+        MPC strategies: the composition core that plans the D share through a grade
+        change (:mod:`controller.units.te.composition_core`): True (default,
+        :data:`COMPOSITION_MPC`), False (the D-share path alone), or its settings.
 
     Returns
     -------
@@ -2123,7 +2234,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        d_share_path=d_share_path, level_sag=level_sag,
                        floating_pressure=floating_pressure,
                        production_condenser_loop=production_condenser_loop,
-                       condenser_disturbance_loop=condenser_disturbance_loop)
+                       condenser_disturbance_loop=condenser_disturbance_loop,
+                       composition=_composition_settings(composition) if mpc_core else None)
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 

@@ -82,6 +82,7 @@ temperature's inner loop").
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -90,7 +91,8 @@ from controller.linear import Realization, balanced_truncation
 from controller.shared_basis import BASES, SharedBasis, roots_from_poles
 from controller.state_shared import ModelSpec, StateSharedModel, designer_polynomial
 
-__all__ = ["MODEL_GRADES", "ORDER", "MPC_ORDER", "DESIGNER_ROOTS", "closed_loop", "reduced",
+__all__ = ["MODEL_GRADES", "ORDER", "MPC_ORDER", "DESIGNER_ROOTS", "CascadeStateSpace",
+           "cascade_state_space", "closed_loop", "reduced",
            "state_shared_model", "PRESSURE_FILTER_H"]
 
 MODEL_GRADES = ("mode0", "mode2", "mode3")
@@ -106,16 +108,28 @@ _CORE_INPUTS = (("xmv", 3), ("xmv", 4), ("sp", 4), ("sp", 0), ("xmv", 11))
 _CORE_CVS = (7, 11, 13, 16, 18)
 
 
-@lru_cache(maxsize=8)
-def closed_loop(grade: str, loops: tuple | None = None
-                ) -> tuple[Realization, np.ndarray, np.ndarray]:
-    """Linear cascade about ``grade``: (realization, u_op (5,), y_op (5,)), time in h.
+@dataclass(frozen=True)
+class CascadeStateSpace:
+    """The linearized plant with the inner loops and the E/D ratio closed (time in h).
 
-    ``loops``: the inner loops closed (default :data:`controller.units.te.loops.MODEL_LOOPS`),
-    in their order; the first holds the reactor temperature (its set point is T_r*) and
-    may be a cascade (a :class:`plant_sim.tennessee_eastman.regulatory.SecondaryLoop`
-    on a faster measurement drives its valve); the fifth is the pressure loop.
+    ``A`` (N, N) holds the plant's 50 states first, then one integrator per loop, one
+    per secondary of a cascaded loop and the pressure filter; ``B_sp`` (N, loops) takes
+    the loops' set points; ``B_xmv`` (N, 12) and ``C_xmeas`` (41, N) are the plant's own
+    input and output matrices padded to the N states; ``lm`` the plant's linearization.
     """
+
+    A: np.ndarray
+    B_sp: np.ndarray
+    B_xmv: np.ndarray
+    C_xmeas: np.ndarray
+    lm: object
+    ratio: float
+
+
+@lru_cache(maxsize=8)
+def cascade_state_space(grade: str, loops: tuple | None = None) -> CascadeStateSpace:
+    """The cascade about ``grade`` as :class:`CascadeStateSpace` (see
+    :func:`closed_loop`, which takes its core inputs and outputs from it)."""
     from controller.units.te.grades import grade as get_grade
     from controller.units.te.loops import MODEL_LOOPS
     from plant_sim import get_plant
@@ -166,13 +180,36 @@ def closed_loop(grade: str, loops: tuple | None = None
         Bsp[zs, k] = lp.gain
     Acl[-1, :nx] = C[_CORE_CVS[0] - 1] / PRESSURE_FILTER_H
     Acl[-1, -1] = -1.0 / PRESSURE_FILTER_H
+    B_xmv = np.zeros((N, B.shape[1]))
+    B_xmv[:nx] = B
+    C_xmeas = np.zeros((C.shape[0], N))
+    C_xmeas[:, :nx] = C
+    return CascadeStateSpace(Acl, Bsp, B_xmv, C_xmeas, lm, float(ratio))
+
+
+@lru_cache(maxsize=8)
+def closed_loop(grade: str, loops: tuple | None = None
+                ) -> tuple[Realization, np.ndarray, np.ndarray]:
+    """Linear cascade about ``grade``: (realization, u_op (5,), y_op (5,)), time in h.
+
+    ``loops``: the inner loops closed (default :data:`controller.units.te.loops.MODEL_LOOPS`),
+    in their order; the first holds the reactor temperature (its set point is T_r*) and
+    may be a cascade (a :class:`plant_sim.tennessee_eastman.regulatory.SecondaryLoop`
+    on a faster measurement drives its valve); the fifth is the pressure loop.
+    """
+    from controller.units.te.loops import MODEL_LOOPS
+
+    lps = MODEL_LOOPS if loops is None else tuple(loops)
+    cs = cascade_state_space(grade, loops)
+    lm, N = cs.lm, cs.A.shape[0]
     Bcl = np.zeros((N, 5))
     for j, (kind, idx) in enumerate(_CORE_INPUTS):
-        Bcl[:, j] = Bsp[:, idx] if kind == "sp" else np.r_[B[:, idx - 1], np.zeros(N - nx)]
+        Bcl[:, j] = cs.B_sp[:, idx] if kind == "sp" else cs.B_xmv[:, idx - 1]
     Ccl = np.zeros((5, N))
     Ccl[0, -1] = 1.0
     for i, cv in enumerate(_CORE_CVS[1:], start=1):
-        Ccl[i, :nx] = C[cv - 1]
+        Ccl[i] = cs.C_xmeas[cv - 1]
+    Acl = cs.A
     y = lm.y_op
     u_op = np.array([lm.u_op[idx - 1] if kind == "xmv" else y[lps[idx].cv - 1]
                      for kind, idx in _CORE_INPUTS])

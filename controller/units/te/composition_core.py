@@ -1,0 +1,331 @@
+"""The composition core: a state-shared multiple-model MPC that plans the grade change.
+
+The §7.4 core's five handles carry production, pressure and temperature; the grade
+itself, G/H in the product, follows the D share ``s = D / (D + E)`` of the D and E
+feeds (the E feed in ratio to the measured D feed, seed §7.7). The linearized cascade
+says how far apart they are: G in product (XMEAS 40) moves by at most 0.05 mol % per
+unit of any core handle at mode 0 and by about 1 mol % per 0.01 of the share. So the
+grade change is planned here, by a second multiple-model MPC of the seed's kind (eq.
+3.10-3.16, 4.1, 4.6, 6.6-6.10) on one handle and one output:
+
+- handle: the D share, sampled at the product analyzer's 0.25 h;
+- output: G in product, mol % (XMEAS 40: 0.25 h samples, 0.25 h dead time);
+- models: the cascade of :func:`controller.units.te.models.cascade_state_space` with
+  the share as its input (the E valve moved at the measured D feed, as the ratio
+  does), the analyzer as a second-order Padé delay of 0.375 h (dead time plus half a
+  sample), reduced by balanced truncation (DC gain matched) to
+  :data:`COMPOSITION_ORDER`; the fixed models of modes 0, 2 and 3 and, for strategy
+  (b), one re-initialized adaptive model, on one shared state (orthonormal basis at
+  the mode-0 model's poles);
+- horizon: :attr:`CompositionCoreSettings.P` samples of 0.25 h (8 h: G settles over
+  hours), moves blocked to :attr:`~CompositionCoreSettings.M`;
+- the share's limits, set each sample by what the plant takes (the caller's):
+  below, the share at which the E valve reaches its guard (the plan's E valve and
+  margin) at the measured D feed; above, the share in force while the D feed waits
+  near its full flow with the reactor level low; both at the share in force while
+  the plan is held near the pressure interlock.
+
+The models (``python -m controller.units.te.composition_core``), per 0.01 of share:
+
+=====  ==============  ===================  =========================================
+grade  share s_op      DC gain, mol % G     step response at 1 h / 2 h of its change
+=====  ==============  ===================  =========================================
+mode0  0.448           0.97                 13 % / 76 %
+mode2  0.084           1.34                 30 % / 83 %
+mode3  0.881           0.73                  6 % / 44 %
+=====  ==============  ===================  =========================================
+
+Order 6 keeps each model's step response within 0.9 mol % of the full cascade's (of
+73-134 mol % per unit share; order 5 left mode 3's at 1.3, order 4 mode 0's at 8.3).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+
+from controller.units.te.spec import E_FULL_KG_H
+
+__all__ = ["COMPOSITION_GRADES", "COMPOSITION_ORDER", "ANALYZER_DELAY_H",
+           "CompositionCoreSettings", "CompositionCore", "composition_model",
+           "composition_state_shared_model", "share_bounds"]
+
+COMPOSITION_GRADES = ("mode0", "mode2", "mode3")
+COMPOSITION_ORDER = 6
+#: The product analyzer's dead time plus half its sample, h.
+ANALYZER_DELAY_H = 0.375
+
+
+@lru_cache(maxsize=8)
+def composition_model(grade: str, order: int = COMPOSITION_ORDER):
+    """The D share (unit share) to G in product (mol %) about ``grade``.
+
+    Returns ``(reduced, u_op (1,), y_op (1,), dc_full)``: the reduced realization
+    (time in h, the feedthrough left out as the state-shared models do), the grade's
+    share and G, and the full cascade's DC gain (mol % per unit share).
+    """
+    import control
+
+    from controller.linear import balanced_truncation
+    from controller.units.te.grades import grade as get_grade
+    from controller.units.te.models import cascade_state_space
+
+    cs = cascade_state_space(grade)
+    g = get_grade(grade)
+    s_op = g.d_fraction
+    d_kg_h = float(cs.lm.y_op[1])
+    # E valve % per unit share at the measured D feed: E = D (1 - s) / s
+    de_ds = -d_kg_h / s_op ** 2 * 100.0 / E_FULL_KG_H
+    plant = control.ss(cs.A, (cs.B_xmv[:, 1] * de_ds)[:, None], cs.C_xmeas[39][None, :], 0.0)
+    num, den = control.pade(ANALYZER_DELAY_H, 2)
+    full = control.series(plant, control.tf2ss(control.tf(num, den)))
+    red = balanced_truncation(full.A, full.B, full.C, full.D, order=order,
+                              method="matchdc", unstable="keep").reduced
+    g_op = float(cs.lm.y_op[39])
+    return red, np.array([s_op]), np.array([g_op]), float(np.squeeze(control.dcgain(full)))
+
+
+def composition_state_shared_model(dt_h: float, adaptive: bool,
+                                   order: int = COMPOSITION_ORDER):
+    """The state-shared model of the composition core: fixed modes 0, 2, 3 (and, with
+    ``adaptive``, a re-initialized adaptive slot first, from mode 0's), omega at
+    mode 0's poles (orthonormal basis)."""
+    from controller.shared_basis import SharedBasis, roots_from_poles
+    from controller.state_shared import ModelSpec, StateSharedModel
+
+    roots = roots_from_poles(composition_model("mode0", order)[0].poles())
+    basis = SharedBasis.orthonormal(roots)
+    specs = []
+    for g in COMPOSITION_GRADES:
+        r, u_op, y_op, _ = composition_model(g, order)
+        specs.append(StateSharedModel.model_from_linear(g, r.A, r.B, r.C, u_op, y_op, basis))
+    ssm = StateSharedModel(basis, 1, dt_h)
+    if adaptive:  # first: it wins a tie of the index right after its re-initialization
+        ssm.add_model(ModelSpec("reinit", specs[0].theta, specs[0].bias, "adaptive"))
+    for spec in specs:
+        ssm.add_model(spec)
+    return ssm
+
+
+def share_bounds(d_feed_kg_h: float, e_valve_max_pct: float, share: float,
+                 s_min: float, s_max: float, *, rise_waits: bool, hold: float = 0.0,
+                 step_max: float = 1.0) -> tuple[float, float]:
+    """The D share's limits for the composition core's next move.
+
+    Parameters
+    ----------
+    d_feed_kg_h : float
+        Measured D feed (XMEAS 2), kg/h.
+    e_valve_max_pct : float
+        The highest E valve the ratio may set (the plan's and its margin, at most
+        100), %.
+    share : float
+        The share in force.
+    s_min, s_max : float
+        The ratio's limits of the share.
+    rise_waits : bool
+        The D feed is near its full flow with the reactor level low: no rise.
+    hold : float
+        The share of the plan held (near the pressure interlock, or the A feed lost),
+        in [0, 1]: the move may be at most ``(1 - hold) step_max`` either way (none at 1).
+    step_max : float
+        The core's largest move per sample.
+
+    Returns
+    -------
+    (lo, hi) : tuple of float
+        ``lo <= hi``. Below ``lo`` a lower share would ask the E valve for more than
+        its guard gives; a NaN D feed leaves ``s_min``.
+    """
+    lo, hi = s_min, s_max
+    e_kg_h = max(min(e_valve_max_pct, 100.0), 0.0) / 100.0 * E_FULL_KG_H
+    if math.isfinite(d_feed_kg_h) and d_feed_kg_h > 0.0 and e_kg_h > 0.0:
+        lo = max(lo, d_feed_kg_h / (d_feed_kg_h + e_kg_h))
+    share = min(max(share, s_min), s_max)
+    hold = min(max(hold, 0.0), 1.0) if math.isfinite(hold) else 1.0
+    if hold > 0.0:
+        reach = (1.0 - hold) * step_max
+        lo, hi = max(lo, share - reach), min(hi, share + reach)
+    if rise_waits:
+        hi = min(hi, share)
+    hi = max(hi, min(share, lo))  # never a limit that moves the share by itself upward
+    lo = min(lo, hi)
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class CompositionCoreSettings:
+    """Tuning of the composition core.
+
+    Parameters
+    ----------
+    sample_h : float
+        Its sample, h (the product analyzer's, 0.25).
+    P, M : int
+        Prediction and control horizons in samples (32 and 4: 8 h ahead).
+    output_weight : float
+        Weight on G's squared error, per (mol %)^2.
+    move_weight : float
+        Weight on the share's squared move, per (unit share)^2.
+    du_max : float
+        The share's largest move per sample (a rise of 0.1 a sample tripped 1 -> 3
+        on reactor pressure).
+    nls_gain : float
+        Adaptive gain of the normalized least squares, 1/h (strategy b).
+    index_dwell_h : float
+        Minimum dwell of a model, h.
+    active_h : float
+        How long after a grade change the core plans the share, h; then the G loop's
+        steady-grade tuning takes over from the share reached.
+    """
+
+    sample_h: float = 0.25
+    P: int = 32
+    M: int = 4
+    output_weight: float = 1.0
+    move_weight: float = 3.0e4
+    du_max: float = 0.05
+    nls_gain: float = 0.5
+    index_dwell_h: float = 1.0
+    active_h: float = 24.0
+    index_errors: str = "equation"
+    nls_dead_zone: float = 1.0
+    e_valve_free_max: float = 90.0
+    adaptive: bool = False
+    filter_alpha: float = 1.0
+    order: int = COMPOSITION_ORDER
+
+    def __post_init__(self) -> None:
+        for name in ("sample_h", "output_weight", "move_weight", "du_max", "nls_gain",
+                     "index_dwell_h", "active_h"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (isinstance(v, int | float) and math.isfinite(v)
+                                           and v > 0):
+                raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
+        for name in ("P", "M", "order"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
+        if self.M > self.P:
+            raise ValueError(f"M: must not exceed P = {self.P}, got {self.M}")
+        if self.index_errors not in ("equation", "steady_output"):
+            raise ValueError(f"index_errors: must be 'equation' or 'steady_output', got "
+                             f"{self.index_errors!r}")
+        if not isinstance(self.adaptive, bool):
+            raise ValueError(f"adaptive: must be true or false, got {self.adaptive!r}")
+        if isinstance(self.filter_alpha, bool) or not (
+                isinstance(self.filter_alpha, int | float) and 0.0 < self.filter_alpha <= 1.0):
+            raise ValueError(f"filter_alpha: must be in (0, 1], got {self.filter_alpha!r}")
+        if isinstance(self.nls_dead_zone, bool) or not (
+                isinstance(self.nls_dead_zone, int | float) and math.isfinite(self.nls_dead_zone)
+                and self.nls_dead_zone >= 0.0):
+            raise ValueError(f"nls_dead_zone: must be a finite number >= 0 mol %, got "
+                             f"{self.nls_dead_zone!r}")
+        if isinstance(self.e_valve_free_max, bool) or not (
+                isinstance(self.e_valve_free_max, int | float)
+                and 0.0 < self.e_valve_free_max <= 100.0):
+            raise ValueError(f"e_valve_free_max: must be in (0, 100] %, got "
+                             f"{self.e_valve_free_max!r}")
+
+
+class CompositionCore:
+    """The composition core of one TE controller.
+
+    Parameters
+    ----------
+    strategy : {"fixed", "ssmpc"}
+        Fixed models only (a), or with the re-initialized adaptive model (b).
+    share0 : float
+        The D share in force at the start.
+    limits : (float, float)
+        The ratio's limits of the share.
+    settings : CompositionCoreSettings, optional
+    """
+
+    def __init__(self, strategy: str, share0: float, limits: tuple[float, float],
+                 settings: CompositionCoreSettings | None = None) -> None:
+        from controller.adaptation import NLSSettings
+        from controller.mpc import MPCSettings
+        from controller.mpc.law import MPCLaw
+        from controller.multimodel import MultiModelController, MultiModelSettings
+        from controller.switching import IndexSettings
+
+        st = settings or CompositionCoreSettings()
+        self.settings = st
+        self.limits = (float(limits[0]), float(limits[1]))
+        adaptive = strategy == "ssmpc" and st.adaptive
+        ssm = composition_state_shared_model(st.sample_h, adaptive, st.order)
+        mpc = MPCSettings(nu=1, ny=1, P=st.P, M=st.M, Xi=np.array([st.output_weight]),
+                          Lambda=np.array([st.move_weight]),
+                          u_min=np.array([self.limits[0]]), u_max=np.array([self.limits[1]]),
+                          du_max=np.array([st.du_max]), budget_ms=1e9,
+                          filter_alpha=st.filter_alpha)
+        law = MPCLaw(mpc)
+        law.prepare(ssm)
+        kinds = (["re-initialized"] if adaptive else []) + ["fixed"] * len(COMPOSITION_GRADES)
+        mm = MultiModelSettings(
+            nls=NLSSettings(gain=st.nls_gain, dead_zone=st.nls_dead_zone),
+            index=IndexSettings(mu=0.0, nu=1.0, forgetting=1.0, min_dwell=st.index_dwell_h,
+                                hysteresis=0.2),
+            u_min=self.limits[0], u_max=self.limits[1], param_margin=1.0,
+            index_errors=st.index_errors)
+        self.mm = MultiModelController(ssm, law, np.array([float(share0)]), mm, kinds=kinds,
+                                       initial_model=0)
+        #: the share the core asks for (None before its first sample)
+        self.share: float | None = None
+        #: the composition core's active model's name after its last sample
+        self.active_name: str | None = None
+        #: the performance index of each model after the last sample (eq. 4.6)
+        self.J = np.zeros(0)
+        self.k = 0
+
+    def step(self, g_mol: float, share_applied: float, g_ref: float,
+             bounds: tuple[float, float]) -> float:
+        """One sample of 0.25 h: the share for the next.
+
+        ``share_applied`` is the share the plant had over the last sample (measured
+        D / (D + E)); it drives the shared state (eq. 3.10) in place of the move made.
+        ``g_ref`` is the grade's G, mol %; ``bounds`` the share's limits now
+        (:func:`share_bounds`). A G that is not finite skips the sample (input held,
+        adaptation frozen: :class:`controller.multimodel.MultiModelController`).
+        """
+        mm = self.mm
+        if mm.initialized and math.isfinite(share_applied):
+            mm.applied(np.array([min(max(share_applied, self.limits[0]), self.limits[1])]))
+        lo, hi = bounds
+        mm.law.set_operator_limits(u_min=np.array([lo]), u_max=np.array([hi]))
+        ref = np.full((self.settings.P, 1), float(g_ref))
+        dec = mm.step(self.k, self.k * self.settings.sample_h, np.array([g_mol]), ref)
+        self.k += 1
+        self.J = np.asarray(dec.J, dtype=float)
+        share = float(dec.u[0])
+        self.share = min(max(share, lo), hi) if math.isfinite(share) else self.share
+        names = mm.names
+        self.active_name = names[mm.active] if 0 <= mm.active < len(names) else None
+        return self.share
+
+    def checkpoint(self) -> dict[str, Any]:
+        return {"mm": self.mm.checkpoint(), "share": self.share, "k": self.k}
+
+    def restore(self, state: dict[str, Any] | None) -> None:
+        if not state:
+            return
+        self.mm.restore(state["mm"])
+        self.share = None if state.get("share") is None else float(state["share"])
+        self.k = int(state.get("k", 0))
+
+
+def _table() -> None:  # pragma: no cover - the module docstring's table
+    for g in COMPOSITION_GRADES:
+        r, u_op, y_op, dc = composition_model(g)
+        dc_red = float((-r.C @ np.linalg.solve(r.A, r.B)).item())
+        print(f"{g}: share {u_op[0]:.3f}, G {y_op[0]:.2f} mol %, DC {dc * 0.01:.2f} "
+              f"mol % per 0.01, reduced DC {dc_red * 0.01:.2f}")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    _table()
