@@ -82,8 +82,10 @@ def test_share_bounds_worked_by_hand():
     lo, hi = share_bounds(3000.0, 100.0, 0.6, 0.03, 0.97, rise_waits=False, hold=0.5,
                           step_max=0.05)
     assert (lo, hi) == (pytest.approx(0.575), pytest.approx(0.625))
-    # the D feed waits: no rise
+    # the D feed waits: no rise; with a back-off the share falls by it (more E)
     assert share_bounds(3000.0, 100.0, 0.6, 0.03, 0.97, rise_waits=True)[1] == 0.6
+    assert share_bounds(3000.0, 100.0, 0.6, 0.03, 0.97, rise_waits=True,
+                        back_off=0.01)[1] == pytest.approx(0.59)
     # a D feed not measured leaves the ratio's lower limit; a NaN hold holds
     assert share_bounds(math.nan, 50.0, 0.5, 0.03, 0.97, rise_waits=False)[0] == 0.03
     assert share_bounds(3000.0, 100.0, 0.6, 0.03, 0.97, rise_waits=False,
@@ -98,7 +100,8 @@ def test_share_bounds_worked_by_hand():
                                           ("move_weight", math.nan), ("sample_h", -1.0),
                                           ("index_errors", "other"), ("adaptive", 1),
                                           ("filter_alpha", 0.0), ("nls_dead_zone", -1.0),
-                                          ("e_valve_free_max", 120.0)])
+                                          ("e_valve_free_max", 120.0),
+                                          ("level_back_off", 0.5), ("order", 1.5)])
 def test_settings_are_checked(field, value):
     with pytest.raises(ValueError, match=field):
         CompositionCoreSettings(**{field: value})

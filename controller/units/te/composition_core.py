@@ -113,7 +113,7 @@ def composition_state_shared_model(dt_h: float, adaptive: bool,
 
 def share_bounds(d_feed_kg_h: float, e_valve_max_pct: float, share: float,
                  s_min: float, s_max: float, *, rise_waits: bool, hold: float = 0.0,
-                 step_max: float = 1.0) -> tuple[float, float]:
+                 step_max: float = 1.0, back_off: float = 0.0) -> tuple[float, float]:
     """The D share's limits for the composition core's next move.
 
     Parameters
@@ -128,12 +128,15 @@ def share_bounds(d_feed_kg_h: float, e_valve_max_pct: float, share: float,
     s_min, s_max : float
         The ratio's limits of the share.
     rise_waits : bool
-        The D feed is near its full flow with the reactor level low: no rise.
+        The D feed is near its full flow with the reactor level low: no rise, and the
+        share backs off by ``back_off`` (more E for the level the D valve cannot hold).
     hold : float
         The share of the plan held (near the pressure interlock, or the A feed lost),
         in [0, 1]: the move may be at most ``(1 - hold) step_max`` either way (none at 1).
     step_max : float
         The core's largest move per sample.
+    back_off : float
+        How far the share falls each sample while the rise waits, >= 0.
 
     Returns
     -------
@@ -151,8 +154,8 @@ def share_bounds(d_feed_kg_h: float, e_valve_max_pct: float, share: float,
         reach = (1.0 - hold) * step_max
         lo, hi = max(lo, share - reach), min(hi, share + reach)
     if rise_waits:
-        hi = min(hi, share)
-    hi = max(hi, min(share, lo))  # never a limit that moves the share by itself upward
+        hi = min(hi, share - back_off)
+    hi = max(hi, min(share, lo), s_min)  # never a limit that moves the share upward
     lo = min(lo, hi)
     return lo, hi
 
@@ -196,6 +199,7 @@ class CompositionCoreSettings:
     nls_dead_zone: float = 1.0
     e_valve_free_max: float = 90.0
     adaptive: bool = False
+    level_back_off: float = 0.01
     filter_alpha: float = 1.0
     order: int = COMPOSITION_ORDER
 
@@ -225,6 +229,11 @@ class CompositionCoreSettings:
                 and self.nls_dead_zone >= 0.0):
             raise ValueError(f"nls_dead_zone: must be a finite number >= 0 mol %, got "
                              f"{self.nls_dead_zone!r}")
+        if isinstance(self.level_back_off, bool) or not (
+                isinstance(self.level_back_off, int | float)
+                and 0.0 <= self.level_back_off <= self.du_max):
+            raise ValueError(f"level_back_off: must be in [0, du_max = {self.du_max}], got "
+                             f"{self.level_back_off!r}")
         if isinstance(self.e_valve_free_max, bool) or not (
                 isinstance(self.e_valve_free_max, int | float)
                 and 0.0 < self.e_valve_free_max <= 100.0):

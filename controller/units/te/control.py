@@ -1471,7 +1471,8 @@ class TEController:
                 hold = 1.0  # beside the G loop, or held: the core follows the share in force
             bounds = share_bounds(d, xv[1] + self._e_feed_margin(xmeas), share_in,
                                   self.ratio.s_min, self.ratio.s_max,
-                                  rise_waits=rise_waits, hold=hold, step_max=st.du_max)
+                                  rise_waits=rise_waits, hold=hold, step_max=st.du_max,
+                                  back_off=st.level_back_off)
             g_ref = float(self.plan.grade_at(t_plan).g_mol)
             share = self.composition.step(float(xmeas[39]), applied, g_ref, bounds)
             if active:
