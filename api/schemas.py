@@ -197,6 +197,18 @@ class TargetsView(BaseModel):
     relaxed: list[RelaxedLimitView] = Field(default_factory=list)
 
 
+class CompositionView(BaseModel):
+    """The composition core of a TE unit: the MPC on the D share and G in product that
+    plans a grade change between grades whose E valve leaves the share free."""
+
+    planning: bool = Field(description="whether its share is in force (through a grade "
+                                       "change; else the G loop's)")
+    model: str | None = Field(default=None, description="its active model (the grade "
+                                                        "whose linearization it runs)")
+    share: float | None = Field(default=None, description="the D share D/(D+E) it asks "
+                                                          "for, 0-1")
+
+
 class StatusView(BaseModel):
     """A controller's status. ``unit``, ``sample`` and ``alarms`` are always there; the
     rest as the controller reports it, and fields this version does not know pass
@@ -226,6 +238,8 @@ class StatusView(BaseModel):
                                         "steady-state targets (units with a target layer "
                                         "above the MPC)")
     J: Numbers | None = Field(default=None, description="performance index per model")
+    composition: CompositionView | None = Field(default=None, description="TE: the "
+                                                "composition core (MPC strategies)")
     solve_ms: float | None = Field(default=None, description="last controller step, ms")
     controller_status: str | None = None
     deadline_misses: int | None = None

@@ -225,6 +225,16 @@ def test_a_run_identity_changes_with_a_guards_settings(monkeypatch, module, cls,
     assert before and not before & after
 
 
+def test_a_run_identity_changes_with_the_composition_core(monkeypatch):
+    import dataclasses
+
+    import controller.units.te.control as control
+
+    changed = dataclasses.replace(control.COMPOSITION_MPC, move_weight=1.0e5)
+    before, after = _te_run_ids_with(monkeypatch, control, "COMPOSITION_MPC", changed)
+    assert before and not before & after
+
+
 # -- the campaign on Dask ---------------------------------------------------------------------
 def test_local_cluster_gives_the_metrics_of_the_runs_made_one_by_one(local_campaign,
                                                                      serial_rows):

@@ -174,6 +174,13 @@ def test_a_restored_controller_goes_on_with_the_core_move_for_move():
 
     ctl, _ = make_te_controller("ssmpc", plan)
     first = run(ctl, 0.0, 130)
+    # the status view: planning through the change, on one of its grades' models
+    view = ctl.step(130, 130 * ctl.sample_h, x, None).extra["composition"]
+    ctl.finish_sample()
+    assert view["planning"] and view["model"] in COMPOSITION_GRADES
+    assert view["share"] == pytest.approx(ctl.s)
+    ctl, _ = make_te_controller("ssmpc", plan)
+    first = run(ctl, 0.0, 130)
     assert ctl.composition is not None and first[-1] > grade("mode0").d_fraction + 0.1
     state = ctl.checkpoint()
     again, _ = make_te_controller("ssmpc", plan)

@@ -43,6 +43,7 @@ def _settings_json(unit: str) -> str:
     if unit == "te":
         from controller.units.te.condenser_balance import CondenserBalanceSettings
         from controller.units.te.control import (
+            COMPOSITION_MPC,
             CONDENSER_DISTURBANCE_LOOP,
             CONDENSER_DISTURBANCE_TRIM_LIMITS,
             CONDENSER_TRIM_WASHOUT_H,
@@ -79,6 +80,7 @@ def _settings_json(unit: str) -> str:
              "guards": asdict(TransitionGuards()), "guards_mpc": asdict(GUARDS_MPC),
              "reactants": asdict(ReactantTrimSettings()),
              "d_share_path": asdict(DSharePathSettings()),
+             "composition": asdict(COMPOSITION_MPC),
              "feeds": asdict(FeedOverrideSettings()),
              "production": asdict(ProductionIndexSettings()),
              "level_sag": asdict(LevelSagSettings()),

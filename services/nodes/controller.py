@@ -1075,6 +1075,8 @@ class ControllerNode:
                                               np.asarray(d.extra["prediction_rms"]))),
                 # the steady-state targets of the sample (units with a target layer)
                 "targets": None if d is None else _json_targets(d.extra.get("targets")),
+                # TE: the composition core's view (MPC strategies; None elsewhere)
+                "composition": None if d is None else d.extra.get("composition"),
                 "solve_ms": None if d is None else float(d.solve_ms),
                 "controller_status": None if d is None else d.status,
                 "deadline_misses": self.stats.misses,

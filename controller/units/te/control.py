@@ -1697,6 +1697,11 @@ class TEController:
         setpoints = np.array([core_u[3], level_sp, yl[11], yl[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy(),
                  "pressure_floats": self.pressure_floats}
+        if self.composition is not None:
+            comp = self.composition
+            extra["composition"] = {
+                "planning": self._comp_share is not None, "model": comp.active_name,
+                "share": None if comp.share is None else float(comp.share)}
         extra.update(info)
         return ControlDecision(u=u, active_model=active, model_names=tuple(names), J=J,
                                solve_ms=(time.perf_counter() - t0) * 1e3, fallback=fallback,
