@@ -7,6 +7,8 @@
 - :mod:`~controller.units.te.loops` — the inner PI loops the plant side runs;
 - :mod:`~controller.units.te.models` — the linear models of the cascade the MPC acts
   on, and their state-shared model;
+- :mod:`~controller.units.te.composition_core` — the MPC on the D share and G in
+  product that plans a grade change;
 - :mod:`~controller.units.te.linear_models` — the chapter-3 models (Table 7.10's
   loops as printed; R7.10-R7.15);
 - :mod:`~controller.units.te.pi_baseline` — the seed's decentralized PI baseline;

@@ -986,8 +986,12 @@ class TEController:
         #: MPC strategies: the composition core's tuning (None: the D-share path and the
         #: G loop make the grade change; :mod:`controller.units.te.composition_core`)
         self.composition_settings = composition if strategy in MPC_STRATEGIES else None
-        #: the composition core (built at the first sample, from the share in force)
-        self.composition: CompositionCore | None = None
+        #: the composition core (built here: its models take about a second, which a
+        #: sample in real time must not spend; it starts from the share in force)
+        self.composition: CompositionCore | None = (
+            CompositionCore(strategy, plan.d_fraction_ref(0.0), (ratio.s_min, ratio.s_max),
+                            self.composition_settings)
+            if self.composition_settings is not None else None)
         #: the share the composition core plans, in force while it is active (else None)
         self._comp_share: float | None = None
         #: supervisory samples per composition sample, and those left until the next
@@ -1459,9 +1463,7 @@ class TEController:
             # production index): the core goes on from its own, as the path does
             applied = min(applied, share_in)
             self._comp_sum, self._comp_n = 0.0, 0
-            if self.composition is None:
-                self.composition = CompositionCore(self.strategy, share_in,
-                                                   (self.ratio.s_min, self.ratio.s_max), st)
+            self.composition.start(share_in)
             path = self.d_path.settings if self.d_path is not None else DSharePathSettings()
             rise_waits = (d >= path.d_feed_high * D_FULL_KG_H
                           and xmeas[7] < self.production.level_setpoint(ym[7])
@@ -1697,7 +1699,7 @@ class TEController:
         setpoints = np.array([core_u[3], level_sp, yl[11], yl[14], core_u[2]])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy(),
                  "pressure_floats": self.pressure_floats}
-        if self.composition is not None:
+        if self.composition is not None and self.composition.share is not None:
             comp = self.composition
             extra["composition"] = {
                 "planning": self._comp_share is not None, "model": comp.active_name,
@@ -1813,11 +1815,7 @@ class TEController:
             if self.d_path.value is None and self.s_ff_prev is not None:
                 self.d_path.start(self.s_ff_prev)  # a checkpoint from before the path
         comp = state.get("composition")
-        if self.composition_settings is not None and comp:
-            share0 = self.s if self.s is not None else 0.5
-            self.composition = CompositionCore(self.strategy, share0,
-                                               (self.ratio.s_min, self.ratio.s_max),
-                                               self.composition_settings)
+        if self.composition is not None and comp:
             self.composition.restore(comp.get("core"))
             share = comp.get("share")
             self._comp_share = float(share) if is_finite_number(share) else None
