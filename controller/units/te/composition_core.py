@@ -55,10 +55,11 @@ Measured (``docs/te_matrix.md``; ``fixed``, noise on, 36 h; median hours to grad
 leg             the path    this core    seeds
 ==============  ==========  ===========  =====================================
 0 -> 3          8.4         6.5          1-15 (the matrix, 1-3, 48 h: 6.6)
-1 -> 3          11.0        8.8          1-15 (the matrix: 9.2)
+1 -> 3          11.1        8.8          1-15 (the matrix: 9.2)
 3 -> 0          10.8        10.2         1-15 (the matrix: 10.2)
 3 -> 1          7.6         8.0          1-15 (the matrix: 7.9)
-0 -> 1, 1 -> 0  7.4-7.5     7.3-7.6      1-15
+0 -> 1          7.4         7.3          1-15
+1 -> 0          7.5         7.6          1-15
 ==============  ==========  ===========  =====================================
 
 No trip in 360 runs (the 12 legs, seeds 1-15, ``fixed`` and ``ssmpc``), nor with a
