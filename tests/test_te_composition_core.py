@@ -192,3 +192,20 @@ def test_a_restored_controller_goes_on_with_the_core_move_for_move():
     assert make_te_controller("fixed", plan, composition=False)[0].composition_settings is None
     with pytest.raises(ValueError, match="composition"):
         make_te_controller("fixed", plan, composition="yes")
+
+
+def test_damaged_counters_in_a_checkpoint_restart_the_core_sample_at_once():
+    plan = TransitionPlan("mode0", (Leg(0.1, "mode3"),))
+    x = np.array(grade("mode0").xmeas, dtype=float)
+    ctl, _ = make_te_controller("fixed", plan)
+    for k in range(30):
+        ctl.step(k, k * ctl.sample_h, x, None)
+        ctl.finish_sample()
+    state = ctl.checkpoint()
+    state["composition"].update(share=math.nan, left="7", sum=math.inf, n=-3)
+    again, _ = make_te_controller("fixed", plan)
+    again.restore(state)
+    assert (again._comp_share, again._comp_left, again._comp_sum, again._comp_n) == (
+        None, 0, 0.0, 0)
+    dec = again.step(30, 30 * ctl.sample_h, x, None)  # goes on: a core sample now
+    assert np.isfinite(dec.u[1]) and dec.extra["composition"]["planning"]

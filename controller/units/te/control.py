@@ -1817,10 +1817,14 @@ class TEController:
         comp = state.get("composition")
         if self.composition is not None and comp:
             self.composition.restore(comp.get("core"))
-            share = comp.get("share")
+            share, left = comp.get("share"), comp.get("left", 0)
+            total, n = comp.get("sum", 0.0), comp.get("n", 0)
+            # damaged counters: the core's next sample comes at once, from what follows
             self._comp_share = float(share) if is_finite_number(share) else None
-            self._comp_left = int(comp.get("left", 0))
-            self._comp_sum, self._comp_n = float(comp.get("sum", 0.0)), int(comp.get("n", 0))
+            self._comp_left = int(left) if is_finite_number(left) \
+                and 0 <= left < self._comp_every else 0
+            ok = is_finite_number(total) and is_finite_number(n) and n >= 0
+            self._comp_sum, self._comp_n = (float(total), int(n)) if ok else (0.0, 0)
 
 
 def _core_limits():
@@ -2052,6 +2056,7 @@ def _composition_settings(value) -> CompositionCoreSettings | None:
         return value
     raise ValueError(f"composition: must be true, false or a CompositionCoreSettings, got "
                      f"{value!r}")
+
 
 #: Wall-clock budget of one MPC step in real time, ms (the 36 s sample leaves far more;
 #: a step over it takes the previous plan, :class:`controller.mpc.MPCController`).
