@@ -199,7 +199,7 @@ class TargetsView(BaseModel):
 
 class CompositionView(BaseModel):
     """The composition core of a TE unit: the MPC on the D share and G in product that
-    plans a grade change between grades whose E valve leaves the share free."""
+    plans a grade change between grades whose D and E valves leave the share free."""
 
     planning: bool = Field(description="whether its share is in force (through a grade "
                                        "change; else the G loop's)")

@@ -100,7 +100,7 @@ def test_share_bounds_worked_by_hand():
                                           ("move_weight", math.nan), ("sample_h", -1.0),
                                           ("index_errors", "other"), ("adaptive", 1),
                                           ("filter_alpha", 0.0), ("nls_dead_zone", -1.0),
-                                          ("e_valve_free_max", 120.0),
+                                          ("valve_free_max", 120.0),
                                           ("level_back_off", 0.5), ("order", 1.5)])
 def test_settings_are_checked(field, value):
     with pytest.raises(ValueError, match=field):
@@ -150,11 +150,12 @@ def test_into_mode_3_the_composition_core_reaches_the_grade_hours_sooner():
     assert cost_core < cost_path
 
 
-def test_a_leg_into_mode_2_keeps_the_path_and_the_core_does_not_act():
-    # mode 2's E valve sits at 96 % of its range: its share is set by that limit, and
-    # the leg runs as without the core, move for move
-    _, _, with_core = _hours_to_grade("ssmpc", 0, 2, 4.0)
-    _, _, without = _hours_to_grade("ssmpc", 0, 2, 4.0, composition=False)
+@pytest.mark.parametrize("b", [2, 6])
+def test_a_leg_to_a_grade_with_a_valve_near_its_range_keeps_the_path(b):
+    # mode 2's E valve sits at 96 % of its range, mode 6's D valve at 94.5 %: the share
+    # is set by that limit, and the leg runs as without the core, move for move
+    _, _, with_core = _hours_to_grade("ssmpc", 0, b, 4.0)
+    _, _, without = _hours_to_grade("ssmpc", 0, b, 4.0, composition=False)
     np.testing.assert_array_equal(with_core.xmv, without.xmv)
 
 

@@ -42,12 +42,14 @@ Order 6 keeps each model's step response within 2.9 mol % of the full cascade's 
 Where it acts
 -------------
 Through a grade change (for :attr:`CompositionCoreSettings.active_h`) between grades
-whose E valve leaves the share free (at most
-:attr:`~CompositionCoreSettings.e_valve_free_max`: modes 0, 1 and 3). Mode 2's E valve
-sits at 96 % of its range, its share at the valve's limit; legs to or from it keep the
-D-share path (:mod:`controller.units.te.d_share_path`), and at a steady grade the G
-loop acts. Beside them the core runs held (its limits at the share in force): its
-shared state and index follow the plant, and it moves nothing.
+whose D and E valves leave the share free (each at most
+:attr:`~CompositionCoreSettings.valve_free_max`: modes 0, 1 and 3). Mode 2's E valve
+sits at 96 % of its range, its share at the valve's limit, and the back-off grades of
+modes 4-6 keep a valve 5 % from its range (D at 94.5-94.8 % at modes 4 and 6, E at
+94.8 % at mode 5); legs to or from them keep the D-share path
+(:mod:`controller.units.te.d_share_path`), and at a steady grade the G loop acts.
+Beside them the core runs held (its limits at the share in force): its shared state
+and index follow the plant, and it moves nothing.
 
 Measured (``docs/te_matrix.md``; ``fixed``, noise on, 36 h; median hours to grade):
 
@@ -81,9 +83,13 @@ What it needed, and what was measured and not taken (seed 1 unless said):
   0.1-0.5 1/h: 0 -> 3 and 2 -> 3 21-34 h; with a 1 mol % dead zone 0 -> 3 never at
   grade on seed 4, the share cycling 0.75-0.97); the legs with mode 2 (into it 27-29 h,
   G 0.5-1.5 mol % above its grade with the share at the valve's limit; out of it
-  8.6-9.1 h against the path's 5.4); move weight 1e4 (3 -> 1 9.7 h, seeds 1-10) or 1e5
-  (0 -> 3 7.4 h); a measurement filter (3 -> 1 12.6-17.9 h); handing the share to the G
-  loop once G is within 1 mol % (3 -> 0 12.4-14.9 h).
+  8.6-9.1 h against the path's 5.4); the legs with modes 4 and 6 (their D valve at
+  94.5-94.8 %; seeds 1-3, 48 h: 6 -> 0 10.2, 27.6, 16.3 -> 9.8, 8.9, 8.4 h, but 0 -> 6
+  9.1, 8.0, 8.4 -> 9.2, 26.3, 9.8 h, 373 -> 935 $); move weight 1e4 (3 -> 1 9.7 h,
+  seeds 1-10) or 1e5 (0 -> 3 7.4 h); a measurement filter (3 -> 1 12.6-17.9 h); handing
+  the share to the G loop once G is within 1 mol % (3 -> 0 12.4-14.9 h); the core
+  holding G at a steady grade too (mode 0, seeds 1-3: G's deviation higher under
+  IDV 3, 8, 17, 20, e.g. IDV(8) 0.570 -> 0.606 mol %; at move weight 3e5 0.595).
 """
 
 from __future__ import annotations
@@ -237,8 +243,9 @@ class CompositionCoreSettings:
         equation errors (see "What it needed" above).
     nls_dead_zone : float
         Dead zone of the adaptive model's normalized least squares, mol % (>= 0).
-    e_valve_free_max : float
-        The core plans a leg only if both grades' E valves are at most this, % (0-100].
+    valve_free_max : float
+        The core plans a leg only if both grades' D and E valves are at most this, %
+        (0-100].
     adaptive : bool
         Strategy (b)'s adaptive model in the core too (measured worse, off).
     level_back_off : float
@@ -261,7 +268,7 @@ class CompositionCoreSettings:
     active_h: float = 24.0
     index_errors: str = "equation"
     nls_dead_zone: float = 1.0
-    e_valve_free_max: float = 90.0
+    valve_free_max: float = 90.0
     adaptive: bool = False
     level_back_off: float = 0.01
     filter_alpha: float = 1.0
@@ -298,11 +305,11 @@ class CompositionCoreSettings:
                 and 0.0 <= self.level_back_off <= self.du_max):
             raise ValueError(f"level_back_off: must be in [0, du_max = {self.du_max}], got "
                              f"{self.level_back_off!r}")
-        if isinstance(self.e_valve_free_max, bool) or not (
-                isinstance(self.e_valve_free_max, int | float)
-                and 0.0 < self.e_valve_free_max <= 100.0):
-            raise ValueError(f"e_valve_free_max: must be in (0, 100] %, got "
-                             f"{self.e_valve_free_max!r}")
+        if isinstance(self.valve_free_max, bool) or not (
+                isinstance(self.valve_free_max, int | float)
+                and 0.0 < self.valve_free_max <= 100.0):
+            raise ValueError(f"valve_free_max: must be in (0, 100] %, got "
+                             f"{self.valve_free_max!r}")
 
 
 class CompositionCore:

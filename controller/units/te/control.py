@@ -1451,7 +1451,7 @@ class TEController:
             self._comp_n += 1
         t_plan = self._t_last - self.plan_lag_h
         active = (bool(getattr(self.plan, "legs", ())) and 0.0 <= self._since < st.active_h
-                  and all(g.xmv[1] <= st.e_valve_free_max
+                  and all(max(g.xmv[0], g.xmv[1]) <= st.valve_free_max
                           for g in self.plan.change_at(t_plan)))
         if self._comp_left > 0:
             self._comp_left -= 1

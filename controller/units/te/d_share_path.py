@@ -10,11 +10,11 @@ G: G left the new grade's band again after entering it and took hours to come ba
 (G first in its band 6.8-10.6 h after the request, at grade after 9-17 h; ssmpc,
 seed 1).
 
-The MPC strategies plan the share of a grade change between grades whose E valve
-leaves it free (modes 0, 1 and 3) with their composition core
+The MPC strategies plan the share of a grade change between grades whose D and E
+valves leave it free (modes 0, 1 and 3) with their composition core
 (:mod:`controller.units.te.composition_core`); through a leg to or from mode 2, whose E
-valve sits at 96 % of its range, and wherever the core is off, they move the share
-along a faster path of their own,
+valve sits at 96 % of its range, or one of the back-off modes 4-6, and wherever the
+core is off, they move the share along a faster path of their own,
 ``tau ds/dt = s_grade - s`` (:attr:`DSharePathSettings.tau_h`, slower toward a
 higher D share: :attr:`DSharePathSettings.tau_rise_h`), with G feedback until the
 grade is steady only within
