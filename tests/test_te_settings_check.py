@@ -70,3 +70,20 @@ def test_the_transition_guards_check_their_optional_limits_the_same_way():
     with pytest.raises(ValueError, match=r"^purge_floor_fraction: must be a finite number "
                                          r"or None, got nan"):
         TransitionGuards(purge_floor_fraction=float("nan"))
+
+
+def test_a_named_option_must_be_one_of_its_choices_and_a_flag_a_bool():
+    @dataclass
+    class S:
+        gain: float = 1.0
+        kind: str = "equation"
+        on: bool = True
+
+    opts = {"kind": ("equation", "steady_output")}
+    check_finite_fields(S(), flags=("on",), choices=opts)
+    with pytest.raises(ValueError, match="kind: must be one of 'equation', 'steady_output'"):
+        check_finite_fields(S(kind="other"), flags=("on",), choices=opts)
+    with pytest.raises(ValueError, match="on: must be true or false"):
+        check_finite_fields(S(on=1), flags=("on",), choices=opts)
+    with pytest.raises(ValueError, match="kind: must be a finite number"):
+        check_finite_fields(S(), flags=("on",))  # a text field without its choices

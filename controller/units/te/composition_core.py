@@ -104,6 +104,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.units.te.settings_check import check_finite_fields, check_range
 from controller.units.te.spec import E_FULL_KG_H
 
 __all__ = ["COMPOSITION_GRADES", "COMPOSITION_ORDER", "ANALYZER_DELAY_H",
@@ -278,41 +279,20 @@ class CompositionCoreSettings:
     order: int = COMPOSITION_ORDER
 
     def __post_init__(self) -> None:
-        for name in ("sample_h", "output_weight", "move_weight", "du_max", "nls_gain",
-                     "index_dwell_h", "active_h"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, int | float) and math.isfinite(v)
-                                           and v > 0):
-                raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
+        check_finite_fields(self, flags=("adaptive",),
+                            choices={"index_errors": ("equation", "steady_output")})
         for name in ("P", "M", "order"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name}: must be an integer >= 1, got {v!r}")
         if self.M > self.P:
             raise ValueError(f"M: must not exceed P = {self.P}, got {self.M}")
-        if self.index_errors not in ("equation", "steady_output"):
-            raise ValueError(f"index_errors: must be 'equation' or 'steady_output', got "
-                             f"{self.index_errors!r}")
-        if not isinstance(self.adaptive, bool):
-            raise ValueError(f"adaptive: must be true or false, got {self.adaptive!r}")
-        if isinstance(self.filter_alpha, bool) or not (
-                isinstance(self.filter_alpha, int | float) and 0.0 < self.filter_alpha <= 1.0):
-            raise ValueError(f"filter_alpha: must be in (0, 1], got {self.filter_alpha!r}")
-        if isinstance(self.nls_dead_zone, bool) or not (
-                isinstance(self.nls_dead_zone, int | float) and math.isfinite(self.nls_dead_zone)
-                and self.nls_dead_zone >= 0.0):
-            raise ValueError(f"nls_dead_zone: must be a finite number >= 0 mol %, got "
-                             f"{self.nls_dead_zone!r}")
-        if isinstance(self.level_back_off, bool) or not (
-                isinstance(self.level_back_off, int | float)
-                and 0.0 <= self.level_back_off <= self.du_max):
-            raise ValueError(f"level_back_off: must be in [0, du_max = {self.du_max}], got "
-                             f"{self.level_back_off!r}")
-        if isinstance(self.valve_free_max, bool) or not (
-                isinstance(self.valve_free_max, int | float)
-                and 0.0 < self.valve_free_max <= 100.0):
-            raise ValueError(f"valve_free_max: must be in (0, 100] %, got "
-                             f"{self.valve_free_max!r}")
+        check_range(self, ("sample_h", "output_weight", "move_weight", "du_max", "nls_gain",
+                           "index_dwell_h", "active_h"), "> 0")
+        check_range(self, "filter_alpha", "(0, 1]")
+        check_range(self, "nls_dead_zone", ">= 0", "mol %")
+        check_range(self, "level_back_off", f"[0, {self.du_max!r}]", note="du_max")
+        check_range(self, "valve_free_max", "(0, 100]", "%")
 
 
 class CompositionCore:
@@ -362,8 +342,6 @@ class CompositionCore:
         self.share: float | None = None
         #: the composition core's active model's name after its last sample
         self.active_name: str | None = None
-        #: the performance index of each model after the last sample (eq. 4.6)
-        self.J = np.zeros(0)
         self.k = 0
 
     def start(self, share: float) -> None:
@@ -390,7 +368,6 @@ class CompositionCore:
         ref = np.full((self.settings.P, 1), float(g_ref))
         dec = mm.step(self.k, self.k * self.settings.sample_h, np.array([g_mol]), ref)
         self.k += 1
-        self.J = np.asarray(dec.J, dtype=float)
         share = float(dec.u[0])
         self.share = min(max(share, lo), hi) if math.isfinite(share) else self.share
         names = mm.names

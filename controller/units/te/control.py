@@ -983,20 +983,19 @@ class TEController:
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
                        if strategy in MPC_STRATEGIES else None)
-        #: MPC strategies: the composition core's tuning (None: the D-share path and the
-        #: G loop make the grade change; :mod:`controller.units.te.composition_core`)
-        self.composition_settings = composition if strategy in MPC_STRATEGIES else None
-        #: the composition core (built here: its models take about a second, which a
-        #: sample in real time must not spend; it starts from the share in force)
+        #: MPC strategies: the composition core (None: the D-share path and the G loop
+        #: make the grade change; :mod:`controller.units.te.composition_core`). Built
+        #: here: its models take about a second, which a sample in real time must not
+        #: spend; it starts from the share in force
         self.composition: CompositionCore | None = (
             CompositionCore(strategy, plan.d_fraction_ref(0.0), (ratio.s_min, ratio.s_max),
-                            self.composition_settings)
-            if self.composition_settings is not None else None)
+                            composition)
+            if composition is not None and strategy in MPC_STRATEGIES else None)
         #: the share the composition core plans, in force while it is active (else None)
         self._comp_share: float | None = None
         #: supervisory samples per composition sample, and those left until the next
         self._comp_every = (max(int(round(composition.sample_h / self.sample_h)), 1)
-                            if self.composition_settings is not None else 0)
+                            if self.composition is not None else 0)
         self._comp_left = 0
         #: the measured D share summed over the composition sample under way, and its count
         self._comp_sum, self._comp_n = 0.0, 0
@@ -1438,13 +1437,18 @@ class TEController:
                          float(self.production.level_setpoint(ym[7])), float(xmeas[39]),
                          float(g.g_mol))
 
+    @property
+    def composition_settings(self) -> CompositionCoreSettings | None:
+        """The composition core's tuning (None: no core)."""
+        return None if self.composition is None else self.composition.settings
+
     def _composition_step(self, t_ref: float, xv, ym: Sequence[float],
                           xmeas: Sequence[float]) -> None:
         """The composition core (:mod:`controller.units.te.composition_core`): one of its
         0.25 h samples when due, run at every grade (its shared state and index follow
         the plant); its share is in force (``_comp_share``) from a grade change for
         ``active_h``, beneath a plan with legs."""
-        st = self.composition_settings
+        st = self.composition.settings
         d, e = float(xmeas[1]), float(xmeas[2])
         if math.isfinite(d) and math.isfinite(e) and d + e > 0.0:
             self._comp_sum += d / (d + e)
@@ -1465,9 +1469,8 @@ class TEController:
             self._comp_sum, self._comp_n = 0.0, 0
             self.composition.start(share_in)
             path = self.d_path.settings if self.d_path is not None else DSharePathSettings()
-            rise_waits = (d >= path.d_feed_high * D_FULL_KG_H
-                          and xmeas[7] < self.production.level_setpoint(ym[7])
-                          - path.level_low_pct)
+            rise_waits = path.feed_waits(d, float(xmeas[7]),
+                                         float(self.production.level_setpoint(ym[7])))
             hold = self._hold_fraction(xmeas)
             if not active or 40 in self.outer_held:
                 hold = 1.0  # beside the G loop, or held: the core follows the share in force
@@ -1597,7 +1600,7 @@ class TEController:
         self.feeds.observe(xm)
         xv, ym = xv_all[0], ym_all[0]
         yl = ym.tolist()  # as xm
-        if self.composition_settings is not None:
+        if self.composition is not None:
             self._composition_step(t_ref, xv, yl, xm)
         s = self._ratio_step(self._d_share_ff(ff, t_ref, yl, xm), yl, xm)
         u = _NO_XMVS.copy()  # NaN: not written
@@ -1701,9 +1704,8 @@ class TEController:
                  "pressure_floats": self.pressure_floats}
         if self.composition is not None and self.composition.share is not None:
             comp = self.composition
-            extra["composition"] = {
-                "planning": self._comp_share is not None, "model": comp.active_name,
-                "share": None if comp.share is None else float(comp.share)}
+            extra["composition"] = {"planning": self._comp_share is not None,
+                                    "model": comp.active_name, "share": float(comp.share)}
         extra.update(info)
         return ControlDecision(u=u, active_model=active, model_names=tuple(names), J=J,
                                solve_ms=(time.perf_counter() - t0) * 1e3, fallback=fallback,

@@ -158,6 +158,14 @@ class DSharePathSettings:
                              f"{self.lead_max_h!r}")
 
 
+    def feed_waits(self, d_feed_kg_h: float, level_pct: float, level_sp_pct: float) -> bool:
+        """Whether a rise of the D share waits: the D feed (XMEAS 2, kg/h) within
+        ``d_feed_high`` of its full flow and the reactor level (XMEAS 8, %) more than
+        ``level_low_pct`` below its set point (NaN measurements: no wait)."""
+        return (d_feed_kg_h >= self.d_feed_high * D_FULL_KG_H
+                and level_pct < level_sp_pct - self.level_low_pct)
+
+
 class DSharePath:
     """The D share's path, one value per supervisory sample.
 
@@ -240,8 +248,7 @@ class DSharePath:
                 self.lead = (target, g_from, age + self.sample_h)
         gap = aim - self.value
         step = (self.alpha_rise if gap > 0.0 else self.alpha_fall) * gap
-        self.waiting = (step > 0.0 and d_feed_kg_h >= st.d_feed_high * D_FULL_KG_H
-                        and level_pct < level_sp_pct - st.level_low_pct)
+        self.waiting = step > 0.0 and st.feed_waits(d_feed_kg_h, level_pct, level_sp_pct)
         if not self.waiting:  # NaN measurements compare False: no wait on them
             self.value += (1.0 - min(max(hold, 0.0), 1.0)) * step
         return self.value

@@ -4,7 +4,9 @@
 The guards (:mod:`controller.units.te.overrides`, :mod:`controller.units.te.production_index`,
 :mod:`controller.units.te.reactant_trim`, :mod:`controller.units.te.level_sag`,
 :mod:`controller.units.te.floating_pressure`, and the transition guards of
-:class:`controller.units.te.control.TransitionGuards`) hold only numeric settings; each names its
+:class:`controller.units.te.control.TransitionGuards`) and the composition core
+(:mod:`controller.units.te.composition_core`) hold numeric settings, a few flags and
+named options; each names its
 fields' ranges in the notation the error message shows (``"(2000, 3000)"``, ``"[0, 100]"``,
 ``"> 0"``, ``">= 0"``), so the range a user reads is the range checked.
 """
@@ -28,7 +30,8 @@ def is_finite_number(v) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def check_finite_fields(settings, label: str = "", optional=(), flags=()) -> None:
+def check_finite_fields(settings, label: str = "", optional=(), flags=(),
+                        choices=None) -> None:
     """Raise ``ValueError`` naming the first field of the dataclass ``settings`` that is
     not a finite int or float (a bool is not a number here).
 
@@ -41,9 +44,16 @@ def check_finite_fields(settings, label: str = "", optional=(), flags=()) -> Non
         Fields that may also be None (a setting that is off).
     flags : sequence of str
         Fields that must be a bool instead.
+    choices : dict of str to tuple, optional
+        Fields that must instead be one of the given values (a named option).
     """
     for f in fields(settings):
         v = getattr(settings, f.name)
+        if choices and f.name in choices:
+            if v not in choices[f.name]:
+                allowed = ", ".join(repr(c) for c in choices[f.name])
+                raise ValueError(f"{label}{f.name}: must be one of {allowed}, got {v!r}")
+            continue
         if f.name in flags:
             if not isinstance(v, bool):
                 raise ValueError(f"{label}{f.name}: must be true or false, got {v!r}")
