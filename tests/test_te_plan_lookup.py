@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from controller.units.te.grades import Leg, TransitionPlan
+from controller.units.te.leg_references import LegReferenceSettings
 from controller.units.te.plan_lookup import SampleReferences
 from controller.units.te.service import HeldPlan
 
@@ -15,6 +16,9 @@ PLANS = [
                    tau_xmeas_h=0.7, tau_xmv_h=1.3),
     TransitionPlan("mode0", (Leg(1.0, "mode2"),), tau_xmeas_h=0.0),  # steps
     TransitionPlan("mode3"),
+    # the MPC's faster level and temperature references, segment by segment
+    TransitionPlan("mode0", (Leg(1.0, "mode1"), Leg(4.0, "mode2"), Leg(9.0, "mode0")),
+                   leg_references=LegReferenceSettings()),
 ]
 
 

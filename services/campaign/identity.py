@@ -14,7 +14,8 @@ and the cooling-water balance that opens them, the
 transition guards
 (:class:`~controller.units.te.control.TransitionGuards`), the guards' own settings
 (feed overrides, production index, level sag, floating pressure), the steady-state
-targets' limits and the grade references' time constants; for a unit plant its
+targets' limits, the grade references' time constants and the MPC's faster leg
+references; for a unit plant its
 registry configuration (:class:`controller.units.config.UnitConfig`).
 :data:`RUN_FORMAT` names the run and metrics code; it changes when they change what a
 run produces. The identity is
@@ -48,6 +49,7 @@ def _settings_json(unit: str) -> str:
             CONDENSER_DISTURBANCE_TRIM_LIMITS,
             CONDENSER_TRIM_WASHOUT_H,
             GUARDS_MPC,
+            LEG_REFERENCES_MPC,
             PRODUCTION_CONDENSER_LOOP,
             PRODUCTION_CONDENSER_MEAN_H,
             PRODUCTION_CONDENSER_TRIM_LIMITS,
@@ -81,6 +83,7 @@ def _settings_json(unit: str) -> str:
              "reactants": asdict(ReactantTrimSettings()),
              "d_share_path": asdict(DSharePathSettings()),
              "composition": asdict(COMPOSITION_MPC),
+             "leg_references": asdict(LEG_REFERENCES_MPC),
              "feeds": asdict(FeedOverrideSettings()),
              "production": asdict(ProductionIndexSettings()),
              "level_sag": asdict(LevelSagSettings()),

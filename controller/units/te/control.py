@@ -200,6 +200,7 @@ from controller.units.te.floating_pressure import (
 )
 from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.held_alarm import HeldAlarm
+from controller.units.te.leg_references import LegReferenceSettings
 from controller.units.te.level_sag import LevelSag, LevelSagSettings
 from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
 from controller.units.te.models import MODEL_GRADES, MPC_ORDER
@@ -951,11 +952,15 @@ class TEController:
                  floating_pressure: FloatingPressureSettings | None = None,
                  production_condenser_loop: bool = False,
                  condenser_disturbance_loop: bool = True,
-                 composition: CompositionCoreSettings | None = None) -> None:
+                 composition: CompositionCoreSettings | None = None,
+                 leg_references: LegReferenceSettings | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
-        self.plan = plan
+        #: MPC strategies: the faster level and temperature references of a leg
+        #: (:mod:`controller.units.te.leg_references`; None: the plan's own)
+        self.leg_references = leg_references if strategy in MPC_STRATEGIES else None
+        self.plan = self._own_references(plan)
         self.core = core
         self.ratio = ratio
         self.sample_h = float(sample_h)
@@ -1046,10 +1051,17 @@ class TEController:
     def retarget(self, plan: TransitionPlan) -> None:
         """Follow a new plan from now on (times are absolute, h; the plan hold of the
         previous plan is dropped)."""
-        self.plan = plan
+        self.plan = self._own_references(plan)
         self.plan_lag_h = 0.0
         self._lag_before_leg_h = 0.0
         self._hold_alarm = False
+
+    def _own_references(self, plan):
+        """``plan`` with this controller's leg references (a plan without
+        ``with_leg_references`` as it is)."""
+        if self.leg_references is None or not hasattr(plan, "with_leg_references"):
+            return plan
+        return plan.with_leg_references(self.leg_references)
 
     # -- operator hooks (controller.units.te.operator) ------------------------------------
     #: The outer loops by their CV (XMEAS number): separator temperature on the
@@ -2060,6 +2072,23 @@ def _composition_settings(value) -> CompositionCoreSettings | None:
                      f"{value!r}")
 
 
+#: The MPC strategies' leg references (:mod:`controller.units.te.leg_references`).
+LEG_REFERENCES_MPC = LegReferenceSettings()
+
+
+def _leg_reference_settings(value) -> LegReferenceSettings | None:
+    """``make_te_controller``'s ``leg_references``: True -> :data:`LEG_REFERENCES_MPC`,
+    False -> None (the plan's references), or settings."""
+    if value is True:
+        return LEG_REFERENCES_MPC
+    if value is False:
+        return None
+    if isinstance(value, LegReferenceSettings):
+        return value
+    raise ValueError(f"leg_references: must be true, false or a LegReferenceSettings, got "
+                     f"{value!r}")
+
+
 #: Wall-clock budget of one MPC step in real time, ms (the 36 s sample leaves far more;
 #: a step over it takes the previous plan, :class:`controller.mpc.MPCController`).
 REALTIME_BUDGET_MS = 50.0
@@ -2156,6 +2185,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        production_condenser_loop: bool = False,
                        condenser_disturbance_loop: bool = True,
                        composition: CompositionCoreSettings | bool = True,
+                       leg_references: LegReferenceSettings | bool = True,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -2204,6 +2234,11 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         MPC strategies: the composition core that plans the D share through a grade
         change (:mod:`controller.units.te.composition_core`): True (default,
         :data:`COMPOSITION_MPC`), False (the D-share path alone), or its settings.
+    leg_references : bool or LegReferenceSettings
+        MPC strategies: the reactor level's and temperature's references through a
+        leg, faster than the plan's where that does not take from the product or add
+        to the pressure (:mod:`controller.units.te.leg_references`): True (default,
+        :data:`LEG_REFERENCES_MPC`), False (the plan's), or settings.
 
     Returns
     -------
@@ -2246,7 +2281,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        floating_pressure=floating_pressure,
                        production_condenser_loop=production_condenser_loop,
                        condenser_disturbance_loop=condenser_disturbance_loop,
-                       composition=_composition_settings(composition) if mpc_core else None)
+                       composition=_composition_settings(composition) if mpc_core else None,
+                       leg_references=(_leg_reference_settings(leg_references) if mpc_core
+                                       else None))
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 

@@ -43,6 +43,7 @@ Metrics
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import math
 from dataclasses import dataclass, field
@@ -50,6 +51,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from controller.units.te.leg_references import LegReferenceSettings
 from plant_sim.tennessee_eastman.modes import start_state
 
 __all__ = ["GradeError", "Grade", "GRADES", "CONTROL_MARGIN", "CONTROLLED_VALVES", "grade",
@@ -325,15 +327,18 @@ class _PathTable:
     tau: np.ndarray  # 0-d (every column, every segment), or (L, n) per segment and column
 
     @classmethod
-    def build(cls, times, values, tau: float, closing: dict | None = None) -> _PathTable:
+    def build(cls, times, values, tau: float, closing: dict | None = None,
+              segment=None) -> _PathTable:
         """``closing``: column -> time constant of the segments that lower that column
-        (a valve closing more slowly than it opens)."""
+        (a valve closing more slowly than it opens); ``segment(i, start)``: column ->
+        time constant of the i-th switch's segment (0-based) starting at ``start``."""
         tau0 = np.asarray(float(tau))
+        per_column = bool(closing) or segment is not None
         r = np.asarray(values[0], dtype=float)
         start, target, taus = [r], [r], [np.full(r.shape, float(tau))]
         for i, ts in enumerate(times):
             if i > 0:  # the path at this switch: the previous segment relaxed to its end
-                r = _relax(r[None, :], target[-1], taus[-1] if closing else tau0,
+                r = _relax(r[None, :], target[-1], taus[-1] if per_column else tau0,
                            np.array([[ts - times[i - 1]]]))[0]
             start.append(r)
             target.append(np.asarray(values[i + 1], dtype=float))
@@ -341,9 +346,11 @@ class _PathTable:
             for col, tau_c in (closing or {}).items():
                 if target[-1][col] < r[col]:
                     seg[col] = tau_c
+            for col, tau_c in (segment(i, r) if segment is not None else {}).items():
+                seg[col] = tau_c
             taus.append(seg)
         return cls(np.array([-math.inf, *times]), np.array(start), np.array(target),
-                   np.array(taus) if closing else tau0)
+                   np.array(taus) if per_column else tau0)
 
     def __call__(self, t) -> np.ndarray:
         tt = np.asarray(t, dtype=float)
@@ -387,6 +394,10 @@ class TransitionPlan:
     tau_recycle_h : float
         Time constant of the compressor recycle valve XMV(5)'s feedforward where a leg
         closes it (it opens on ``tau_xmv_h``).
+    leg_references : LegReferenceSettings or None
+        The MPC's faster references of the reactor level and temperature through a leg
+        (:mod:`controller.units.te.leg_references`; :meth:`with_leg_references`); None:
+        every measured output on ``tau_xmeas_h``.
     """
 
     start: str = "mode0"
@@ -394,6 +405,7 @@ class TransitionPlan:
     tau_xmeas_h: float = TAU_DEFAULT_H["xmeas"]
     tau_xmv_h: float = TAU_DEFAULT_H["xmv"]
     tau_recycle_h: float = TAU_DEFAULT_H["recycle"]
+    leg_references: LegReferenceSettings | None = None
     _grades: tuple = field(default=(), repr=False, compare=False)
     _tables: dict = field(default_factory=dict, repr=False, compare=False)
 
@@ -413,17 +425,30 @@ class TransitionPlan:
             check_reachable(prev, lg.grade)
             prev = lg.grade
         object.__setattr__(self, "legs", legs)
+        if not (self.leg_references is None
+                or isinstance(self.leg_references, LegReferenceSettings)):
+            raise GradeError("leg_references: must be LegReferenceSettings or None, got "
+                             f"{type(self.leg_references).__name__}")
         grades = (grade(self.start),) + tuple(grade(lg.grade) for lg in legs)
         object.__setattr__(self, "_grades", grades)
         times = [lg.t_h for lg in legs]
+        lr = self.leg_references
+        faster = (None if lr is None else
+                  lambda i, r: lr.column_taus(grades[i], grades[i + 1], r, self.tau_xmeas_h))
         object.__setattr__(self, "_tables", {
-            "xmeas": _PathTable.build(times, [g.xmeas for g in grades], self.tau_xmeas_h),
+            "xmeas": _PathTable.build(times, [g.xmeas for g in grades], self.tau_xmeas_h,
+                                      segment=faster),
             "xmv": _PathTable.build(times, [g.xmv for g in grades], self.tau_xmv_h,
                                     closing=({RECYCLE_XMV - 1: self.tau_recycle_h}
                                              if self.tau_recycle_h != self.tau_xmv_h
                                              else None)),
             "d_fraction": _PathTable.build(times, [np.array([g.d_fraction]) for g in grades],
                                            self.tau_xmv_h)})
+
+    def with_leg_references(self, settings: LegReferenceSettings | None) -> TransitionPlan:
+        """The same plan with the MPC's level and temperature references of
+        ``settings`` (None: the plan's own)."""
+        return dataclasses.replace(self, leg_references=settings)
 
     @property
     def final(self) -> Grade:

@@ -49,6 +49,12 @@ class HeldPlan:
             return row
         return np.broadcast_to(row, (tt.size, row.size)).copy()
 
+    def with_leg_references(self, settings) -> HeldPlan:
+        """Held where the plan with the controller's own leg references was (see
+        :meth:`TransitionPlan.with_leg_references
+        <controller.units.te.grades.TransitionPlan.with_leg_references>`)."""
+        return HeldPlan(self.plan.with_leg_references(settings), self.t_h)
+
     def xmeas_ref(self, t) -> np.ndarray:
         return self._held(self.plan.xmeas_ref, t)
 
