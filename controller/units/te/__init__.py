@@ -2,6 +2,8 @@
 
 - :mod:`~controller.units.te.grades` — grades (seed Table 7.3), reachability,
   first-order transition plans, run metrics;
+- :mod:`~controller.units.te.leg_references` — the MPC's own, faster references of the
+  reactor level and temperature through a leg;
 - :mod:`~controller.units.te.max_production` — the back-off grades of Ricker's
   maximum-production modes 4-6;
 - :mod:`~controller.units.te.loops` — the inner PI loops the plant side runs;
