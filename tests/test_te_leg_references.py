@@ -32,7 +32,8 @@ def _first_order(r0, target, tau, dt):
 @pytest.mark.parametrize("kw", [dict(tau_fraction=0.0), dict(tau_fraction=1.5),
                                 dict(tau_fraction=float("nan")), dict(tau_fraction=True),
                                 dict(g_band_mol=-1.0), dict(flow_band_rel=float("inf")),
-                                dict(g_band_mol="1")])
+                                dict(g_band_mol="1"), dict(level_dip_pct=-5.0),
+                                dict(level_dip_h=float("nan"))])
 def test_settings_refuse_bad_values_naming_the_field(kw):
     with pytest.raises(ValueError, match=next(iter(kw))):
         LegReferenceSettings(**kw)
@@ -93,6 +94,48 @@ def test_a_second_leg_starts_where_the_faster_path_is():
     at_2 = _first_order(g0.reactor_level, g1.reactor_level, 1.0, 1.0)
     assert plan.xmeas_ref(2.5)[LEVEL_COLUMN] == pytest.approx(
         _first_order(at_2, g0.reactor_level, 1.0, 0.5), abs=1e-9)
+
+
+def test_a_leg_that_changes_the_product_dips_the_level_and_refills_it():
+    g1, g2 = grade("mode1"), grade("mode2")
+    assert g1.reactor_level == g2.reactor_level  # the dip is the only level move here
+    plan = TransitionPlan("mode1", (Leg(1.0, "mode2"),), leg_references=LR)
+    low = g2.reactor_level - LR.level_dip_pct
+    back = 1.0 + LR.level_dip_h
+    at_back = _first_order(g1.reactor_level, low, 1.0, LR.level_dip_h)
+    for t in (1.5, 3.0, back - 1e-9):  # down on the fast pace (a falling level)
+        assert plan.xmeas_ref(t)[LEVEL_COLUMN] == pytest.approx(
+            _first_order(g1.reactor_level, low, 1.0, t - 1.0), abs=1e-9)
+    for t in (back + 0.5, back + 3.0, 30.0):  # back to the grade's on the plan's 3 h
+        assert plan.xmeas_ref(t)[LEVEL_COLUMN] == pytest.approx(
+            _first_order(at_back, g2.reactor_level, 3.0, t - back), abs=1e-9)
+    # every other reference as without the dip: a first-order path restarted on its own
+    # target and time constant is the same path
+    no_dip = TransitionPlan("mode1", (Leg(1.0, "mode2"),),
+                            leg_references=LegReferenceSettings(level_dip_pct=0.0))
+    times = np.array([0.5, 1.0, 2.0, back, back + 0.01, 9.0, 20.0])
+    others = np.ones(41, bool)
+    others[LEVEL_COLUMN] = False
+    np.testing.assert_allclose(plan.xmeas_ref(times)[:, others],
+                               no_dip.xmeas_ref(times)[:, others], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(plan.xmv_ref(times), no_dip.xmv_ref(times), rtol=0, atol=1e-9)
+    for t in times:
+        assert plan.d_fraction_ref(t) == pytest.approx(no_dip.d_fraction_ref(t), abs=1e-12)
+
+
+def test_a_next_leg_before_the_refill_takes_the_level_from_where_it_is():
+    g2, g3 = grade("mode2"), grade("mode3")
+    plan = TransitionPlan("mode1", (Leg(1.0, "mode2"), Leg(3.0, "mode3")),
+                          leg_references=LR)
+    at_3 = _first_order(grade("mode1").reactor_level, g2.reactor_level - LR.level_dip_pct,
+                        1.0, 2.0)
+    low3 = g3.reactor_level - LR.level_dip_pct
+    # no refill toward mode 2 at 5 h: the leg to mode 3 dips from where the level is
+    # (still above mode 3's dip, so it falls on the fast pace)
+    assert at_3 > low3
+    assert plan.xmeas_ref(5.0)[LEVEL_COLUMN] == pytest.approx(
+        _first_order(at_3, low3, 1.0, 2.0), abs=1e-9)
+    assert plan.xmeas_ref(3.0 + LR.level_dip_h + 6.0)[LEVEL_COLUMN] > low3
 
 
 def test_only_the_mpc_strategies_take_them_and_keep_them_on_a_new_plan():

@@ -432,17 +432,22 @@ class TransitionPlan:
         grades = (grade(self.start),) + tuple(grade(lg.grade) for lg in legs)
         object.__setattr__(self, "_grades", grades)
         times = [lg.t_h for lg in legs]
-        lr = self.leg_references
-        faster = (None if lr is None else
-                  lambda i, r: lr.column_taus(grades[i], grades[i + 1], r, self.tau_xmeas_h))
+        if self.leg_references is None:
+            xmeas = _PathTable.build(times, [g.xmeas for g in grades], self.tau_xmeas_h)
+            after = grades
+        else:  # the MPC's own path; the other tables switch with it, on the same targets
+            x_times, values, segment, leg_of = self.leg_references.path(
+                times, grades, self.tau_xmeas_h)
+            xmeas = _PathTable.build(x_times, values, self.tau_xmeas_h, segment=segment)
+            times = x_times
+            after = (grades[0],) + tuple(grades[i + 1] for i in leg_of)
         object.__setattr__(self, "_tables", {
-            "xmeas": _PathTable.build(times, [g.xmeas for g in grades], self.tau_xmeas_h,
-                                      segment=faster),
-            "xmv": _PathTable.build(times, [g.xmv for g in grades], self.tau_xmv_h,
+            "xmeas": xmeas,
+            "xmv": _PathTable.build(times, [g.xmv for g in after], self.tau_xmv_h,
                                     closing=({RECYCLE_XMV - 1: self.tau_recycle_h}
                                              if self.tau_recycle_h != self.tau_xmv_h
                                              else None)),
-            "d_fraction": _PathTable.build(times, [np.array([g.d_fraction]) for g in grades],
+            "d_fraction": _PathTable.build(times, [np.array([g.d_fraction]) for g in after],
                                            self.tau_xmv_h)})
 
     def with_leg_references(self, settings: LegReferenceSettings | None) -> TransitionPlan:
