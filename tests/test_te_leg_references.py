@@ -123,6 +123,16 @@ def test_a_leg_that_changes_the_product_dips_the_level_and_refills_it():
         assert plan.d_fraction_ref(t) == pytest.approx(no_dip.d_fraction_ref(t), abs=1e-12)
 
 
+def test_a_leg_that_changes_only_the_production_keeps_the_level_on_its_grade():
+    g1, g4 = grade("mode1"), grade("mode4")
+    assert abs(g1.g_mol - g4.g_mol) <= LR.g_band_mol  # the same G, more production
+    plan = TransitionPlan("mode1", (Leg(1.0, "mode4"),), leg_references=LR)
+    no_dip = TransitionPlan("mode1", (Leg(1.0, "mode4"),),
+                            leg_references=LegReferenceSettings(level_dip_pct=0.0))
+    times = np.array([1.5, 3.0, 5.0, 8.0, 20.0])
+    np.testing.assert_array_equal(plan.xmeas_ref(times), no_dip.xmeas_ref(times))
+
+
 def test_a_next_leg_before_the_refill_takes_the_level_from_where_it_is():
     g2, g3 = grade("mode2"), grade("mode3")
     plan = TransitionPlan("mode1", (Leg(1.0, "mode2"), Leg(3.0, "mode3")),
