@@ -2059,34 +2059,20 @@ class TEMPCOptions:
 COMPOSITION_MPC = CompositionCoreSettings()
 
 
-def _composition_settings(value) -> CompositionCoreSettings | None:
-    """``make_te_controller``'s ``composition``: True -> :data:`COMPOSITION_MPC`, False ->
-    None (the D-share path and the G loop make every grade change), or settings."""
+def _settings_or_default(name: str, value, default, cls):
+    """A ``make_te_controller`` option that is a bool or settings: True -> ``default``,
+    False -> None (off), an instance of ``cls`` as it is."""
     if value is True:
-        return COMPOSITION_MPC
+        return default
     if value is False:
         return None
-    if isinstance(value, CompositionCoreSettings):
+    if isinstance(value, cls):
         return value
-    raise ValueError(f"composition: must be true, false or a CompositionCoreSettings, got "
-                     f"{value!r}")
+    raise ValueError(f"{name}: must be true, false or a {cls.__name__}, got {value!r}")
 
 
 #: The MPC strategies' leg references (:mod:`controller.units.te.leg_references`).
 LEG_REFERENCES_MPC = LegReferenceSettings()
-
-
-def _leg_reference_settings(value) -> LegReferenceSettings | None:
-    """``make_te_controller``'s ``leg_references``: True -> :data:`LEG_REFERENCES_MPC`,
-    False -> None (the plan's references), or settings."""
-    if value is True:
-        return LEG_REFERENCES_MPC
-    if value is False:
-        return None
-    if isinstance(value, LegReferenceSettings):
-        return value
-    raise ValueError(f"leg_references: must be true, false or a LegReferenceSettings, got "
-                     f"{value!r}")
 
 
 #: Wall-clock budget of one MPC step in real time, ms (the 36 s sample leaves far more;
@@ -2281,9 +2267,14 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        floating_pressure=floating_pressure,
                        production_condenser_loop=production_condenser_loop,
                        condenser_disturbance_loop=condenser_disturbance_loop,
-                       composition=_composition_settings(composition) if mpc_core else None,
-                       leg_references=(_leg_reference_settings(leg_references) if mpc_core
-                                       else None))
+                       composition=(_settings_or_default("composition", composition,
+                                                         COMPOSITION_MPC,
+                                                         CompositionCoreSettings)
+                                    if mpc_core else None),
+                       leg_references=(_settings_or_default("leg_references", leg_references,
+                                                            LEG_REFERENCES_MPC,
+                                                            LegReferenceSettings)
+                                       if mpc_core else None))
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 

@@ -72,10 +72,11 @@ kPa (the plan hold starts at 2880) and its cost 541 -> 577 $.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from controller.units.te.settings_check import check_finite_fields, check_range
 
 __all__ = ["LEVEL_COLUMN", "TEMPERATURE_COLUMN", "LegReferenceSettings"]
 
@@ -113,15 +114,10 @@ class LegReferenceSettings:
     level_dip_h: float = 4.0
 
     def __post_init__(self) -> None:
-        f = self.tau_fraction
-        if not (isinstance(f, int | float) and not isinstance(f, bool) and math.isfinite(f)
-                and 0.0 < f <= 1.0):
-            raise ValueError(f"tau_fraction: must be in (0, 1], got {f!r}")
-        for name in ("g_band_mol", "flow_band_rel", "level_dip_pct", "level_dip_h"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and not isinstance(v, bool)
-                    and math.isfinite(v) and v >= 0.0):
-                raise ValueError(f"{name}: must be a finite number >= 0, got {v!r}")
+        check_finite_fields(self)
+        check_range(self, "tau_fraction", "(0, 1]")
+        check_range(self, ("g_band_mol", "flow_band_rel", "level_dip_pct", "level_dip_h"),
+                    ">= 0")
 
     def keeps_product(self, before, after) -> bool:
         """Whether a leg from grade ``before`` to ``after`` keeps the product (objects
@@ -176,8 +172,8 @@ class LegReferenceSettings:
             i, kind = legs_of[j]
             if kind == "back":  # the level back on the plan's pace, the rest as they were
                 return {**leg_taus.get(i, {}), LEVEL_COLUMN: float(tau_h)}
-            target = values[j + 1]
-            out = self.column_taus(grades[i], _Target(target, grades[i + 1]), start, tau_h)
+            out = self.column_taus(grades[i], grades[i + 1], start, tau_h,
+                                   target=values[j + 1])
             leg_taus[i] = out
             return out
 
@@ -187,7 +183,8 @@ class LegReferenceSettings:
         """Whether a leg changes G in product (XMEAS 40) by more than ``g_band_mol``."""
         return abs(float(after.xmeas[39]) - float(before.xmeas[39])) > self.g_band_mol
 
-    def column_taus(self, before, after, start, tau_h: float) -> dict[int, float]:
+    def column_taus(self, before, after, start, tau_h: float,
+                    target=None) -> dict[int, float]:
         """The faster time constants of one leg, column (0-based XMEAS) -> h.
 
         Parameters
@@ -198,20 +195,15 @@ class LegReferenceSettings:
             The references where the leg starts (the path may be between grades).
         tau_h : float
             The plan's time constant, h.
+        target : array_like, shape (41,), optional
+            Where the references head (default ``after.xmeas``; the level less its dip).
         """
+        target = after.xmeas if target is None else target
         fast = self.tau_fraction * float(tau_h)
         same = self.keeps_product(before, after)
         out = {}
-        if same or after.xmeas[LEVEL_COLUMN] < start[LEVEL_COLUMN]:
+        if same or target[LEVEL_COLUMN] < start[LEVEL_COLUMN]:
             out[LEVEL_COLUMN] = fast
-        if same or after.xmeas[TEMPERATURE_COLUMN] > start[TEMPERATURE_COLUMN]:
+        if same or target[TEMPERATURE_COLUMN] > start[TEMPERATURE_COLUMN]:
             out[TEMPERATURE_COLUMN] = fast
         return out
-
-
-class _Target:
-    """A grade's measured outputs with one target moved (the level less the dip)."""
-
-    def __init__(self, xmeas, grade) -> None:
-        self.xmeas = xmeas
-        self.name = getattr(grade, "name", "")
