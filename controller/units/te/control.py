@@ -467,7 +467,11 @@ class RatioSettings:
 #: (mode 0 0.518 -> 0.538, mode 2 0.538 -> 0.542: the slower loop follows the A/C
 #: ratio's step later); run-mean costs within 0.6 $/h but IDV(13) at mode 0 (190.9 ->
 #: 187.9). 0.001 with 2 h lowered the G std by a little more and raised IDV(1)'s to
-#: 0.558 at mode 0.
+#: 0.558 at mode 0. Measured and not taken: a gap action, the integral four times
+#: faster while G's hour mean is more than 0.4 mol % off (ssmpc, seeds 1-6): 1 -> 2
+#: 8.85 -> 8.13 h (its slowest seed 13.2 -> 8.3), but 0 -> 2 with IDV(8) 13.0 -> 15.5 h
+#: and G's standard deviation higher in every disturbance case tried (IDV 1, 3, 8, 17, 20
+#: at modes 0 and 2, seeds 1-3: by 0.003-0.016 mol %).
 #: Through a grade change (``gain``) the MPC strategies' G loop follows
 #: :data:`RATIO_PATH_WINDOW_MOL` instead (the steady tuning near the new grade's G).
 RATIO_MPC = RatioSettings(gain=0.0, steady_gain=0.002, steady_ti_h=2.0)
