@@ -129,6 +129,15 @@ class LegReferenceSettings:
     def path(self, times, grades, tau_h: float):
         """The plan's measured-output path with these references.
 
+        Parameters
+        ----------
+        times : sequence of float
+            The legs' start times, h, increasing.
+        grades : sequence of Grade
+            The start grade, then each leg's grade (``len(times) + 1``).
+        tau_h : float
+            The plan's time constant of the measured outputs, h.
+
         Returns
         -------
         times : list of float
