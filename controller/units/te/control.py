@@ -1484,9 +1484,9 @@ class TEController:
             applied = min(applied, share_in)
             self._comp_sum, self._comp_n = 0.0, 0
             self.composition.start(share_in)
-            path = self.d_path.settings if self.d_path is not None else DSharePathSettings()
-            rise_waits = path.feed_waits(d, float(xmeas[7]),
-                                         float(self.production.level_setpoint(ym[7])))
+            # the MPC strategies, the only ones with a core, all have the D-share path
+            rise_waits = self.d_path.settings.feed_waits(
+                d, float(xmeas[7]), float(self.production.level_setpoint(ym[7])))
             hold = self._hold_fraction(xmeas)
             if not active or 40 in self.outer_held:
                 hold = 1.0  # beside the G loop, or held: the core follows the share in force

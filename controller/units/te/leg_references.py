@@ -123,7 +123,7 @@ class LegReferenceSettings:
         """Whether a leg from grade ``before`` to ``after`` keeps the product (objects
         with ``xmeas`` (41,), as :class:`controller.units.te.grades.Grade`)."""
         fa, fb = float(after.xmeas[16]), float(before.xmeas[16])
-        return (abs(float(after.xmeas[39]) - float(before.xmeas[39])) <= self.g_band_mol
+        return (not self.changes_g(before, after)
                 and abs(fa - fb) <= self.flow_band_rel * abs(fa))
 
     def path(self, times, grades, tau_h: float):
