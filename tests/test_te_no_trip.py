@@ -190,7 +190,7 @@ def test_idv1_through_a_leg_that_lowers_the_a_does_not_trip():
     # IDV(1) (stream 4's A/C ratio down) from 0.5 h, 2 -> 0 at 1 h: with the A loop held
     # through the leg A fell to 13 mol % in the reactor feed, C gathered and the plant
     # tripped at 7.5 h (seed 7; seed 1 tripped at 7.2 h with the slower steady-grade A
-    # loop before the leg, and peaks at 2907 kPa with today's); the loop may raise A while
+    # loop before the leg, and peaks at 2907 kPa with the 8 %/mol % one); the loop may raise A while
     # C gathers (seeds 1-8: peaks 2879-2882 kPa, A at least 25 mol %)
     plan = TransitionPlan("mode2", (Leg(1.0, "mode0"),))
     kw = dict(noise=True, seed=7, plant_seed=plant_seed_for(7), idv={1: 0.5})
@@ -544,8 +544,8 @@ def test_the_economic_pressure_survives_a_disturbance_that_swings_the_pressure()
     # dearer than the decentralized structure (its own run here); with the wider margin
     # while the economics lift P_r* it holds near their 2800 kPa (measured: 150.0 $/h at
     # 2806 kPa, against 166.5 $/h at 2730 kPa with the tight tracking and 170.7 $/h for
-    # the decentralized structure. On seed 1, with the A loop's steady-grade tuning of
-    # today, the tight tracking's dips are smaller: 158.1 $/h at 2777 kPa against 149.2)
+    # the decentralized structure. On seed 1, with the A loop's steady-grade tuning at
+    # 8 %/mol %, the tight tracking's dips are smaller: 158.1 $/h at 2777 kPa against 149.2)
     import dataclasses
 
     from controller.units.te.control import GUARDS_MPC
