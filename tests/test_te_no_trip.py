@@ -189,9 +189,9 @@ def test_with_c_gathering_the_held_a_loop_may_raise_the_a_feed_but_not_cut_it():
 def test_idv1_through_a_leg_that_lowers_the_a_does_not_trip():
     # IDV(1) (stream 4's A/C ratio down) from 0.5 h, 2 -> 0 at 1 h: with the A loop held
     # through the leg A fell to 13 mol % in the reactor feed, C gathered and the plant
-    # tripped at 7.5 h (seed 7; seed 1 tripped at 7.2 h with the slower steady-grade A
-    # loop before the leg, and peaks at 2907 kPa with the 8 %/mol % one); the loop may raise A while
-    # C gathers (seeds 1-8: peaks 2879-2882 kPa, A at least 25 mol %)
+    # tripped at 7.5 h (seed 7). Seed 1 tripped at 7.2 h with the steady-grade A loop at
+    # 4 %/mol % before the leg; at 8 %/mol % it peaks at 2907 kPa. The loop may raise A
+    # while C gathers (seeds 1-8: peaks 2879-2882 kPa, A at least 25 mol %)
     plan = TransitionPlan("mode2", (Leg(1.0, "mode0"),))
     kw = dict(noise=True, seed=7, plant_seed=plant_seed_for(7), idv={1: 0.5})
     off = TransitionGuards(**{**GUARDS_MPC.__dict__, "a_loop_raise_c_excess_mol": None})
