@@ -45,7 +45,8 @@ def _run(trim, x, ym, n, since=np.inf, hold_cut=False):
 
 
 def test_a_short_feed_with_the_d_valve_at_its_limit_raises_the_target_then_it_returns():
-    trim = ReactantTrim(sample_h=0.01)
+    # raise only (no cut), so that the return ends at 0 with A+C in excess
+    trim = ReactantTrim(ReactantTrimSettings(excess_max=0.0), sample_h=0.01)
     x, ym = _xmeas(97.0, 3.0)
     assert _run(trim, x, ym, 100) > 5.0              # one hour, 2 mol % beyond the deadband
     assert any("A+C feed target raised" in a for a in trim.alarms())
@@ -95,11 +96,12 @@ def _settled(excess_max=None):
 
 def test_an_excess_lowers_the_target_then_it_returns():
     trim = _settled()
-    x, ym = _xmeas(60.0, -3.0)                       # 3 mol % too much A+C, D has room
-    # one hour, 1.5 mol % beyond the cut's deadband at 5 %/(mol % h): 7.5 % by hand
-    assert _run(trim, x, ym, 100) == pytest.approx(-7.5, abs=1e-9)
+    x, ym = _xmeas(60.0, -1.0)                       # 1 mol % too much A+C, D has room
+    # one hour, 0.9 mol % beyond the cut's 0.1 mol % deadband at 5 %/(mol % h): 4.5 %
+    # by hand
+    assert _run(trim, x, ym, 100) == pytest.approx(-4.5, abs=1e-9)
     assert any("A+C feed target lowered" in a for a in trim.alarms())
-    assert _run(trim, x, ym, 200) == -ReactantTrimSettings().excess_max  # at its limit
+    assert _run(trim, x, ym, 200) == -6.0            # at its limit, excess_max
     x, ym = _xmeas(60.0, 2.0)                        # short again, D has room
     assert _run(trim, x, ym, 300) == 0.0             # back to 0, not past it
     assert trim.alarms() == []
@@ -107,15 +109,15 @@ def test_an_excess_lowers_the_target_then_it_returns():
 
 def test_a_grade_that_settles_with_an_excess_is_cut_only_for_more():
     # the grade became steady with 3 mol % of A+C above the plan's (the plant's own
-    # steady state): no cut for that, nor within the deadband beyond it; 2 mol % more
-    # than that is cut
+    # steady state): no cut for that, nor within the 0.1 mol % deadband beyond it;
+    # 0.5 mol % more than that is cut (0.4 beyond the deadband, 5 %/(mol % h), 1 h)
     trim = ReactantTrim(sample_h=0.01)
     assert _run(trim, *_xmeas(60.0, -3.0), 200) == 0.0
-    assert _run(trim, *_xmeas(60.0, -4.4), 200) == 0.0
-    assert _run(trim, *_xmeas(60.0, -5.0), 100) == pytest.approx(-2.5, abs=1e-9)
-    # a grade change forgets the settled excess: 5 h after it the cut stands, no more
-    assert _run(trim, *_xmeas(60.0, -5.0), 100, since=5.0) == pytest.approx(-2.5, abs=1e-9)
-    assert trim.checkpoint()["settled"] is None
+    assert _run(trim, *_xmeas(60.0, -3.08), 200) == 0.0
+    assert _run(trim, *_xmeas(60.0, -3.5), 100) == pytest.approx(-2.0, abs=1e-9)
+    # a grade change forgets the settled excess and ends the cut
+    assert _run(trim, *_xmeas(60.0, -3.5), 1, since=5.0) == 0.0
+    assert trim.checkpoint()["settled"] is None and trim.alarms() == []
 
 
 @pytest.mark.parametrize("since, hold_cut, excess_max",
@@ -130,7 +132,7 @@ def test_no_cut_otherwise(since, hold_cut, excess_max):
 
 def test_a_held_cut_stands_and_a_restored_trim_goes_on():
     trim = _settled()
-    x, ym = _xmeas(60.0, -3.0)
+    x, ym = _xmeas(60.0, -1.0)
     cut = _run(trim, x, ym, 50)
     assert _run(trim, x, ym, 100, hold_cut=True) == cut < 0.0
     again = ReactantTrim(sample_h=0.01)
