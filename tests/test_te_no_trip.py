@@ -18,6 +18,7 @@ from controller.units.te.control import (
     run_te,
 )
 from controller.units.te.grades import Leg, TransitionPlan, grade
+from controller.units.te.reactant_trim import ReactantTrimSettings
 
 INTERLOCK_KPA = 3000.0
 
@@ -255,8 +256,6 @@ def test_idv8_through_a_leg_into_mode_3_does_not_trip():
     # the plant tripped at 3.3 h. With the pressure set point held while C is short, the
     # A loop cutting through its hold and the reactant trim raising the A+C feed through
     # the change it runs on (of 75 runs over five legs, seeds 1-15: 21 trips -> 2)
-    from controller.units.te.reactant_trim import ReactantTrimSettings
-
     plan = TransitionPlan("mode1", (Leg(1.0, "mode3"),))
     kw = dict(noise=True, seed=2, plant_seed=plant_seed_for(2), idv={8: 0.5})
     before = run_te("ssmpc", plan, 6.0, guards=TransitionGuards(
@@ -440,6 +439,22 @@ def test_idv8_through_a_leg_into_mode_3_with_the_d_feed_rising_does_not_trip():
     assert r.shutdown is None, r.shutdown
     assert r.xmeas[:, 6].max() < 2895.0
     assert any("E feed held" in a for a in r.alarms)
+
+
+def test_idv8_before_a_leg_into_mode_3_the_cut_waits_for_its_settling_hour():
+    # IDV(8) from 0.5 h, 1 -> 3 at 1 h (seed 1): the run passes near the interlocks (C
+    # out of the purge, the reactor level at 11-19 % at 4.5 h). With the settled excess
+    # taken from the first sample a cut of under 0.1 % started at 0.3 h on the
+    # analyzer's noise, and the plant tripped at 4.8 h; with the first hour's mean as
+    # the reference the cut waits for that hour
+    plan = TransitionPlan("mode1", (Leg(1.0, "mode3"),))
+    kw = dict(noise=True, seed=1, plant_seed=plant_seed_for(1), idv={8: 0.5})
+    one_sample = run_te("ssmpc", plan, 6.0, reactants=ReactantTrimSettings(settle_window_h=0.0),
+                        **kw)
+    assert any("A+C feed target lowered" in a for a in one_sample.alarms)
+    assert one_sample.shutdown is not None
+    r = run_te("ssmpc", plan, 6.0, **kw)
+    assert r.shutdown is None, r.shutdown
 
 
 #: IDV(6) (A feed lost) from 0.5 h through a leg at 1 h, seed 1: the guards that the case

@@ -24,6 +24,7 @@ from controller.units.te.spec import D_FULL_KG_H
                                        ({"excess_max": -1.0}, "excess_max"),
                                        ({"excess_max": 101.0}, "excess_max"),
                                        ({"excess_deadband": -1.0}, "excess_deadband"),
+                                       ({"settle_window_h": -1.0}, "settle_window_h"),
                                        ({"gain": True}, "gain")])
 def test_bad_settings_name_their_field(kw, field):
     with pytest.raises(ValueError, match=field):
@@ -86,11 +87,11 @@ def test_no_cut_through_a_grade_change():
 
 
 def _settled(excess_max=None):
-    """A trim whose grade settled with A+C at its reference (one steady sample)."""
+    """A trim whose grade settled with A+C at its reference (its settling hour)."""
     settings = (ReactantTrimSettings() if excess_max is None
                 else ReactantTrimSettings(excess_max=excess_max))
     trim = ReactantTrim(settings, sample_h=0.01)
-    _run(trim, *_xmeas(60.0, 0.0), 1)
+    _run(trim, *_xmeas(60.0, 0.0), 100)              # its settling window, 1 h
     return trim
 
 
@@ -156,3 +157,23 @@ def test_under_idv1_the_cut_keeps_c_from_gathering():
     c_ref = grade("mode0").xmeas[24]
     assert run.xmeas[late, 24].mean() - c_ref < 4.5      # measured 3.1 mol %
     assert run.xmv[late, 5].mean() < 70.0                # purge, measured 60 %
+
+
+def test_the_settled_excess_is_the_mean_of_the_settling_hour_and_no_cut_acts_within_it():
+    # A+C 1 mol % above the plan's, with +-0.3 mol % of noise on it: no cut in the first
+    # hour however far a sample strays, then the hour's mean (-1.0) is the settled
+    # excess, and the same noise (within 0.1 + 0.3 of it) cuts only while beyond the
+    # deadband: -1.4 mol % for 0.1 h is 0.3 beyond it at 5 %/(mol % h), 0.15 % by hand
+    trim = ReactantTrim(sample_h=0.01)
+    for k in range(100):
+        assert _run(trim, *_xmeas(60.0, -1.0 + (0.3 if k % 2 else -0.3)), 1) == 0.0
+    assert trim.checkpoint()["settled"] == pytest.approx(-1.0)
+    assert _run(trim, *_xmeas(60.0, -1.05), 50) == 0.0
+    assert _run(trim, *_xmeas(60.0, -1.4), 10) == pytest.approx(-0.15, abs=1e-9)
+    # a restored trim keeps a window under way
+    half = ReactantTrim(sample_h=0.01)
+    _run(half, *_xmeas(60.0, -2.0), 50)
+    again = ReactantTrim(sample_h=0.01)
+    again.restore(json.loads(json.dumps(half.checkpoint())))
+    _run(again, *_xmeas(60.0, 0.0), 50)
+    assert again.checkpoint()["settled"] == pytest.approx(-1.0)
