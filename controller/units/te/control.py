@@ -266,10 +266,12 @@ A_FEED_LOOP = next(lp for lp in PI_BASELINE_LOOPS if lp.cv == 23)
 #: 0.0002) and the cost by 0.18 $/h; no trip in the matrix, nor under IDV(13) at mode 2
 #: on seeds 1-80 (48 h). Mode 3 settles at 44.33 $/h over hours 24-48 (seeds 1-3;
 #: 44.35 before; Ricker's optimum 43.93), its 12 h windows at -2.7 to +3.6 % of the
-#: optimum (-2.0 to +3.0 before). Stronger loops lower G's deviation further, but
-#: trip where the A in the reactor feed falls because the reaction slows (IDV(13) at
-#: mode 2: C runs out in the purge while the loop adds A, and the rise hold of
-#: :class:`TransitionGuards` comes too late): 12 %/mol % with Ti 1 h (matrix: IDV(8)
+#: optimum (-2.0 to +3.0 before; -0.4 to +2.1 % since with the reactant trim's cut at
+#: 0.1 mol %, :mod:`controller.units.te.reactant_trim`). Stronger loops lower G's
+#: deviation further, but trip where the A in the reactor feed falls because the
+#: reaction slows (IDV(13) at mode 2: C runs out in the purge while the loop adds A,
+#: and the rise hold of :class:`TransitionGuards` comes too late): 12 %/mol % with
+#: Ti 1 h (matrix: IDV(8)
 #: at mode 0 0.543, IDV(20) at mode 2 0.624) tripped seed 17 at 10.0 h, with that
 #: tuning only below 2830 or 2840 kPa seeds 51, 60, 73; 24 with Ti 2 h tripped the
 #: matrix's seed 3 at 44.9 h (``fixed`` as well). A_FEED_LOOP's own tuning at a

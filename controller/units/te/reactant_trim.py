@@ -182,9 +182,8 @@ class ReactantTrimSettings:
         steady; no cut starts within them (0: the first steady sample alone). The
         analyzer's noise on A and C in the reactor feed (0.25 mol % each, Downs &
         Vogel) is larger than the deadband: taken from one sample, the reference let a
-        cut start within minutes of a controller's start, and on IDV(8) through 1 -> 3
-        and 2 -> 3 (seed 1) that cut of under 0.1 % before the request tipped a run
-        that passes near the interlocks into a trip (see the module docstring).
+        cut start within minutes of a controller's start (the trip it caused: the
+        module docstring, "Method").
     """
 
     d_limit: float = 93.0
