@@ -213,6 +213,7 @@ from controller.units.te.pi_baseline import (
     VelocityPI,
 )
 from controller.units.te.plan_lookup import SampleReferences
+from controller.units.te.pressure_gain import SteadyPressureGain, SteadyPressureGainSettings
 from controller.units.te.production_index import ProductionIndex, ProductionIndexSettings
 from controller.units.te.reactant_trim import ReactantTrim, ReactantTrimSettings
 from controller.units.te.settings_check import (
@@ -962,6 +963,10 @@ class TEController:
     floating_pressure : FloatingPressureSettings, optional
         P_r* following a rising pressure while C is in excess in the recycle gas
         (:mod:`controller.units.te.floating_pressure`).
+    pressure_gain : SteadyPressureGainSettings, optional
+        MPC strategies: the reactor-pressure loop's gain raised at a steady grade
+        through the set point written (:mod:`controller.units.te.pressure_gain`);
+        None (default): the plant side's gain throughout.
     """
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
@@ -978,7 +983,8 @@ class TEController:
                  production_condenser_loop: bool = False,
                  condenser_disturbance_loop: bool = True,
                  composition: CompositionCoreSettings | None = None,
-                 leg_references: LegReferenceSettings | None = None) -> None:
+                 leg_references: LegReferenceSettings | None = None,
+                 pressure_gain: SteadyPressureGainSettings | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -996,6 +1002,11 @@ class TEController:
         self.production = ProductionIndex(production, self.sample_h)
         self.reactants = ReactantTrim(reactants, self.sample_h)
         self.level_sag = LevelSag(level_sag, self.sample_h)
+        #: MPC strategies: the pressure loop's gain raised at a steady grade through
+        #: its set point (:mod:`controller.units.te.pressure_gain`; None: off)
+        self.pressure_gain = (SteadyPressureGain(pressure_gain, self.sample_h)
+                              if pressure_gain is not None and strategy in MPC_STRATEGIES
+                              else None)
         self.floating_pressure = floating_pressure or FloatingPressureSettings()
         #: the floating pressure raised P_r* this sample (status)
         self.pressure_floats = False
@@ -1010,6 +1021,8 @@ class TEController:
         #: the E valve held to the new grade's while C is short (e_cap_c_fraction)
         self.e_cap_alarm = HeldAlarm(self.sample_h)
         self._pr_applied: float | None = None
+        #: a guard set P_r* this sample (the cap, the hold or the float)
+        self._pr_guarded = False
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
                        if strategy in MPC_STRATEGIES else None)
@@ -1437,7 +1450,8 @@ class TEController:
         else:
             self.pressure_hold_alarm.idle()
         self._pr_applied = p_r
-        if not (capped or held or self.pressure_floats):
+        self._pr_guarded = capped or held or self.pressure_floats
+        if not self._pr_guarded:
             return core_u
         core_u = np.array(core_u, dtype=float)
         core_u[2] = p_r
@@ -1736,7 +1750,13 @@ class TEController:
         if (self.production_condenser_loop is not None
                 or self.condenser_disturbance_loop is not None):
             self.condenser_balance.update(xm[21], xm[8], float(u[10]), xm[4])
-        setpoints = np.array([core_u[3], level_sp, yl[11], yl[14], core_u[2]])
+        pr_sp = float(core_u[2])
+        if self.pressure_gain is not None:
+            limit = float(self.targets.y_max[0]) if self.targets is not None else math.inf
+            pr_sp = self.pressure_gain.update(pr_sp, float(xm[6]), self._since,
+                                              held=self._pr_guarded or bool(self.outer_held),
+                                              limits=(PR_LIMITS[0], min(PR_LIMITS[1], limit)))
+        setpoints = np.array([core_u[3], level_sp, yl[11], yl[14], pr_sp])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy(),
                  "pressure_floats": self.pressure_floats}
         if self.composition is not None and self.composition.share is not None:
@@ -1764,25 +1784,46 @@ class TEController:
             t_next = self._t_last + self.sample_h
             self._refs_ahead = (t_next, self.plan, self._plan_refs(t_next), self.plan_lag_h)
 
-    def take_over(self) -> None:
+    def take_over(self, core_u=None):
         """Before the first sample after a take-over of a running plant (a restart from a
-        checkpoint): the velocity-form outer loops (the G loop on the D share, the A-feed,
-        production and condenser trims) forget their previous errors, which are those of the
-        checkpoint's sample; the first sample then adds no proportional kick from the
-        error's change over the outage (the PI baseline's ``align`` does the same). The
-        integral parts and the trims reached are kept."""
+        checkpoint, the operator's off): the velocity-form outer loops (the G loop on the D
+        share, the A-feed, production and condenser trims) forget their previous errors,
+        which are those of the checkpoint's sample; the first sample then adds no
+        proportional kick from the error's change over the outage (the PI baseline's
+        ``align`` does the same). The integral parts and the trims reached are kept.
+
+        ``core_u`` (5,), the core handles the plant holds: returned as the core's own, the
+        pressure set point less the steady grade's lead it was written with
+        (:meth:`SteadyPressureGain.take_over
+        <controller.units.te.pressure_gain.SteadyPressureGain.take_over>`); None: None."""
         self.e_g_prev = self._a.e_prev = self._p.e_prev = self._sep.e_prev = None
         self._pc.e_prev = self._cd.e_prev = None
         self._refs_ahead = None
+        if core_u is None:
+            return None
+        core_u = np.array(core_u, dtype=float)
+        if self.pressure_gain is not None and math.isfinite(core_u[2]):
+            core_u[2] = self.pressure_gain.take_over(float(core_u[2]))
+        return core_u
+
+    def hold_pressure_lead(self, held: bool) -> None:
+        """The operator holds P_r* (manual or off): no steady-grade lead on it
+        (:mod:`controller.units.te.pressure_gain`), its value is written as it is."""
+        if self.pressure_gain is not None:
+            self.pressure_gain.operator_held = bool(held)
 
     def applied(self, core_u) -> None:
         """The plant got the core handles ``core_u`` (5,) instead of the last move (a
         missed deadline): the core goes on from them (the MPC's shared state and last
         move, the PI baseline's velocity form). The other XMVs are positional (the
-        plan's values and the ratio's D share), nothing to correct."""
+        plan's values and the ratio's D share), nothing to correct. The pressure set
+        point goes to the core less the steady grade's lead it was written with."""
+        core_u = np.array(core_u, dtype=float)
+        if self.pressure_gain is not None and math.isfinite(core_u[2]):
+            core_u[2] = self.pressure_gain.applied(float(core_u[2]))
         applied = getattr(self.core, "applied", None)  # MultiModelController, VelocityPI
         if callable(applied):
-            applied(np.asarray(core_u, dtype=float))
+            applied(core_u)
 
     def checkpoint(self) -> dict[str, Any]:
         return {"s": self.s, "s_ff_prev": self.s_ff_prev, "e_g_prev": self.e_g_prev,
@@ -1808,6 +1849,8 @@ class TEController:
                 "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
                 "reactants": self.reactants.checkpoint(),
                 "level_sag": self.level_sag.checkpoint(),
+                "pressure_gain": (None if self.pressure_gain is None
+                                  else self.pressure_gain.checkpoint()),
                 "d_path": None if self.d_path is None else self.d_path.checkpoint(),
                 "composition": (None if self.composition is None else
                                 {"core": self.composition.checkpoint(),
@@ -1849,6 +1892,8 @@ class TEController:
         self.production.restore(state.get("production"))
         self.reactants.restore(state.get("reactants"))
         self.level_sag.restore(state.get("level_sag"))
+        if self.pressure_gain is not None:
+            self.pressure_gain.restore(state.get("pressure_gain"))
         if self.d_path is not None:
             self.d_path.restore(state.get("d_path"))
             if self.d_path.value is None and self.s_ff_prev is not None:
@@ -2100,6 +2145,11 @@ def _settings_or_default(name: str, value, default, cls):
 LEG_REFERENCES_MPC = LegReferenceSettings()
 
 
+#: The MPC strategies' pressure loop at a steady grade
+#: (:mod:`controller.units.te.pressure_gain`).
+PRESSURE_GAIN_MPC = SteadyPressureGainSettings()
+
+
 #: Wall-clock budget of one MPC step in real time, ms (the 36 s sample leaves far more;
 #: a step over it takes the previous plan, :class:`controller.mpc.MPCController`).
 REALTIME_BUDGET_MS = 50.0
@@ -2197,6 +2247,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        condenser_disturbance_loop: bool = True,
                        composition: CompositionCoreSettings | bool = True,
                        leg_references: LegReferenceSettings | bool = True,
+                       pressure_gain: SteadyPressureGainSettings | bool = True,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -2250,6 +2301,11 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         leg, faster than the plan's where that does not take from the product or add
         to the pressure (:mod:`controller.units.te.leg_references`): True (default,
         :data:`LEG_REFERENCES_MPC`), False (the plan's), or settings.
+    pressure_gain : bool or SteadyPressureGainSettings
+        MPC strategies: the reactor-pressure loop's gain raised at a steady grade
+        through its set point (:mod:`controller.units.te.pressure_gain`): True
+        (default, :data:`PRESSURE_GAIN_MPC`), False (the plant side's gain
+        throughout), or settings.
 
     Returns
     -------
@@ -2299,7 +2355,11 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        leg_references=(_settings_or_default("leg_references", leg_references,
                                                             LEG_REFERENCES_MPC,
                                                             LegReferenceSettings)
-                                       if mpc_core else None))
+                                       if mpc_core else None),
+                       pressure_gain=(_settings_or_default("pressure_gain", pressure_gain,
+                                                           PRESSURE_GAIN_MPC,
+                                                           SteadyPressureGainSettings)
+                                      if mpc_core else None))
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 

@@ -132,6 +132,10 @@ class TEOperatorLayer:
             if callable(hold):  # not in the decentralized baseline
                 hold(held)
             self._mpc_view = self._route_target_limits(view, cv_index)
+            lead = getattr(self.ctl, "hold_pressure_lead", None)
+            pr = self.core_idx[2]
+            if callable(lead) and pr is not None:  # P_r* held: written as the operator set it
+                lead(bool(view.mv_held[pr]))
         if self.mpc is not None:
             self.mpc.apply(self._mpc_view)
 

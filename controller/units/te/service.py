@@ -222,11 +222,15 @@ class TEServiceController:
         previous errors and the E/D ratio from the applied XMV 2 at the next sample."""
         self.u = np.asarray(u, dtype=float).copy()
         take_over = getattr(self.ctl, "take_over", None)
-        if callable(take_over):
-            take_over()
         idx = self._core_idx
-        if None not in idx:
-            align_multimodel(getattr(self.ctl, "core", None), self.u[idx])
+        core_u = None if None in idx else self.u[idx]
+        if callable(take_over):
+            # the core's own handles under the plant's (the pressure lead taken off)
+            own = take_over(core_u)
+            if own is not None:
+                core_u = own
+        if core_u is not None:
+            align_multimodel(getattr(self.ctl, "core", None), core_u)
         # the E/D ratio takes over from the plant too (a stale D share would kick the
         # first moves of XMV 2)
         if self._xmv2 is not None:
