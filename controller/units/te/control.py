@@ -1021,8 +1021,10 @@ class TEController:
         #: the E valve held to the new grade's while C is short (e_cap_c_fraction)
         self.e_cap_alarm = HeldAlarm(self.sample_h)
         self._pr_applied: float | None = None
-        #: a guard set P_r* this sample (the cap, the hold or the float)
-        self._pr_guarded = False
+        #: the hold set P_r* this sample (TransitionGuards.pressure_hold_c_fraction)
+        self._pr_held = False
+        #: the highest pressure set point to write this sample, kPa (the purge's floor)
+        self._pr_written_max = math.inf
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
                        if strategy in MPC_STRATEGIES else None)
@@ -1428,6 +1430,8 @@ class TEController:
             margin = 0.0  # the purge under its floor (a NaN flow or reference: no floor)
         # the cap is at or above the pressure and the floor below it: at most one acts
         cap = max(p + margin, PR_LIMITS[0])
+        # the purge under its floor: the set point written is capped too (no lead above)
+        self._pr_written_max = cap if margin == 0.0 and math.isfinite(cap) else math.inf
         capped = math.isfinite(p) and p_r > cap
         if capped:
             self._track_bound_h += self.sample_h
@@ -1450,8 +1454,8 @@ class TEController:
         else:
             self.pressure_hold_alarm.idle()
         self._pr_applied = p_r
-        self._pr_guarded = capped or held or self.pressure_floats
-        if not self._pr_guarded:
+        self._pr_held = held
+        if not (capped or held or self.pressure_floats):
             return core_u
         core_u = np.array(core_u, dtype=float)
         core_u[2] = p_r
@@ -1752,10 +1756,11 @@ class TEController:
             self.condenser_balance.update(xm[21], xm[8], float(u[10]), xm[4])
         pr_sp = float(core_u[2])
         if self.pressure_gain is not None:
-            limit = float(self.targets.y_max[0]) if self.targets is not None else math.inf
             pr_sp = self.pressure_gain.update(pr_sp, float(xm[6]), self._since,
-                                              held=self._pr_guarded or bool(self.outer_held),
-                                              limits=(PR_LIMITS[0], min(PR_LIMITS[1], limit)))
+                                              held=(self._pr_held or bool(self.outer_held)
+                                                    or math.isfinite(self._pr_written_max)),
+                                              limits=(PR_LIMITS[0],
+                                                      min(PR_LIMITS[1], self._pr_written_max)))
         setpoints = np.array([core_u[3], level_sp, yl[11], yl[14], pr_sp])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy(),
                  "pressure_floats": self.pressure_floats}
@@ -2145,8 +2150,8 @@ def _settings_or_default(name: str, value, default, cls):
 LEG_REFERENCES_MPC = LegReferenceSettings()
 
 
-#: The MPC strategies' pressure loop at a steady grade
-#: (:mod:`controller.units.te.pressure_gain`).
+#: The settings of the pressure loop's lead at a steady grade when it is switched on
+#: (:mod:`controller.units.te.pressure_gain`; off by default).
 PRESSURE_GAIN_MPC = SteadyPressureGainSettings()
 
 
@@ -2247,7 +2252,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        condenser_disturbance_loop: bool = True,
                        composition: CompositionCoreSettings | bool = True,
                        leg_references: LegReferenceSettings | bool = True,
-                       pressure_gain: SteadyPressureGainSettings | bool = True,
+                       pressure_gain: SteadyPressureGainSettings | bool = False,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -2303,9 +2308,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         :data:`LEG_REFERENCES_MPC`), False (the plan's), or settings.
     pressure_gain : bool or SteadyPressureGainSettings
         MPC strategies: the reactor-pressure loop's gain raised at a steady grade
-        through its set point (:mod:`controller.units.te.pressure_gain`): True
-        (default, :data:`PRESSURE_GAIN_MPC`), False (the plant side's gain
-        throughout), or settings.
+        through its set point (:mod:`controller.units.te.pressure_gain`): False
+        (default: the plant side's gain throughout; that module says why), True
+        (:data:`PRESSURE_GAIN_MPC`), or settings.
 
     Returns
     -------
