@@ -78,6 +78,19 @@ def test_a_move_of_the_cores_set_point_is_led_as_the_errors_move():
         assert lead.update(2800.0 - k, 2800.0, math.inf) == pytest.approx(2800.0 - 3 * k)
 
 
+def test_a_step_of_a_guards_rule_is_not_led():
+    # the purge's floor ending puts P_r* back a margin above the pressure: with the
+    # step marked the washout takes the new error as it is, and only later changes
+    # are led
+    lead = SteadyPressureGain(SteadyPressureGainSettings(**NO_WASHOUT), sample_h=0.01)
+    _run(lead, 100, 2790.0, 2790.0, math.inf)         # at the floor: P_r* = P
+    assert lead.update(2800.0, 2790.0, math.inf, stepped=True) == 2800.0
+    assert lead.update(2805.0, 2790.0, math.inf) == pytest.approx(2815.0)  # + 2 * 5
+    unmarked = SteadyPressureGain(SteadyPressureGainSettings(**NO_WASHOUT), sample_h=0.01)
+    _run(unmarked, 100, 2790.0, 2790.0, math.inf)
+    assert unmarked.update(2800.0, 2790.0, math.inf) == pytest.approx(2820.0)
+
+
 def test_before_after_h_the_set_point_is_the_cores():
     lead = SteadyPressureGain(SteadyPressureGainSettings(after_h=24.0, ramp_h=0.25,
                                                          **NO_WASHOUT), sample_h=0.01)

@@ -1025,6 +1025,10 @@ class TEController:
         self._pr_held = False
         #: the highest pressure set point to write this sample, kPa (the purge's floor)
         self._pr_written_max = math.inf
+        #: the hold, the float or the purge's floor set P_r* this sample; whether that
+        #: changed from the sample before
+        self._pr_rule = False
+        self._pr_stepped = False
         #: MPC strategies: the D share's own path through a grade change (None: the plan's)
         self.d_path = (DSharePath(d_share_path, self.sample_h, (ratio.s_min, ratio.s_max))
                        if strategy in MPC_STRATEGIES else None)
@@ -1425,13 +1429,15 @@ class TEController:
                 and self.targets.econ_lift > 0.0 \
                 and self._track_bound_h < g.purge_track_lift_h:
             margin = g.purge_track_lift_kpa
-        if g.purge_floor_fraction is not None and self._since >= g.purge_floor_after_h \
-                and float(xmeas[9]) < g.purge_floor_fraction * purge_ref:
+        under_floor = (g.purge_floor_fraction is not None
+                       and self._since >= g.purge_floor_after_h
+                       and float(xmeas[9]) < g.purge_floor_fraction * purge_ref)
+        if under_floor:
             margin = 0.0  # the purge under its floor (a NaN flow or reference: no floor)
         # the cap is at or above the pressure and the floor below it: at most one acts
         cap = max(p + margin, PR_LIMITS[0])
         # the purge under its floor: the set point written is capped too (no lead above)
-        self._pr_written_max = cap if margin == 0.0 and math.isfinite(cap) else math.inf
+        self._pr_written_max = cap if under_floor and math.isfinite(cap) else math.inf
         capped = math.isfinite(p) and p_r > cap
         if capped:
             self._track_bound_h += self.sample_h
@@ -1455,6 +1461,10 @@ class TEController:
             self.pressure_hold_alarm.idle()
         self._pr_applied = p_r
         self._pr_held = held
+        # a guard's own rule set P_r* from this sample or up to the last one: the step it
+        # makes at its start or end is not led (pressure_gain)
+        rule = bool(held or self.pressure_floats or under_floor)
+        self._pr_stepped, self._pr_rule = rule != self._pr_rule, rule
         if not (capped or held or self.pressure_floats):
             return core_u
         core_u = np.array(core_u, dtype=float)
@@ -1760,7 +1770,8 @@ class TEController:
                                               held=(self._pr_held or bool(self.outer_held)
                                                     or math.isfinite(self._pr_written_max)),
                                               limits=(PR_LIMITS[0],
-                                                      min(PR_LIMITS[1], self._pr_written_max)))
+                                                      min(PR_LIMITS[1], self._pr_written_max)),
+                                              stepped=self._pr_stepped)
         setpoints = np.array([core_u[3], level_sp, yl[11], yl[14], pr_sp])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy(),
                  "pressure_floats": self.pressure_floats}
@@ -1850,7 +1861,7 @@ class TEController:
                 "a_rise_alarm": self.a_rise_alarm.checkpoint(),
                 "pressure_hold_alarm": self.pressure_hold_alarm.checkpoint(),
                 "e_cap_alarm": self.e_cap_alarm.checkpoint(),
-                "pr_applied": self._pr_applied,
+                "pr_applied": self._pr_applied, "pr_rule": self._pr_rule,
                 "feeds": self.feeds.checkpoint(), "production": self.production.checkpoint(),
                 "reactants": self.reactants.checkpoint(),
                 "level_sag": self.level_sag.checkpoint(),
@@ -1884,6 +1895,7 @@ class TEController:
         self.a_rise_alarm.restore(state.get("a_rise_alarm"))
         self.pressure_hold_alarm.restore(state.get("pressure_hold_alarm"))
         self.e_cap_alarm.restore(state.get("e_cap_alarm"))
+        self._pr_rule = state.get("pr_rule") is True
         pr = state.get("pr_applied")  # absent or damaged: no hold until the next sample
         self._pr_applied = float(pr) if is_finite_number(pr) else None
         for trim, key in ((self._a, "a"), (self._p, "p"), (self._sep, "sep"), (self._pc, "pc"),
