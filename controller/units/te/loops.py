@@ -21,7 +21,9 @@ __all__ = ["INNER_LOOPS", "MODEL_LOOPS", "PRESSURE_LOOP", "PUBLISHED_TEMPERATURE
 #: writes in place of the purge valve (see :mod:`controller.units.te.control`, "Pressure").
 #: Measured at -0.45 %/kPa (``docs/te_matrix.md``, "the pressure loop three times as
 #: strong"): G's deviation lower under IDV 8, 17 and 20, 1 -> 0 slower (2.8 -> 5.1 h, the
-#: purge at 99 % while P_r* falls), the guards tuned on this gain; not taken yet.
+#: purge at 99 % while P_r* falls), the guards tuned on this gain; not taken. The same
+#: gain at a steady grade only, on the error's fast changes, from the controller's side
+#: through the set point: :mod:`controller.units.te.pressure_gain` (off by default).
 PRESSURE_LOOP = PILoop("reactor pressure", cv=7, mv=6, gain=-0.15, ti_h=0.5)
 
 #: The loops the core's models are linearized with (:mod:`controller.units.te.models`):
