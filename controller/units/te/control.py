@@ -1021,8 +1021,9 @@ class TEController:
         #: the E valve held to the new grade's while C is short (e_cap_c_fraction)
         self.e_cap_alarm = HeldAlarm(self.sample_h)
         self._pr_applied: float | None = None
-        #: the hold set P_r* this sample (TransitionGuards.pressure_hold_c_fraction)
-        self._pr_held = False
+        #: the hold (TransitionGuards.pressure_hold_c_fraction) or the purge's floor set
+        #: P_r* this sample: the steady grade's pressure lead ramps out
+        self._pr_lead_out = False
         #: the highest pressure set point to write this sample, kPa (the purge's floor)
         self._pr_written_max = math.inf
         #: the hold, the float or the purge's floor set P_r* this sample; whether that
@@ -1460,7 +1461,7 @@ class TEController:
         else:
             self.pressure_hold_alarm.idle()
         self._pr_applied = p_r
-        self._pr_held = held
+        self._pr_lead_out = bool(held or under_floor)
         # a guard's own rule set P_r* from this sample or up to the last one: the step it
         # makes at its start or end is not led (pressure_gain)
         rule = bool(held or self.pressure_floats or under_floor)
@@ -1767,8 +1768,7 @@ class TEController:
         pr_sp = float(core_u[2])
         if self.pressure_gain is not None:
             pr_sp = self.pressure_gain.update(pr_sp, float(xm[6]), self._since,
-                                              held=(self._pr_held or bool(self.outer_held)
-                                                    or math.isfinite(self._pr_written_max)),
+                                              held=self._pr_lead_out or bool(self.outer_held),
                                               limits=(PR_LIMITS[0],
                                                       min(PR_LIMITS[1], self._pr_written_max)),
                                               stepped=self._pr_stepped)
