@@ -322,13 +322,19 @@ def test_the_a_loop_may_still_lower_its_trim_under_the_hold():
 def test_a_kinetics_drift_at_mode_2_does_not_trip_on_the_a_loops_added_a():
     # IDV(13) at mode 2, seed 17: the A loop raised the A feed from 30 to 80 % over 3 h
     # while C in the purge fell 14.6 -> 2.2 mol %, and the plant tripped on reactor
-    # pressure at 9.3 h; with the rise held it runs on (48 h on seeds 1-80: no trip)
+    # pressure at 9.3 h; with the rise held it runs on (48 h on seeds 1-80: no trip).
+    # The case as it was has the steady grade's pressure lead off
+    # (controller/units/te/pressure_gain.py): with it the free rise does not
+    # trip either (peak 2903.5 kPa); the product, with both, runs on
     runs = {}
+    kw_run = dict(noise=True, seed=17, plant_seed=plant_seed_for(17), idv={13: 2.0})
     for name, kw in (("held", {}), ("free", {"a_rise_hold_kpa": None})):
         guards = TransitionGuards(**{**GUARDS_MPC.__dict__, **kw})
-        runs[name] = run_te("ssmpc", TransitionPlan("mode2"), 10.0, noise=True, seed=17,
-                            plant_seed=plant_seed_for(17), idv={13: 2.0}, guards=guards)
+        runs[name] = run_te("ssmpc", TransitionPlan("mode2"), 10.0, guards=guards,
+                            pressure_gain=False, **kw_run)
     assert runs["free"].shutdown is not None  # the case as it was
+    product = run_te("ssmpc", TransitionPlan("mode2"), 10.0, **kw_run)
+    assert product.shutdown is None, product.shutdown
     held = runs["held"]
     assert held.shutdown is None, held.shutdown
     assert held.xmeas[:, 6].max() < 2950.0
@@ -470,11 +476,17 @@ def test_a_grade_change_waits_while_the_a_feed_is_lost(start, to, off, hours):
     # with the purge at 100 % and the pressure reached the interlock (12.2 h). 1 -> 3 with
     # the plan held but P_r* following the pressure up from its dip: C without A gathered
     # with the purge shut (11.9 h). Both guards: the plan waits at the old grade, the purge
-    # takes what does not react
+    # takes what does not react. The case as it was has the steady grade's pressure lead
+    # off (controller/units/te/pressure_gain.py): in force until the change at 1 h, it
+    # carries 1 -> 3 through without the guard too (measured); the guards hold it with the
+    # lead off
     plan = TransitionPlan(f"mode{start}", (Leg(1.0, f"mode{to}"),))
     kw = dict(noise=True, seed=1, plant_seed=plant_seed_for(1), idv={6: 0.5})
-    without = run_te("ssmpc", plan, hours, guards=dataclasses.replace(GUARDS_MPC, **off), **kw)
+    without = run_te("ssmpc", plan, hours, guards=dataclasses.replace(GUARDS_MPC, **off),
+                     pressure_gain=False, **kw)
     assert without.shutdown is not None  # the case as it was
+    guarded = run_te("ssmpc", plan, hours, pressure_gain=False, **kw)
+    assert guarded.shutdown is None, guarded.shutdown
     r = run_te("ssmpc", plan, hours, **kw)
     assert r.shutdown is None, r.shutdown
     assert any("A feed lost: grade plan held" in a for a in r.alarms)

@@ -74,8 +74,11 @@ def test_an_mv_in_manual_holds_exactly_and_the_other_handles_take_up_the_work():
     tr = mvs.index("reactor_temperature_sp")
     value = float(held.run.u[tr]) + 1.5  # 1.5 degC above the base case's 120.4
     held.command("reactor_temperature_sp", mode="manual", value=value)
-    for lp in (base, held):
-        lp.samples(150)
+    base.samples(150)
+    core_pr = []  # the core's own P_r*, before the steady grade's pressure lead, kPa
+    for _ in range(150):
+        held.samples(1)
+        core_pr.append(float(held.op.inner.ctl.core.u_last[2]))
     w = np.array(held.written[50:])
     assert np.all(w[:, tr] == value)  # held exactly, every sample
     # the MPC planned the A feed (XMV 3) and A+C feed (XMV 4) around the held set point:
@@ -85,13 +88,16 @@ def test_an_mv_in_manual_holds_exactly_and_the_other_handles_take_up_the_work():
         j = mvs.index(name)
         assert abs(w[-50:, j].mean() - wb[-50:, j].mean()) > least, name
     y = np.array([held.run.y()])
-    # the CVs still near their references: the reactor pressure within 20 kPa of the
-    # pressure set point the MPC writes (its targets lower it with the hotter reactor:
-    # measured 2642 against 2715 kPa, the separator loop opening the condenser) and
-    # below its alarm limit, within 100 kPa of the base case; the reactor temperature
-    # at the held set point
-    pr_sp = float(w[-1, mvs.index("reactor_pressure_sp")])
-    assert abs(y[0, 6] - pr_sp) < 20.0 and y[0, 6] < PRESSURE_ALARM_KPA
+    # the CVs still near their references: over the last half hour the reactor pressure
+    # stands under the MPC's own P_r* by less than 25 kPa on the mean and never above it
+    # by more than 5 (with the hotter reactor the targets first lower P_r*, the separator
+    # loop opening the condenser, then their economics lift it, the tracking cap letting
+    # it 40 kPa above the pressure: measured 18.7 kPa under on the mean, 0-38 kPa; 10 on
+    # the mean without the steady grade's pressure lead); below its alarm limit, within
+    # 100 kPa of the base case; the reactor temperature at the held set point
+    gap = np.array(core_pr[-50:]) - np.array(held.pressure[-50:])
+    assert 0.0 < gap.mean() < 25.0 and gap.min() > -5.0
+    assert y[0, 6] < PRESSURE_ALARM_KPA
     assert abs(y[0, 6] - BASE_PRESSURE_KPA) < 100.0
     assert abs(y[0, 8] - value) < 0.5
     # auto again: the move goes on from the held value (bumpless)

@@ -141,11 +141,16 @@ def test_a_take_over_continues_from_the_set_point_the_plant_holds():
     assert lead.update(2790.0, 2780.0, math.inf) == 2790.0
 
 
-def test_off_by_default_and_for_the_mpc_strategies_only():
+def test_on_by_default_for_the_mpc_strategies_only():
     for strategy, on in (("ssmpc", True), ("fixed", True), ("pi", False), ("plan", False)):
         ctl, _ = make_te_controller(strategy, realtime=False)
+        assert (ctl.pressure_gain is not None) is on, strategy
+        if on:
+            assert ctl.pressure_gain.settings == SteadyPressureGainSettings()
+        ctl, _ = make_te_controller(strategy, realtime=False, pressure_gain=False)
         assert ctl.pressure_gain is None, strategy
-        ctl, _ = make_te_controller(strategy, realtime=False, pressure_gain=True)
+        ctl, _ = make_te_controller(strategy, realtime=False,
+                                    pressure_gain=SteadyPressureGainSettings(factor=2.0))
         assert (ctl.pressure_gain is not None) is on, strategy
     with pytest.raises(ValueError, match="pressure_gain"):
         make_te_controller("ssmpc", realtime=False, pressure_gain=3.0)

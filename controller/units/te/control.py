@@ -2162,8 +2162,8 @@ def _settings_or_default(name: str, value, default, cls):
 LEG_REFERENCES_MPC = LegReferenceSettings()
 
 
-#: The settings of the pressure loop's lead at a steady grade when it is switched on
-#: (:mod:`controller.units.te.pressure_gain`; off by default).
+#: The settings of the MPC strategies' pressure-loop lead at a steady grade
+#: (:mod:`controller.units.te.pressure_gain`).
 PRESSURE_GAIN_MPC = SteadyPressureGainSettings()
 
 
@@ -2264,7 +2264,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        condenser_disturbance_loop: bool = True,
                        composition: CompositionCoreSettings | bool = True,
                        leg_references: LegReferenceSettings | bool = True,
-                       pressure_gain: SteadyPressureGainSettings | bool = False,
+                       pressure_gain: SteadyPressureGainSettings | bool = True,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -2320,9 +2320,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         :data:`LEG_REFERENCES_MPC`), False (the plan's), or settings.
     pressure_gain : bool or SteadyPressureGainSettings
         MPC strategies: the reactor-pressure loop's gain raised at a steady grade
-        through its set point (:mod:`controller.units.te.pressure_gain`): False
-        (default: the plant side's gain throughout; that module says why), True
-        (:data:`PRESSURE_GAIN_MPC`), or settings.
+        through its set point (:mod:`controller.units.te.pressure_gain`): True
+        (default, :data:`PRESSURE_GAIN_MPC`), False (the plant side's gain
+        throughout), or settings.
 
     Returns
     -------

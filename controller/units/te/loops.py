@@ -23,7 +23,7 @@ __all__ = ["INNER_LOOPS", "MODEL_LOOPS", "PRESSURE_LOOP", "PUBLISHED_TEMPERATURE
 #: strong"): G's deviation lower under IDV 8, 17 and 20, 1 -> 0 slower (2.8 -> 5.1 h, the
 #: purge at 99 % while P_r* falls), the guards tuned on this gain; not taken. The same
 #: gain at a steady grade only, on the error's fast changes, from the controller's side
-#: through the set point: :mod:`controller.units.te.pressure_gain` (off by default).
+#: through the set point: :mod:`controller.units.te.pressure_gain` (on by default).
 PRESSURE_LOOP = PILoop("reactor pressure", cv=7, mv=6, gain=-0.15, ti_h=0.5)
 
 #: The loops the core's models are linearized with (:mod:`controller.units.te.models`):

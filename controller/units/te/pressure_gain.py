@@ -58,8 +58,8 @@ Method
     sample, so its proportional part lags the loop's by up to one sample. A
     non-finite pressure writes ``r`` unchanged (no lead) for that sample.
 
-Measured (switched on, ``make_te_controller(..., pressure_gain=True)``; ``ssmpc``, noise
-on, seeds 1-3, 48 h, onset 2 h; G standard deviation mol % and run-mean $/h)
+Measured (on, against off; ``ssmpc``, noise on, seeds 1-3, 48 h, onset 2 h; G standard
+deviation mol % and run-mean $/h)
     The acceptance matrix (``docs/campaigns/te_matrix.json``, 1110 runs, 8 min 12 s)
     with this module on: **57 of 60** disturbance cases (56 off), 0 trips of ``ssmpc``
     and ``fixed``; the 14 transitions' median times as off and their costs within 3 %
@@ -108,24 +108,22 @@ on, seeds 1-3, 48 h, onset 2 h; G standard deviation mol % and run-mean $/h)
     the controller's resume bumpless; the bench's controller step (``ssmpc bench
     te-closed-loop``) 0.195 / 0.404 ms median / p99 (0.195 / 0.412 off).
 
-Why off by default
-    Switched on, it changes what the product does at every steady grade: the
-    documents of the matrix, the settled costs and the reproduce tables are of the
-    product without it. And eight of the tests hold the product's behaviour without
-    it: six counterfactuals (the A-rise hold, the A-lost
-    guard, the old slack weights, the constraint window, the floating pressure, the A
-    loop's half action), whose trip or effect the lead removes or shrinks (each
-    measured to pass with it off), the stored moves (``tests/data/te_moves``), and
-    the operator's held-T_r* case. In that case (``tests/test_te_operator.py``) the
-    set point written over the half hour before 2 h stands 29 kPa from the pressure
-    on the mean and up to 74 kPa (10 and 10 off), against the test's 20 kPa: with
-    the lead the targets' economics lift P_r* there, and the tracking cap allows
+On by default, and what it moved
+    ``make_te_controller`` switches it on for the MPC strategies
+    (``pressure_gain=False`` takes it off). Six tests of the cascade's guards (the
+    A-rise hold, the A-lost guard, the old slack weights, the constraint window, the
+    floating pressure, the A loop's half action) show a trip or an effect that the
+    lead removes or shrinks by itself; they run with it off and say so with the
+    number measured with it. In the operator's held-T_r* case
+    (``tests/test_te_operator.py``) the set point written over the half hour before
+    2 h stands 29 kPa from the pressure on the mean and up to 74 kPa (10 and 10 off):
+    with the lead the targets' economics lift P_r* there and the tracking cap allows
     40 kPa above the pressure while they do (``TransitionGuards.purge_track_lift_kpa``;
-    the core's P_r* 19 kPa above the pressure on the mean), where off they do not
-    and its 10 kPa holds; the lead itself adds 10.5 kPa on the mean. A lead on the
-    measurement instead of the error (no lead on the core's moves) closed the purge
-    under IDV(13) at modes 1 and 2 on 19 of 20 seeds: where the tracking cap holds
-    P_r* a margin above a falling pressure, every fall was led.
+    the core's P_r* 19 kPa above the pressure on the mean, 0-38 kPa), and the lead
+    adds 10.5 kPa on the mean. The test holds the pressure to the core's own P_r*. A
+    lead on the measurement instead of the error (no lead on the core's moves) closed
+    the purge under IDV(13) at modes 1 and 2 on 19 of 20 seeds: where the tracking
+    cap holds P_r* a margin above a falling pressure, every fall was led.
 """
 
 from __future__ import annotations
