@@ -6,6 +6,7 @@ otherwise."""
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -139,6 +140,36 @@ def test_a_held_cut_stands_and_a_restored_trim_goes_on():
     again = ReactantTrim(sample_h=0.01)
     again.restore(json.loads(json.dumps(trim.checkpoint())))
     assert _run(again, x, ym, 10) == _run(trim, x, ym, 10) < cut
+
+
+#: What a controller's start holds: no trim, no settled excess, the window empty.
+FRESH = {"trim": 0.0, "settled": None, "window_sum": 0.0, "window_n": 0}
+
+
+@pytest.mark.parametrize("damage", [
+    {"trim": "-1.2"}, {"trim": math.nan}, {"trim": 31.0}, {"trim": -6.5}, {"trim": True},
+    {"settled": "x"}, {"settled": math.inf}, {"window_sum": None}, {"window_n": -1},
+    {"window_n": 2.5}, {"window_n": False}, "not a checkpoint", [1, 2]])
+def test_a_damaged_checkpoint_starts_the_trim_again(damage):
+    # a cut in force with its settled excess: one field damaged (or the whole state not
+    # a mapping) and the trim starts again as a controller's start does, not half read
+    trim = _settled()
+    x, ym = _xmeas(60.0, -1.0)
+    assert _run(trim, x, ym, 50) < 0.0
+    state = ({**json.loads(json.dumps(trim.checkpoint())), **damage}
+             if isinstance(damage, dict) else damage)
+    again = ReactantTrim(sample_h=0.01)
+    again.restore(state)
+    assert again.checkpoint() == FRESH and not again.active
+    assert _run(again, x, ym, 10) == 0.0  # goes on: no cut within the settling hour
+
+
+def test_a_checkpoint_without_the_window_restores_the_trim():
+    # a checkpoint written before the settling window was kept (trim and settled only)
+    again = ReactantTrim(sample_h=0.01)
+    again.restore({"trim": -1.5, "settled": -1.0})
+    assert again.checkpoint() == {"trim": -1.5, "settled": -1.0, "window_sum": 0.0,
+                                  "window_n": 0}
 
 
 @pytest.mark.timeout(300)

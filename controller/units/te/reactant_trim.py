@@ -142,7 +142,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from controller.units.te.settings_check import check_finite_fields, check_range
+from controller.units.te.settings_check import check_finite_fields, check_range, is_finite_number
 from controller.units.te.spec import D_FULL_KG_H
 
 __all__ = ["ReactantTrimSettings", "ReactantTrim"]
@@ -290,8 +290,25 @@ class ReactantTrim:
                 "window_sum": self._window_sum, "window_n": self._window_n}
 
     def restore(self, state: dict[str, Any] | None) -> None:
-        self.trim = float((state or {}).get("trim", 0.0))
-        settled = (state or {}).get("settled")
+        """Go on from :meth:`checkpoint`'s ``state`` (None: start again). The four
+        fields are taken together: one of them damaged (not a finite number, the trim
+        beyond its limits, a negative or fractional count) starts the trim again with
+        no trim and the settling window empty, as a controller's start does, rather
+        than a cut or raise read half from the store."""
+        s = self.settings
+        st = state if isinstance(state, dict) else {}
+        trim = st.get("trim", 0.0)
+        settled = st.get("settled")
+        window_sum = st.get("window_sum", 0.0)
+        window_n = st.get("window_n", 0)
+        whole = (is_finite_number(trim) and -s.excess_max <= trim <= s.trim_max
+                 and (settled is None or is_finite_number(settled))
+                 and is_finite_number(window_sum)
+                 and is_finite_number(window_n) and window_n >= 0
+                 and float(window_n).is_integer())
+        if not whole:
+            trim, settled, window_sum, window_n = 0.0, None, 0.0, 0
+        self.trim = float(trim)
         self.settled = math.nan if settled is None else float(settled)
-        self._window_sum = float((state or {}).get("window_sum", 0.0))
-        self._window_n = int((state or {}).get("window_n", 0))
+        self._window_sum = float(window_sum)
+        self._window_n = int(window_n)
