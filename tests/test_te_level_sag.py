@@ -69,6 +69,10 @@ def test_the_offset_survives_a_restart():
     assert again.offset == 0.0
     again.restore(None)
     assert again.offset == 0.0
+    for bad in ("not a checkpoint", [-4.0]):  # not a mapping: starts as new
+        again.restore(json.loads(json.dumps(sag.checkpoint())))
+        again.restore(bad)
+        assert again.offset == 0.0
 
 
 def test_idv13_at_mode_2_on_seed_4_no_longer_trips():

@@ -114,7 +114,8 @@ def test_the_share_survives_a_restart_and_a_damaged_one_ramps_in_again():
     again = SteadyPressureGain(sample_h=0.01)
     again.restore(json.loads(json.dumps(lead.checkpoint())))
     assert again.update(2800.0, 2790.0, math.inf) == lead.update(2800.0, 2790.0, math.inf)
-    for bad in ({"share": "x", "error_lag": "y"}, {"share": float("nan")}, None, {}):
+    for bad in ({"share": "x", "error_lag": "y"}, {"share": float("nan")}, None, {},
+                "not a checkpoint", [0.5]):
         damaged = SteadyPressureGain(sample_h=0.01)
         damaged.restore(bad)
         assert damaged.share == 0.0 and damaged.error_lag is None

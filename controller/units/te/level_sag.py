@@ -150,6 +150,6 @@ class LevelSag:
         return {"offset": self.offset}
 
     def restore(self, state: dict[str, Any] | None) -> None:
-        v = (state or {}).get("offset", 0.0)
+        v = (state if isinstance(state, dict) else {}).get("offset", 0.0)
         self.offset = min(float(v), 0.0) if isinstance(v, int | float) and math.isfinite(v) \
             else 0.0

@@ -294,8 +294,9 @@ class SteadyPressureGain:
                 "operator_held": self.operator_held, "error_lag": self.error_lag}
 
     def restore(self, state: dict[str, Any] | None) -> None:
-        """Restore a checkpoint; an absent or damaged field starts as new (no lead)."""
-        st = state or {}
+        """Restore a checkpoint; an absent or damaged field (or a state that is not a
+        mapping) starts as new (no lead)."""
+        st = state if isinstance(state, dict) else {}
 
         def num(key, lo=-math.inf, hi=math.inf):
             v = st.get(key, 0.0)
