@@ -345,8 +345,76 @@ class TransitionManager:
                 "queued": [q.as_dict() for q in self.queued]}
 
     def restore(self, state: dict) -> None:
-        self.grade = state.get("grade")
-        self.hold = np.asarray(state["hold"], dtype=float)
+        """Take :meth:`checkpoint`'s state back, checked whole before any of it is used.
+
+        Raises
+        ------
+        ValueError
+            An entry does not fit this unit: the grade is not one of its grades, the
+            held set points are not ``ny`` finite numbers, or a transition's record is
+            damaged (:meth:`_checked`). The controller node refuses such a checkpoint.
+        """
+        grade = state.get("grade")
+        if grade is not None and grade not in self.grades:
+            raise ValueError(f"transitions: unknown grade {grade!r}")
+        hold = _finite_vector(state["hold"], self.hold.size, "transitions: hold")
         active = state.get("active")
-        self.active = None if active is None else Transition.from_dict(active)
-        self.queued = [Transition.from_dict(q) for q in state.get("queued", [])]
+        active = None if active is None else self._checked(active)
+        queued = state.get("queued", [])
+        if not isinstance(queued, list):
+            raise ValueError("transitions: queued: expected a list")
+        queued = [self._checked(q) for q in queued]
+        self.grade, self.hold, self.active, self.queued = grade, hold, active, queued
+
+    def _checked(self, d) -> Transition:
+        """A transition's record from a checkpoint, ``ValueError`` naming what is damaged:
+        its state, grade, target and start (``ny`` finite numbers; the start empty while
+        pending), its duration (finite, > 0), its times and counts."""
+        if not isinstance(d, dict):
+            raise ValueError("transitions: a transition is not a mapping")
+        tr = Transition.from_dict(d)  # TypeError: a field missing
+        ny = self.hold.size
+        where = f"transitions: {tr.id!r}"
+        if tr.state not in STATES:
+            raise ValueError(f"{where}: unknown state {tr.state!r}")
+        if tr.grade not in self.grades:
+            raise ValueError(f"{where}: unknown grade {tr.grade!r}")
+        if tr.from_grade is not None and tr.from_grade not in self.grades:
+            raise ValueError(f"{where}: unknown from_grade {tr.from_grade!r}")
+        tr.target = _finite_vector(tr.target, ny, f"{where}: target").tolist()
+        if tr.state != "pending" or tr.start_ref:
+            tr.start_ref = _finite_vector(tr.start_ref, ny, f"{where}: start_ref").tolist()
+        if not (_number(tr.duration_s) and tr.duration_s > 0):
+            raise ValueError(f"{where}: duration_s must be a positive number")
+        for name in ("requested_t", "ise", "progress"):
+            if not _number(getattr(tr, name)):
+                raise ValueError(f"{where}: {name} must be a finite number")
+        for name in ("started_t", "ended_t"):
+            v = getattr(tr, name)
+            if v is not None and not _number(v):
+                raise ValueError(f"{where}: {name} must be a finite number or null")
+        if tr.state == "running" and tr.started_t is None:
+            raise ValueError(f"{where}: running without started_t")
+        for name in ("in_band_samples", "samples"):
+            v = getattr(tr, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ValueError(f"{where}: {name} must be a whole number >= 0")
+        if not isinstance(tr.id, str) or not isinstance(tr.detail, str):
+            raise ValueError(f"{where}: id and detail must be text")
+        if tr.idempotency is not None and not isinstance(tr.idempotency, dict):
+            raise ValueError(f"{where}: idempotency must be a mapping or null")
+        return tr
+
+
+def _number(v) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _finite_vector(v, n: int, name: str) -> np.ndarray:
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: expected {n} finite numbers")
+    return a

@@ -347,3 +347,48 @@ def test_an_unwritable_shared_memory_index_is_refused_at_start(tmp_path):
     assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
     assert proc.stderr.startswith("error: ") and "cannot be written" in proc.stderr
     assert "Traceback" not in proc.stderr and "ready" not in proc.stdout
+
+
+def _checkpoint_state(path):
+    db = sqlite3.connect(str(path))
+    try:
+        return json.loads(db.execute("SELECT state FROM checkpoint").fetchone()[0])
+    finally:
+        db.close()
+
+
+def _write_checkpoint_state(path, state):
+    db = sqlite3.connect(str(path))
+    try:
+        db.execute("UPDATE checkpoint SET state=?", (json.dumps(state),))
+        db.commit()
+    finally:
+        db.close()
+
+
+#: A checkpoint that decodes but whose entries have the wrong shape: a string or a list
+#: where the node or a piece of the controller reads a mapping, a mapping where it reads
+#: a number or a sequence.
+WRONG_SHAPES = [("transitions", "x"), ("controller", "x"), ("controller", [1, 2]),
+                ("operator", "x"), ("operator", [1]), ("kpis", "x"), ("kpis", [1, 2]),
+                ("recent_steps", {"a": 1}), ("mv_seq", {"a": 1}), ("u_last", {"a": 1})]
+
+
+def test_a_checkpoint_with_entries_of_the_wrong_shape_is_refused_at_start(tmp_path):
+    """Each entry replaced in turn by a value of another JSON type: the controller
+    refuses the checkpoint with an ``error:`` naming it (exit 2), never a traceback and
+    never a start from part of it."""
+    h = Harness(tmp_path, telemetry=False)
+    h.wait_samples(3)
+    h.close()
+    good = _checkpoint_state(h.store_path)
+    target = tmp_path / "ssmpc-cstr.sqlite"
+    h.store_path.rename(target)
+    for key, value in WRONG_SHAPES:
+        state = json.loads(json.dumps(good))
+        state[key] = value
+        _write_checkpoint_state(target, state)
+        proc = _controller(tmp_path)
+        assert proc.returncode == 2, (key, value, proc.stderr[-2000:])
+        assert proc.stderr.startswith("error: ") and "checkpoint" in proc.stderr, (key, value)
+        assert "Traceback" not in proc.stderr, (key, value)

@@ -87,9 +87,13 @@ class PIBaseline:
                 "e_prev": None if self.e_prev is None else self.e_prev.tolist()}
 
     def restore(self, state: dict[str, Any]) -> None:
-        self.u = np.asarray(state["u"], dtype=float)
+        """Take the last move and error back; ``ValueError`` when the move is not
+        ``nu`` finite numbers or the error (if any) not ``ny`` (the node refuses such a
+        checkpoint)."""
+        u = _finite_vector(state["u"], self.nu, "u")
         e = state.get("e_prev")
-        self.e_prev = None if e is None else np.asarray(e, dtype=float)
+        self.e_prev = None if e is None else _finite_vector(e, self.ny, "e_prev")
+        self.u = u
 
 
 def build_pi(cfg: UnitConfig, plant, u0, grades) -> PIBaseline:
@@ -139,4 +143,17 @@ class HoldController:
         return {"u": self.u.tolist()}
 
     def restore(self, state: dict[str, Any]) -> None:
-        self.u = np.asarray(state["u"], dtype=float)
+        """Take the held move back; ``ValueError`` when it is not as many finite
+        numbers as the move in force."""
+        self.u = _finite_vector(state["u"], self.u.size, "u")
+
+
+def _finite_vector(v, n: int, name: str) -> np.ndarray:
+    """``v`` as ``n`` finite floats, else ``ValueError`` naming it."""
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: expected {n} finite numbers")
+    return a

@@ -122,9 +122,15 @@ from services.transitions import (
     UnknownTransition,
 )
 
-__all__ = ["ControllerNode", "FailureLog"]
+__all__ = ["CHECKPOINT_MISFIT", "ControllerNode", "FailureLog"]
 
 log = logging.getLogger("ssmpc.controller")
+
+#: What a controller's ``restore`` raises for a checkpoint entry that does not fit: a key
+#: missing, a value of the wrong type or shape (``AttributeError``: a mapping's method
+#: asked of an entry that is not one). The node refuses such a checkpoint with a
+#: :class:`~services.store.StoreError`.
+CHECKPOINT_MISFIT = (KeyError, TypeError, ValueError, IndexError, AttributeError)
 
 
 def _qp_work(extra: dict) -> dict:
@@ -476,7 +482,7 @@ class ControllerNode:
                     self.operated.operator_restore(st["operator"])
                 if st.get("kpis") is not None:  # older checkpoints: counted from now on
                     self.kpis.restore(st["kpis"])
-            except (KeyError, TypeError, ValueError, IndexError) as exc:
+            except CHECKPOINT_MISFIT as exc:
                 raise StoreError(f"store: {self.store.path}: the checkpoint does not fit "
                                  f"this controller ({type(exc).__name__}: {exc}); move the "
                                  "store aside to start afresh") from None

@@ -1874,7 +1874,16 @@ class TEController:
                                  "sum": self._comp_sum, "n": self._comp_n})}
 
     def restore(self, state: dict[str, Any]) -> None:
-        self.s, self.s_ff_prev, self.e_g_prev = state["s"], state["s_ff_prev"], state["e_g_prev"]
+        # The share in force and the feedforward it was last moved with go together: a
+        # damaged one (not a finite number, the share outside the ratio's range) starts
+        # the ratio afresh from the plan's feedforward at the next sample, as at start-up.
+        s, s_ff = state["s"], state["s_ff_prev"]
+        if is_finite_number(s) and is_finite_number(s_ff) \
+                and self.ratio.s_min <= s <= self.ratio.s_max:
+            self.s, self.s_ff_prev = float(s), float(s_ff)
+        else:
+            self.s = self.s_ff_prev = None
+        self.e_g_prev = _previous_error(state["e_g_prev"])
         if self.core is not None:
             self.core.restore(state["core"])
         if self.targets is not None and state.get("targets") is not None:
@@ -1901,7 +1910,7 @@ class TEController:
         for trim, key in ((self._a, "a"), (self._p, "p"), (self._sep, "sep"), (self._pc, "pc"),
                           (self._cd, "cd")):
             trim.value = float(state.get(f"{key}_trim", 0.0))
-            trim.e_prev = state.get(f"e_{key}_prev")
+            trim.e_prev = _previous_error(state.get(f"e_{key}_prev"))
         mean = state.get("pc_mean")  # absent or damaged: the next measurement starts it
         self._pc_mean.reset((float(mean),) if is_finite_number(mean) else None)
         self.condenser_balance.restore(state.get("condenser_balance"))
@@ -1926,6 +1935,13 @@ class TEController:
                 and 0 <= left < self._comp_every else 0
             ok = is_finite_number(total) and is_finite_number(n) and n >= 0
             self._comp_sum, self._comp_n = (float(total), int(n)) if ok else (0.0, 0)
+
+
+def _previous_error(e) -> float | None:
+    """A loop's previous error read back from a checkpoint: a finite number, or None
+    (damaged or absent) for a loop that takes its next error without a kick, as after
+    start-up."""
+    return float(e) if is_finite_number(e) else None
 
 
 def _core_limits():

@@ -59,7 +59,11 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from controller.units.te.settings_check import check_finite_fields, check_range
+from controller.units.te.settings_check import (
+    check_finite_fields,
+    check_range,
+    is_finite_number,
+)
 
 __all__ = ["FeedOverrideSettings", "FeedOverrides", "A_FULL_KSCMH", "AC_FULL_KSCMH"]
 
@@ -195,10 +199,24 @@ class FeedOverrides:
                 "last": None if self._last is None else list(self._last)}
 
     def restore(self, state: dict[str, Any] | None) -> None:
-        state = state or {}
-        self.a_lost = bool(state.get("a_lost", False))
-        self.ac_short = bool(state.get("ac_short", False))
-        self.r_a = state.get("r_a")
-        self.r_ac = state.get("r_ac")
+        """Take the feeds' states back. A damaged entry starts that part afresh, as at
+        start-up: a flag that is not ``true`` is off, a share that is not a finite
+        positive number is formed again from the next sample, and valves that are not
+        two finite numbers wait for the next sample's."""
+        state = state if isinstance(state, dict) else {}
+        self.a_lost = state.get("a_lost") is True
+        self.ac_short = state.get("ac_short") is True
+        self.r_a = _share_back(state.get("r_a"))
+        self.r_ac = _share_back(state.get("r_ac"))
         last = state.get("last")
-        self._last = None if last is None else (float(last[0]), float(last[1]))
+        ok = isinstance(last, list | tuple) and len(last) == 2 and all(
+            is_finite_number(v) for v in last)
+        self._last = (float(last[0]), float(last[1])) if ok else None
+        if self.r_a is None:  # a lost feed is judged on its share
+            self.a_lost = False
+        if self.r_ac is None:
+            self.ac_short = False
+
+
+def _share_back(v) -> float | None:
+    return float(v) if is_finite_number(v) and v > 0.0 else None

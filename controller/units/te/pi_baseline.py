@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from controller.units.te.settings_check import is_finite_number
+
 __all__ = ["PILoopSpec", "PI_BASELINE_LOOPS", "PRODUCTION_LOOP", "VelocityPI"]
 
 
@@ -117,6 +119,7 @@ class VelocityPI:
         ff = np.asarray(ff, dtype=float)
         if self.u is None:
             self.u = ff.copy()
+        if self.ff_prev is None:  # after start(): no feedforward move on the first sample
             self.ff_prev = ff.copy()
         u = self.u + (ff - self.ff_prev)
         self.ff_prev = ff.copy()
@@ -148,6 +151,36 @@ class VelocityPI:
                 "e_prev": [None if not math.isfinite(v) else v for v in self.e_prev]}
 
     def restore(self, state: dict[str, Any]) -> None:
-        self.u = None if state["u"] is None else np.asarray(state["u"], dtype=float)
-        self.ff_prev = None if state["ff_prev"] is None else np.asarray(state["ff_prev"], float)
-        self.e_prev = np.array([np.nan if v is None else v for v in state["e_prev"]])
+        """Take the outputs, the feedforward and the loops' previous errors back.
+
+        Raises
+        ------
+        ValueError
+            When the outputs and the feedforward are not both absent or both finite
+            vectors of the outputs' length, or the errors are not one finite number or
+            None per loop: the outputs are this controller's state, so a damaged one
+            refuses the checkpoint rather than start from a guess.
+        """
+        n = self.u_min.size
+        u, ff = state["u"], state["ff_prev"]
+        if (u is None) != (ff is None):
+            raise ValueError("PI baseline: outputs and feedforward go together")
+        if u is not None:
+            u, ff = _finite_vector(u, n, "outputs"), _finite_vector(ff, n, "feedforward")
+        e = state["e_prev"]
+        if not isinstance(e, list) or len(e) != len(self.loops) or not all(
+                v is None or is_finite_number(v) for v in e):
+            raise ValueError(f"PI baseline: expected {len(self.loops)} previous errors "
+                             "(finite numbers or None)")
+        self.u, self.ff_prev = u, ff
+        self.e_prev = np.array([np.nan if v is None else float(v) for v in e])
+
+
+def _finite_vector(v, n: int, name: str) -> np.ndarray:
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"PI baseline: {name}: expected {n} finite numbers")
+    return a
