@@ -2,9 +2,13 @@
 stderr and exit 2, never a traceback, and nothing started.
 
 An invalid or unknown-field Zenoh config, an empty ``SSMPC_API_TOKEN`` (it would
-silently switch the write check off) and a bind beyond loopback without a token.
+silently switch the write check off), a bind beyond loopback without a token, and a
+unit configuration file with a value of the wrong JSON type in any field (and, for
+every unit, each field checked in-process before any node starts).
 """
 
+import dataclasses
+import json
 import os
 import subprocess
 import sys
@@ -110,3 +114,50 @@ def test_a_loopback_bind_needs_no_token(host):
     env = {k: v for k, v in os.environ.items() if k != "SSMPC_API_TOKEN"}
     line, err = _serve_on_a_free_port(host, env)
     assert line.startswith("ready api"), err or line
+
+
+#: Values of each JSON type but the field's own (a name list, a number, text, ...).
+WRONG_TYPES = ("x", ["a", 1], {"a": 1}, None, True, 5, -1.5, [])
+
+
+def _unit_fields(unit):
+    from services.registry import get_unit
+
+    return json.loads(json.dumps(dataclasses.asdict(get_unit(unit))))
+
+
+@pytest.mark.parametrize("unit", ["cstr", "bioreactor", "two_phase_reactor", "te"])
+def test_every_unit_config_field_of_the_wrong_type_is_a_value_error(unit):
+    """A field of a unit configuration file given a value of another JSON type: the
+    configuration is refused with a ``ValueError`` naming the field (the commands' clear
+    ``error:``), or it is taken and the unit's plant, grades and controller build from
+    it; never another exception."""
+    from controller.units.config import UnitConfig
+    from services.registry import build_controller, build_plant, grade_setpoints
+
+    good = _unit_fields(unit)
+    failures, refused = [], 0
+    for name in good:
+        for value in WRONG_TYPES:
+            data = {**good, name: value}
+            try:
+                cfg = UnitConfig.from_dict(data)
+                plant = build_plant(cfg)
+                grade_setpoints(cfg, plant)
+                build_controller(cfg, plant)
+            except ValueError:
+                refused += 1
+            except Exception as exc:
+                failures.append((name, value, repr(exc)))
+    assert not failures, failures[:10]
+    assert refused >= len(good)  # every field refuses at least one wrong type
+
+
+@pytest.mark.parametrize("field, value", [("budget_fraction", "x"), ("cvs", 5),
+                                          ("initial_grade", "mode9"), ("cv_scales", ["a"])])
+def test_a_unit_config_file_with_a_wrong_value_is_an_error(tmp_path, field, value):
+    conf = tmp_path / "te.json"
+    conf.write_text(json.dumps({field: value}))
+    proc = _run(["controller", "--unit", "te", "--unit-config", str(conf), "--state-dir",
+                 str(tmp_path), "--no-telemetry", "--duration", "5"])
+    _is_config_error(proc, field)

@@ -137,6 +137,7 @@ class UnitConfig:
 
     def __post_init__(self) -> None:
         check_unit_name(self.unit)
+        _check_types(self)
         from plant_sim import PLANTS
 
         if self.plant not in PLANTS:
@@ -184,6 +185,37 @@ class UnitConfig:
         if base is None:
             return cls(**d)
         return replace(base, **d)
+
+_TEXT_FIELDS = ("plant", "initial_grade", "controller", "strategy", "description")
+_NAME_LIST_FIELDS = ("cvs", "mvs", "track")
+_NUMBER_FIELDS = ("sample_period_s", "budget_fraction", "transition_duration_s",
+                  "settle_tolerance", "pi_gain", "pi_integral_time_s", "plausible_factor")
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _check_types(cfg: UnitConfig) -> None:
+    """``ValueError`` naming the first field of a JSON type the field cannot hold (a
+    unit configuration file is read as it is written): text, a list of names, a number,
+    a list of numbers. The values themselves are checked after this."""
+    for name in _TEXT_FIELDS:
+        v = getattr(cfg, name)
+        if not isinstance(v, str):
+            raise ValueError(f"{name}: expected text, got {v!r}")
+    for name in _NAME_LIST_FIELDS:
+        v = getattr(cfg, name)
+        if not isinstance(v, list | tuple) or not all(isinstance(n, str) for n in v):
+            raise ValueError(f"{name}: expected a list of names, got {v!r}")
+    for name in _NUMBER_FIELDS:
+        v = getattr(cfg, name)
+        if not _is_number(v):
+            raise ValueError(f"{name}: expected a number, got {v!r}")
+    v = cfg.cv_scales
+    if not isinstance(v, list | tuple) or not all(_is_number(x) for x in v):
+        raise ValueError(f"cv_scales: expected a list of numbers, got {v!r}")
+
 
 # -- plant side ---------------------------------------------------------------------------
 def build_plant(cfg: UnitConfig):

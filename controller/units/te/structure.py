@@ -96,6 +96,12 @@ def check_config(cfg) -> None:
                                  f"{', '.join(sorted(sps))}")
     if cfg.strategy not in TE_STRATEGIES:
         raise ValueError(f"strategy: expected one of {TE_STRATEGIES}, got {cfg.strategy!r}")
+    from plant_sim.tennessee_eastman.modes import MODES, grade_name
+
+    grades = [grade_name(m) for m in MODES]
+    if cfg.initial_grade not in grades:
+        raise ValueError(f"initial_grade: unknown TE grade {cfg.initial_grade!r}; known: "
+                         f"{', '.join(grades)}")
     n = cfg.sample_period_s / TE_EULER_STEP_S
     if abs(n - round(n)) > 1e-9 or round(n) < 1:
         raise ValueError(f"sample_period_s: must be a multiple of the TE Euler step "
