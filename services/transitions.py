@@ -352,22 +352,23 @@ class TransitionManager:
         ValueError
             An entry does not fit this unit: the grade is not one of its grades, the
             held set points are not ``ny`` finite numbers, or a transition's record is
-            damaged (:meth:`_checked`). The controller node refuses such a checkpoint.
+            damaged (:meth:`checked_record`). The controller node refuses such a checkpoint.
         """
         grade = state.get("grade")
         if grade is not None and grade not in self.grades:
             raise ValueError(f"transitions: unknown grade {grade!r}")
         hold = _finite_vector(state["hold"], self.hold.size, "transitions: hold")
         active = state.get("active")
-        active = None if active is None else self._checked(active)
+        active = None if active is None else self.checked_record(active)
         queued = state.get("queued", [])
         if not isinstance(queued, list):
             raise ValueError("transitions: queued: expected a list")
-        queued = [self._checked(q) for q in queued]
+        queued = [self.checked_record(q) for q in queued]
         self.grade, self.hold, self.active, self.queued = grade, hold, active, queued
 
-    def _checked(self, d) -> Transition:
-        """A transition's record from a checkpoint, ``ValueError`` naming what is damaged:
+    def checked_record(self, d) -> Transition:
+        """A transition's record read back (a checkpoint's, the store's) as a
+        :class:`Transition` of this unit; ``ValueError`` naming what is damaged:
         its state, grade, target and start (``ny`` finite numbers; the start empty while
         pending), its duration (finite, > 0), its times and counts."""
         if not isinstance(d, dict):

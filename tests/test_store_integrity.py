@@ -392,3 +392,26 @@ def test_a_checkpoint_with_entries_of_the_wrong_shape_is_refused_at_start(tmp_pa
         assert proc.returncode == 2, (key, value, proc.stderr[-2000:])
         assert proc.stderr.startswith("error: ") and "checkpoint" in proc.stderr, (key, value)
         assert "Traceback" not in proc.stderr, (key, value)
+
+
+@pytest.mark.parametrize("damage", [{"target": [5.0, 1.0]}, {"grade": "OPX"},
+                                    {"duration_s": "x"}])
+def test_a_pending_record_the_unit_cannot_run_is_refused_at_start(tmp_path, damage):
+    """A pending transition in the store but not in the checkpoint is queued again at
+    start; one whose record this unit cannot run (a target of the wrong length, an
+    unknown grade, a duration that is no number) refuses the start with ``error:``
+    naming the store, rather than failing every sample after it."""
+    h = Harness(tmp_path, telemetry=False)
+    h.wait_samples(3)
+    h.close()
+    target = tmp_path / "ssmpc-cstr.sqlite"
+    h.store_path.rename(target)
+    with UnitStore(target, "cstr") as store:
+        rec = {"id": "p1", "unit": "cstr", "grade": "OPII", "from_grade": "OPI",
+               "target": [5.0], "duration_s": 10.0, "requested_t": 0.0,
+               "state": "pending", **damage}
+        store.save_transition(rec, event="pending")
+    proc = _controller(tmp_path)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert proc.stderr.startswith("error: ") and "transition record" in proc.stderr
+    assert "Traceback" not in proc.stderr

@@ -494,14 +494,28 @@ class ControllerNode:
         self._reconcile()
 
     def _reconcile(self) -> None:
-        """Make the transitions in memory agree with the committed records."""
+        """Make the transitions in memory agree with the committed records.
+
+        A record this unit cannot run (:meth:`TransitionManager.checked_record
+        <services.transitions.TransitionManager.checked_record>`: a target of the wrong
+        length, an unknown grade, ...) refuses the start with a
+        :class:`~services.store.StoreError`, as a checkpoint that does not fit does.
+        """
+        try:
+            self._reconcile_records()
+        except CHECKPOINT_MISFIT as exc:
+            raise StoreError(f"store: {self.store.path}: a transition record does not fit "
+                             f"this controller ({type(exc).__name__}: {exc}); move the store "
+                             "aside to start afresh") from None
+
+    def _reconcile_records(self) -> None:
         tm = self.tm
         known = {tr.id for tr in ([tm.active] if tm.active is not None else []) + tm.queued}
         for tr in ([tm.active] if tm.active is not None else []) + list(tm.queued):
             rec = self.store.transition(tr.id)
             if rec is None or rec["state"] not in TERMINAL or tr.terminal:
                 continue
-            ended = Transition.from_dict(rec)
+            ended = tm.checked_record(rec)
             if tr is tm.active:
                 # hold the set points of the moment it ended (settled: its target)
                 t_end = ended.ended_t if ended.ended_t is not None else self.t
@@ -516,7 +530,7 @@ class ControllerNode:
         for rec in self.store.transitions():
             if rec["id"] in known or rec["state"] in TERMINAL:
                 continue
-            tr = Transition.from_dict(rec)
+            tr = tm.checked_record(rec)
             if rec["state"] == "pending":
                 tr.detail = "queued"
                 tm.queued.append(tr)  # acknowledged, never started: it runs
