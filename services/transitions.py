@@ -369,8 +369,8 @@ class TransitionManager:
     def checked_record(self, d) -> Transition:
         """A transition's record read back (a checkpoint's, the store's) as a
         :class:`Transition` of this unit; ``ValueError`` naming what is damaged:
-        its state, grade, target and start (``ny`` finite numbers; the start empty while
-        pending), its duration (finite, > 0), its times and counts."""
+        its state, grade, target and start (``ny`` finite numbers; the start empty until
+        it starts), its duration (finite, > 0), its times and counts."""
         if not isinstance(d, dict):
             raise ValueError("transitions: a transition is not a mapping")
         tr = Transition.from_dict(d)  # TypeError: a field missing
@@ -383,7 +383,9 @@ class TransitionManager:
         if tr.from_grade is not None and tr.from_grade not in self.grades:
             raise ValueError(f"{where}: unknown from_grade {tr.from_grade!r}")
         tr.target = _finite_vector(tr.target, ny, f"{where}: target").tolist()
-        if tr.state != "pending" or tr.start_ref:
+        # a transition that started has its start; one aborted or failed while it
+        # waited has none
+        if tr.started_t is not None or tr.state in ("running", "settled") or tr.start_ref:
             tr.start_ref = _finite_vector(tr.start_ref, ny, f"{where}: start_ref").tolist()
         if not (_number(tr.duration_s) and tr.duration_s > 0):
             raise ValueError(f"{where}: duration_s must be a positive number")

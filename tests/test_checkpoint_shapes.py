@@ -156,3 +156,29 @@ def test_a_damaged_transition_entry_is_refused_or_restores_transitions_that_run(
     refused, taken, failures = _fuzz(good, restore, use)
     assert not failures, failures[:10]
     assert refused > 0 and taken > 0
+
+
+@pytest.mark.parametrize("end", ["aborted while waiting", "failed while waiting",
+                                 "aborted", "settled"])
+def test_transitions_that_ended_restore_as_they_were(end):
+    """A checkpoint whose transition ended, before or after it started, restores as it
+    was written (the checks above refuse damaged records, not these)."""
+    tm = _transitions()
+    tr = tm.request("B", 0.0)
+    if end == "aborted while waiting":
+        tm.abort(tr.id, 0.5)
+    elif end == "failed while waiting":
+        tm.fail(0.5, "plant shut down")
+    else:
+        tm.update(0.0, [1.0, 2.0])
+        if end == "aborted":
+            tm.abort(tr.id, 1.0)
+        else:
+            for k in range(1, 40):
+                tm.update(float(k), [3.0, 1.0])
+    assert tm.active.state == end.split()[0]
+    state = _copy(tm.checkpoint())
+    again = _transitions()
+    again.restore(state)
+    assert again.checkpoint() == state
+    assert again.active.state == end.split()[0]
