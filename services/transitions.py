@@ -37,6 +37,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from controller.readback import finite_number, finite_vector
+
 __all__ = [
     "STATES",
     "TERMINAL",
@@ -357,7 +359,7 @@ class TransitionManager:
         grade = state.get("grade")
         if grade is not None and grade not in self.grades:
             raise ValueError(f"transitions: unknown grade {grade!r}")
-        hold = _finite_vector(state["hold"], self.hold.size, "transitions: hold")
+        hold = finite_vector(state["hold"], self.hold.size, "transitions: hold")
         active = state.get("active")
         active = None if active is None else self.checked_record(active)
         queued = state.get("queued", [])
@@ -382,19 +384,19 @@ class TransitionManager:
             raise ValueError(f"{where}: unknown grade {tr.grade!r}")
         if tr.from_grade is not None and tr.from_grade not in self.grades:
             raise ValueError(f"{where}: unknown from_grade {tr.from_grade!r}")
-        tr.target = _finite_vector(tr.target, ny, f"{where}: target").tolist()
+        tr.target = finite_vector(tr.target, ny, f"{where}: target").tolist()
         # a transition that started has its start; one aborted or failed while it
         # waited has none
         if tr.started_t is not None or tr.state in ("running", "settled") or tr.start_ref:
-            tr.start_ref = _finite_vector(tr.start_ref, ny, f"{where}: start_ref").tolist()
-        if not (_number(tr.duration_s) and tr.duration_s > 0):
+            tr.start_ref = finite_vector(tr.start_ref, ny, f"{where}: start_ref").tolist()
+        if not (finite_number(tr.duration_s) and tr.duration_s > 0):
             raise ValueError(f"{where}: duration_s must be a positive number")
         for name in ("requested_t", "ise", "progress"):
-            if not _number(getattr(tr, name)):
+            if not finite_number(getattr(tr, name)):
                 raise ValueError(f"{where}: {name} must be a finite number")
         for name in ("started_t", "ended_t"):
             v = getattr(tr, name)
-            if v is not None and not _number(v):
+            if v is not None and not finite_number(v):
                 raise ValueError(f"{where}: {name} must be a finite number or null")
         if tr.state == "running" and tr.started_t is None:
             raise ValueError(f"{where}: running without started_t")
@@ -407,17 +409,3 @@ class TransitionManager:
         if tr.idempotency is not None and not isinstance(tr.idempotency, dict):
             raise ValueError(f"{where}: idempotency must be a mapping or null")
         return tr
-
-
-def _number(v) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _finite_vector(v, n: int, name: str) -> np.ndarray:
-    try:
-        a = np.asarray(v, dtype=float)
-    except (TypeError, ValueError):
-        a = None
-    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{name}: expected {n} finite numbers")
-    return a

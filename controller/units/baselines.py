@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from controller.interfaces import ControlDecision
+from controller.readback import finite_vector
 from controller.units.config import UnitConfig, cv_indices, mv_indices
 
 __all__ = ["HoldController", "PIBaseline", "build_pi"]
@@ -90,9 +91,9 @@ class PIBaseline:
         """Take the last move and error back; ``ValueError`` when the move is not
         ``nu`` finite numbers or the error (if any) not ``ny`` (the node refuses such a
         checkpoint)."""
-        u = _finite_vector(state["u"], self.nu, "u")
+        u = finite_vector(state["u"], self.nu, "u")
         e = state.get("e_prev")
-        self.e_prev = None if e is None else _finite_vector(e, self.ny, "e_prev")
+        self.e_prev = None if e is None else finite_vector(e, self.ny, "e_prev")
         self.u = u
 
 
@@ -145,15 +146,4 @@ class HoldController:
     def restore(self, state: dict[str, Any]) -> None:
         """Take the held move back; ``ValueError`` when it is not as many finite
         numbers as the move in force."""
-        self.u = _finite_vector(state["u"], self.u.size, "u")
-
-
-def _finite_vector(v, n: int, name: str) -> np.ndarray:
-    """``v`` as ``n`` finite floats, else ``ValueError`` naming it."""
-    try:
-        a = np.asarray(v, dtype=float)
-    except (TypeError, ValueError):
-        a = None
-    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{name}: expected {n} finite numbers")
-    return a
+        self.u = finite_vector(state["u"], self.u.size, "u")

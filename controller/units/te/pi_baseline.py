@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.readback import finite_vector
 from controller.units.te.settings_check import is_finite_number
 
 __all__ = ["PILoopSpec", "PI_BASELINE_LOOPS", "PRODUCTION_LOOP", "VelocityPI"]
@@ -166,7 +167,8 @@ class VelocityPI:
         if (u is None) != (ff is None):
             raise ValueError("PI baseline: outputs and feedforward go together")
         if u is not None:
-            u, ff = _finite_vector(u, n, "outputs"), _finite_vector(ff, n, "feedforward")
+            u = finite_vector(u, n, "PI baseline: outputs")
+            ff = finite_vector(ff, n, "PI baseline: feedforward")
         e = state["e_prev"]
         if not isinstance(e, list) or len(e) != len(self.loops) or not all(
                 v is None or is_finite_number(v) for v in e):
@@ -174,13 +176,3 @@ class VelocityPI:
                              "(finite numbers or None)")
         self.u, self.ff_prev = u, ff
         self.e_prev = np.array([np.nan if v is None else float(v) for v in e])
-
-
-def _finite_vector(v, n: int, name: str) -> np.ndarray:
-    try:
-        a = np.asarray(v, dtype=float)
-    except (TypeError, ValueError):
-        a = None
-    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"PI baseline: {name}: expected {n} finite numbers")
-    return a
