@@ -245,6 +245,17 @@ def test_a_run_identity_changes_with_the_mpc_leg_references(monkeypatch):
     assert before and not before & after
 
 
+def test_a_run_identity_changes_with_the_reactor_feed_balance(monkeypatch):
+    """Switched on (or retuned), the feed balance makes other runs."""
+    import dataclasses
+
+    import controller.units.te.control as control
+
+    changed = dataclasses.replace(control.FEED_BALANCE_MPC, gain=6.0)
+    before, after = _te_run_ids_with(monkeypatch, control, "FEED_BALANCE_MPC", changed)
+    assert before and not before & after
+
+
 # -- the campaign on Dask ---------------------------------------------------------------------
 def test_local_cluster_gives_the_metrics_of_the_runs_made_one_by_one(local_campaign,
                                                                      serial_rows):

@@ -194,6 +194,7 @@ from controller.units.te.composition_core import (
 from controller.units.te.condenser_balance import CondenserBalance
 from controller.units.te.cost_gradient import cost_gradient
 from controller.units.te.d_share_path import DSharePath, DSharePathSettings
+from controller.units.te.feed_balance import ReactorFeedBalance, ReactorFeedBalanceSettings
 from controller.units.te.floating_pressure import (
     FloatingPressureSettings,
     floating_pressure_floor,
@@ -967,6 +968,10 @@ class TEController:
         MPC strategies: the reactor-pressure loop's gain raised at a steady grade
         through the set point written (:mod:`controller.units.te.pressure_gain`);
         None (default): the plant side's gain throughout.
+    feed_balance : ReactorFeedBalanceSettings, optional
+        MPC strategies: the A+C feed's target trimmed on A + C in the reactor feed's
+        fast changes at a steady grade (:mod:`controller.units.te.feed_balance`);
+        None (default): off.
     """
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
@@ -984,7 +989,8 @@ class TEController:
                  condenser_disturbance_loop: bool = True,
                  composition: CompositionCoreSettings | None = None,
                  leg_references: LegReferenceSettings | None = None,
-                 pressure_gain: SteadyPressureGainSettings | None = None) -> None:
+                 pressure_gain: SteadyPressureGainSettings | None = None,
+                 feed_balance: ReactorFeedBalanceSettings | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -1007,6 +1013,11 @@ class TEController:
         self.pressure_gain = (SteadyPressureGain(pressure_gain, self.sample_h)
                               if pressure_gain is not None and strategy in MPC_STRATEGIES
                               else None)
+        #: MPC strategies: the A+C feed's target on A + C in the reactor feed at a steady
+        #: grade (:mod:`controller.units.te.feed_balance`; None: off)
+        self.feed_balance = (ReactorFeedBalance(feed_balance, self.sample_h)
+                             if feed_balance is not None and strategy in MPC_STRATEGIES
+                             else None)
         self.floating_pressure = floating_pressure or FloatingPressureSettings()
         #: the floating pressure raised P_r* this sample (status)
         self.pressure_floats = False
@@ -1693,6 +1704,10 @@ class TEController:
                 target[0] = min(max(target[0] + self._a_trim_step(yl, xm), 0.0), 100.0)
             if self.production_loop is not None:
                 target[1] = min(max(target[1] + self._production_step(yl, xm), 0.0), 100.0)
+            if self.feed_balance is not None:
+                held = self.feeds.a_lost or self.production.active or bool(self.outer_held)
+                b_trim = self.feed_balance.update(xm, self._since, held=held)
+                target[1] = min(max(target[1] + b_trim, 0.0), 100.0)
             target[1] = self.production.ac_valve(target[1])
             c_trim = self.reactants.step(xm, yl, self._since,
                                          hold_cut=self.feeds.a_lost or self.production.active)
@@ -1868,6 +1883,8 @@ class TEController:
                 "pressure_gain": (None if self.pressure_gain is None
                                   else self.pressure_gain.checkpoint()),
                 "d_path": None if self.d_path is None else self.d_path.checkpoint(),
+                "feed_balance": (None if self.feed_balance is None
+                                 else self.feed_balance.checkpoint()),
                 "composition": (None if self.composition is None else
                                 {"core": self.composition.checkpoint(),
                                  "share": self._comp_share, "left": self._comp_left,
@@ -1920,6 +1937,8 @@ class TEController:
         self.level_sag.restore(state.get("level_sag"))
         if self.pressure_gain is not None:
             self.pressure_gain.restore(state.get("pressure_gain"))
+        if self.feed_balance is not None:
+            self.feed_balance.restore(state.get("feed_balance"))
         if self.d_path is not None:
             self.d_path.restore(state.get("d_path"))
             if self.d_path.value is None and self.s_ff_prev is not None:
@@ -2182,6 +2201,10 @@ LEG_REFERENCES_MPC = LegReferenceSettings()
 #: (:mod:`controller.units.te.pressure_gain`).
 PRESSURE_GAIN_MPC = SteadyPressureGainSettings()
 
+#: The settings of the MPC strategies' reactor-feed balance when it is switched on
+#: (:mod:`controller.units.te.feed_balance`; off by default).
+FEED_BALANCE_MPC = ReactorFeedBalanceSettings()
+
 
 #: Wall-clock budget of one MPC step in real time, ms (the 36 s sample leaves far more;
 #: a step over it takes the previous plan, :class:`controller.mpc.MPCController`).
@@ -2281,6 +2304,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        composition: CompositionCoreSettings | bool = True,
                        leg_references: LegReferenceSettings | bool = True,
                        pressure_gain: SteadyPressureGainSettings | bool = True,
+                       feed_balance: ReactorFeedBalanceSettings | bool = False,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -2339,6 +2363,10 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         through its set point (:mod:`controller.units.te.pressure_gain`): True
         (default, :data:`PRESSURE_GAIN_MPC`), False (the plant side's gain
         throughout), or settings.
+    feed_balance : bool or ReactorFeedBalanceSettings
+        MPC strategies: the A+C feed's target trimmed on A + C in the reactor feed's
+        fast changes at a steady grade (:mod:`controller.units.te.feed_balance`): False
+        (default, off), True (:data:`FEED_BALANCE_MPC`), or settings.
 
     Returns
     -------
@@ -2392,7 +2420,11 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        pressure_gain=(_settings_or_default("pressure_gain", pressure_gain,
                                                            PRESSURE_GAIN_MPC,
                                                            SteadyPressureGainSettings)
-                                      if mpc_core else None))
+                                      if mpc_core else None),
+                       feed_balance=(_settings_or_default("feed_balance", feed_balance,
+                                                          FEED_BALANCE_MPC,
+                                                          ReactorFeedBalanceSettings)
+                                     if mpc_core else None))
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 
