@@ -24,8 +24,8 @@ Method
     level). ``share`` rises from 0 to 1 over ``ramp_h`` from ``after_h`` after the last
     grade change (and in a run without one) and falls the same way while the A feed is
     lost or the production index lowers production (those guards set the A+C feed
-    then), so the trim never steps. A measurement that is not a finite number leaves
-    the lag and the trim where they were.
+    then) or the operator holds the outer loops, so the trim never steps. A measurement
+    that is not a finite number leaves the lag and the trim where they were.
 
 Measured (``ssmpc``, noise on, seeds 1-3, 48 h, onset 2 h; the acceptance matrix's cases
 run with ``ssmpc`` alone, the baselines from the matrix of ``docs/te_matrix.md``;
