@@ -20,7 +20,8 @@ __all__ = ["finite_number", "finite_vector"]
 
 
 def finite_number(v) -> bool:
-    """Whether ``v`` is a finite int or float (a bool is not a number here)."""
+    """Whether ``v`` is a finite int or float (a bool is not a number here); the TE
+    settings check it as :func:`controller.units.te.settings_check.is_finite_number`."""
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 

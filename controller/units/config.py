@@ -186,6 +186,7 @@ class UnitConfig:
             return cls(**d)
         return replace(base, **d)
 
+
 _TEXT_FIELDS = ("plant", "initial_grade", "controller", "strategy", "description")
 _NAME_LIST_FIELDS = ("cvs", "mvs", "track")
 _NUMBER_FIELDS = ("sample_period_s", "budget_fraction", "transition_duration_s",

@@ -184,8 +184,7 @@ class ReactorFeedBalance:
               and is_finite_number(trim) and abs(trim) <= self.settings.trim_max
               and (lag is None or is_finite_number(lag)))
         if ok:
-            self.share, self.lag, self.trim = float(share), lag, float(trim)
-            if lag is not None:
-                self.lag = float(lag)
+            self.share, self.trim = float(share), float(trim)
+            self.lag = None if lag is None else float(lag)
         else:
             self.share, self.lag, self.trim = 0.0, None, 0.0

@@ -31,8 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from controller.readback import finite_vector
-from controller.units.te.settings_check import is_finite_number
+from controller.readback import finite_number, finite_vector
 
 __all__ = ["PILoopSpec", "PI_BASELINE_LOOPS", "PRODUCTION_LOOP", "VelocityPI"]
 
@@ -171,7 +170,7 @@ class VelocityPI:
             ff = finite_vector(ff, n, "PI baseline: feedforward")
         e = state["e_prev"]
         if not isinstance(e, list) or len(e) != len(self.loops) or not all(
-                v is None or is_finite_number(v) for v in e):
+                v is None or finite_number(v) for v in e):
             raise ValueError(f"PI baseline: expected {len(self.loops)} previous errors "
                              "(finite numbers or None)")
         self.u, self.ff_prev = u, ff

@@ -13,9 +13,10 @@ fields' ranges in the notation the error message shows (``"(2000, 3000)"``, ``"[
 
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import fields
+
+from controller.readback import finite_number
 
 __all__ = ["check_finite_fields", "check_range", "is_finite_number"]
 
@@ -24,10 +25,9 @@ _INTERVAL = re.compile(rf"^([(\[])\s*({_NUM})\s*,\s*({_NUM})\s*([)\]])$")
 _BOUND = re.compile(rf"^(>=|>|<=|<)\s*({_NUM})$")
 
 
-def is_finite_number(v) -> bool:
-    """Whether ``v`` is a finite int or float (a bool is not a number here): the test
-    of a setting, and of a value read back from a checkpoint."""
-    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+#: Whether a value is a finite int or float (a bool is not a number here): the test of a
+#: setting, and of a value read back from a checkpoint (:func:`controller.readback.finite_number`).
+is_finite_number = finite_number
 
 
 def check_finite_fields(settings, label: str = "", optional=(), flags=(),
