@@ -713,6 +713,7 @@ class NormalizedLeastSquares:
             "n_skipped": self.n_skipped,
             "n_dead_zone": self.n_dead_zone,
             "reset_reasons": dict(self.reset_reasons),
+            "since_sym": self._since_sym,
         }
         if self._Pd is not None:
             out["P"] = pack_array(self._Pd)
@@ -738,11 +739,18 @@ class NormalizedLeastSquares:
                 raise ValueError("state.V: non-finite covariance")
             self._set_lowrank(c, V)
         self.p = p.copy()
-        self._since_sym = 0
+        since = state.get("since_sym", 0)
+        self._since_sym = since if isinstance(since, int) and 0 <= since < 64 else 0
+        stored = state.get("lower")
+        stored = float(stored) if isinstance(stored, int | float) else -math.inf
         if self._Pd is None or p.size <= self.settings.exact_check_max_params:
-            self._lower = self.smallest_eigenvalue()  # never trust a stored bound when cheap
+            # never trust a stored bound when the exact value is cheap, but keep one
+            # that is valid (at most the exact value): the floor checks, and the resets
+            # they lead to, then fall on the same samples as without the restart
+            exact = self.smallest_eigenvalue()
+            self._lower = min(stored, exact) if math.isfinite(stored) else exact
         else:
-            self._lower = float(state.get("lower", -math.inf))
+            self._lower = stored
         self.n_updates = int(state.get("n_updates", 0))
         self.n_resets = int(state.get("n_resets", 0))
         self.n_skipped = int(state.get("n_skipped", 0))

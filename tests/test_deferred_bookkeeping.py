@@ -59,14 +59,18 @@ def test_checkpoint_commits_a_pending_step():
 def _te_moves(finish: bool, n: int = 160):
     from test_te_control_mpc import apply_decision
 
-    from controller.units.te.control import make_te_controller
+    from controller.units.te.control import TEMPCOptions, make_te_controller
     from controller.units.te.grades import Leg, TransitionPlan
     from plant_sim.tennessee_eastman import TESimulator
     from plant_sim.tennessee_eastman.regulatory import RegulatoryLayer
 
+    # the adaptive gain of 10 1/h (the product's is 1): its Θ moves enough within the
+    # run for the law to refresh the adaptive model's form several times
     ctl, spec = make_te_controller("ssmpc", TransitionPlan("mode0", (Leg(0.2, "mode2"),)),
-                                   realtime=False)  # no wall-clock budget: a loaded machine
-    # would take the fallback move and the moves would differ by timing, not by design
+                                   realtime=False,  # no wall-clock budget: a loaded machine
+                                   # would take the fallback move and the moves would
+                                   # differ by timing, not by design
+                                   mpc=TEMPCOptions(nls_gain=10.0))
     sim = TESimulator()
     reg = RegulatoryLayer(sim, loops=spec.loops)
     law = ctl.core.law

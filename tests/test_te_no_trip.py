@@ -12,6 +12,7 @@ import pytest
 
 from controller.units.te.control import (
     GUARDS_MPC,
+    TEMPCOptions,
     TransitionGuards,
     make_te_controller,
     plant_seed_for,
@@ -324,14 +325,15 @@ def test_a_kinetics_drift_at_mode_2_does_not_trip_on_the_a_loops_added_a():
     # while C in the purge fell 14.6 -> 2.2 mol %, and the plant tripped on reactor
     # pressure at 9.3 h; with the rise held it runs on (48 h on seeds 1-80: no trip).
     # The case as it was has the steady grade's pressure lead off
-    # (controller/units/te/pressure_gain.py): with it the free rise does not
-    # trip either (peak 2903.5 kPa); the product, with both, runs on
+    # (controller/units/te/pressure_gain.py) and the adaptive model's gain of then, 10
+    # 1/h (TEMPCOptions.nls_gain): with either as now the free rise does not trip
+    # either (with the lead: peak 2903.5 kPa); the product runs on
     runs = {}
     kw_run = dict(noise=True, seed=17, plant_seed=plant_seed_for(17), idv={13: 2.0})
     for name, kw in (("held", {}), ("free", {"a_rise_hold_kpa": None})):
         guards = TransitionGuards(**{**GUARDS_MPC.__dict__, **kw})
         runs[name] = run_te("ssmpc", TransitionPlan("mode2"), 10.0, guards=guards,
-                            pressure_gain=False, **kw_run)
+                            pressure_gain=False, mpc=TEMPCOptions(nls_gain=10.0), **kw_run)
     assert runs["free"].shutdown is not None  # the case as it was
     product = run_te("ssmpc", TransitionPlan("mode2"), 10.0, **kw_run)
     assert product.shutdown is None, product.shutdown
