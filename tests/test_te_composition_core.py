@@ -187,9 +187,9 @@ def test_a_restored_controller_goes_on_with_the_core_move_for_move():
     again, _ = make_te_controller("ssmpc", plan)
     again.restore(state)
     t1 = 130 * ctl.sample_h
-    # the same moves to round-off: the restored core's QP starts without the original's
-    # warm start, which leaves the last bits of a solution (1e-16 in the share; bit for
-    # bit while the adaptive model's form was rebuilt every sample, at its gain of 10)
+    # the same moves to round-off (1e-16 in the share; bit for bit while the adaptive
+    # model's form was rebuilt every sample, at its gain of 10): the checkpoint holds
+    # the law's plan and forms but, most likely the cause, not its QP's warm start
     assert run(again, t1, 60) == pytest.approx(run(ctl, t1, 60), rel=1e-12, abs=1e-12)
     # the baselines have none
     assert make_te_controller("pi", plan)[0].composition_settings is None
