@@ -121,8 +121,13 @@ from controller.nls_kernel import (
     nls_step,
 )
 from controller.packing import pack_array, unpack_array
+from controller.readback import finite_number
 
 __all__ = ["AdaptiveKind", "NLSSettings", "NLSStep", "NormalizedLeastSquares"]
+
+#: Dense covariance steps between two symmetrizations ``P <- (P + P')/2``, which keep
+#: round-off from making P unsymmetric (the count is part of a checkpoint).
+SYMMETRIZE_EVERY = 64
 
 
 class AdaptiveKind(enum.Enum):
@@ -623,7 +628,7 @@ class NormalizedLeastSquares:
                 return "nonfinite"
             self._Pd -= dP
             self._since_sym += 1
-            if self._since_sym >= 64:  # keep round-off from making P unsymmetric
+            if self._since_sym >= SYMMETRIZE_EVERY:
                 self._Pd += self._Pd.T
                 self._Pd *= 0.5
                 self._since_sym = 0
@@ -740,17 +745,16 @@ class NormalizedLeastSquares:
             self._set_lowrank(c, V)
         self.p = p.copy()
         since = state.get("since_sym", 0)
-        self._since_sym = since if isinstance(since, int) and 0 <= since < 64 else 0
-        stored = state.get("lower")
-        stored = float(stored) if isinstance(stored, int | float) else -math.inf
+        self._since_sym = since if type(since) is int and 0 <= since < SYMMETRIZE_EVERY else 0
+        stored = float(state["lower"]) if finite_number(state.get("lower")) else None
         if self._Pd is None or p.size <= self.settings.exact_check_max_params:
             # never trust a stored bound when the exact value is cheap, but keep one
             # that is valid (at most the exact value): the floor checks, and the resets
             # they lead to, then fall on the same samples as without the restart
             exact = self.smallest_eigenvalue()
-            self._lower = min(stored, exact) if math.isfinite(stored) else exact
+            self._lower = exact if stored is None else min(stored, exact)
         else:
-            self._lower = stored
+            self._lower = -math.inf if stored is None else stored
         self.n_updates = int(state.get("n_updates", 0))
         self.n_resets = int(state.get("n_resets", 0))
         self.n_skipped = int(state.get("n_skipped", 0))
