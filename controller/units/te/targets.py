@@ -63,6 +63,10 @@ The fixed models' steady states are computed once; the adaptive model's again wh
 its parameters changed and :attr:`CoreTargetSettings.refresh_samples` samples have
 passed (one linear solve of the shared state's order), after the previous sample's
 move (:meth:`CoreTargets.prepare`) when the TE controller's bookkeeping runs there.
+The checkpoint keeps the steady states that stand inside their refresh interval, so a
+restored controller uses the running one's numbers until the refresh is due (computed
+afresh from the restored parameters, the slow offset stood 1e-4 apart after a restart
+in a grade change, ``tests/test_te_targets.py``).
 A model whose steady state is not finite (a singular ``A``) gives no targets: the
 plan's values are used and the decision says so (``extra["targets"]["status"] == "plan"``).
 
@@ -105,6 +109,7 @@ from operator import is_not
 import numpy as np
 
 from controller.finite_kernel import all_finite
+from controller.readback import finite_vector
 from controller.target_solver import TargetSolver, _cost
 from controller.targets import VIOLATION_TOL, TargetProblem, TargetResult
 from controller.units.te.targets_kernel import (
@@ -285,6 +290,27 @@ def model_steady_state(ssm, j: int) -> tuple[np.ndarray, np.ndarray] | None:
     if not (all_finite(G) and all_finite(a)):
         return None
     return G, a
+
+
+def _standing_steady_state(entry, refresh_samples: int):
+    """``(model, age, (G, a) or None)`` of a checkpoint's standing steady state, or None
+    when the entry is damaged (not a mapping, a model or age that is not a count, an
+    age beyond the refresh interval, ``G`` not 5 x 5 finite numbers or ``a`` not 5)."""
+    if not isinstance(entry, dict):
+        return None
+    j, age = entry.get("model"), entry.get("age")
+    if not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in (j, age)) \
+            or age >= refresh_samples:
+        return None
+    gain, bias = entry.get("gain"), entry.get("bias")
+    if gain is None and bias is None:
+        return j, age, None
+    try:
+        G = finite_vector(np.ravel(np.asarray(gain, dtype=float)), 25, "gain").reshape(5, 5)
+        a = finite_vector(bias, 5, "bias")
+    except (TypeError, ValueError):
+        return None
+    return j, age, (G, a)
 
 
 class CoreTargets:
@@ -666,9 +692,21 @@ class CoreTargets:
             self._solver.check(**fields)  # raises, naming the field
 
     def checkpoint(self) -> dict:
-        """What a restart needs to go on (JSON-serialisable)."""
+        """What a restart needs to go on (JSON-serialisable). Besides the filters, the
+        steady states that stand inside their refresh interval (``steady``: model, age
+        in samples, ``G`` and ``a``; the adaptive model's, computed from parameters
+        that have moved since), so that a restored controller uses the very numbers the
+        running one would until their refresh is due."""
+        steady = []
+        for j, (_, made, ss) in sorted(self._steady.items()):
+            age = self._n - made
+            if age < self.settings.refresh_samples:
+                steady.append({"model": int(j), "age": int(age),
+                               "gain": None if ss is None else ss[0].tolist(),
+                               "bias": None if ss is None else ss[1].tolist()})
         return {"offset": None if self.offset is None else self.offset.tolist(),
-                "du_lagged": self.du_lagged.tolist(), "econ_lift": float(self.econ_lift)}
+                "du_lagged": self.du_lagged.tolist(), "econ_lift": float(self.econ_lift),
+                "steady": steady}
 
     def restore(self, state: dict) -> None:
         off = state.get("offset")
@@ -678,3 +716,12 @@ class CoreTargets:
         # the gradient the lift prices comes with the next sample (solve)
         lift = float(state.get("econ_lift", 0.0) or 0.0)
         self.econ_lift = lift if math.isfinite(lift) and lift > 0.0 else 0.0
+        # the standing steady states; one absent or damaged is computed again from the
+        # restored model's parameters at the next sample (a checkpoint without them)
+        self._steady, self._n, self._ahead = {}, 0, None
+        entries = state.get("steady")
+        for e in entries if isinstance(entries, list) else ():
+            kept = _standing_steady_state(e, self.settings.refresh_samples)
+            if kept is not None:
+                j, age, ss = kept
+                self._steady[j] = (None, -age, ss)  # no parameters: refreshed when due
