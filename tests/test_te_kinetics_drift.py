@@ -5,8 +5,10 @@ linearized at, the case the seed's adaptive model is for. With its normalized le
 squares at 10 1/h the adaptive model followed the drift sample by sample and the MPC's
 moves followed its parameters: on plant seed 17 at mode 2 G's standard deviation in the
 product was 1.83 mol % with ``ssmpc`` against 0.57 with ``fixed``
-(``docs/te_kinetics_drift.md``). At the product's gain the two are equal there, and
-the adaptive model is still the one the index runs on.
+(``docs/te_kinetics_drift.md``); with the reactor level's set point now waiting for the
+level on its way back (``controller.units.te.level_sag``), 0.74 against 0.56. At the
+product's gain the two are equal there, and the adaptive model is still the one the
+index runs on.
 """
 
 from __future__ import annotations
@@ -43,7 +45,9 @@ def test_the_adaptive_model_holds_g_as_steadily_as_the_fixed_models_under_the_dr
 
 
 def test_the_fast_adaptation_it_replaces_did_not():
-    """The same run with the adaptive gain of before: the test above can fail."""
+    """The same run with the adaptive gain of before: the test above can fail (measured
+    0.74 against 0.56 mol %; 1.83 against 0.57 before the level's set point waited for
+    the level, the guard that takes most of the difference)."""
     _, g_fixed = _drift_run("fixed")
     _, g_fast = _drift_run("ssmpc", 10.0)
-    assert g_fast > g_fixed + 0.5, (g_fast, g_fixed)
+    assert g_fast > g_fixed + 0.1, (g_fast, g_fixed)

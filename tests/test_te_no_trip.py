@@ -19,6 +19,7 @@ from controller.units.te.control import (
     run_te,
 )
 from controller.units.te.grades import Leg, TransitionPlan, grade
+from controller.units.te.level_sag import LevelSagSettings
 from controller.units.te.reactant_trim import ReactantTrimSettings
 
 INTERLOCK_KPA = 3000.0
@@ -325,15 +326,18 @@ def test_a_kinetics_drift_at_mode_2_does_not_trip_on_the_a_loops_added_a():
     # while C in the purge fell 14.6 -> 2.2 mol %, and the plant tripped on reactor
     # pressure at 9.3 h; with the rise held it runs on (48 h on seeds 1-80: no trip).
     # The case as it was has the steady grade's pressure lead off
-    # (controller/units/te/pressure_gain.py) and the adaptive model's gain of then, 10
-    # 1/h (TEMPCOptions.nls_gain): with either as now the free rise does not trip
-    # either (with the lead: peak 2903.5 kPa); the product runs on
+    # (controller/units/te/pressure_gain.py), the adaptive model's gain of then, 10
+    # 1/h (TEMPCOptions.nls_gain), and the level's set point returning at its rate
+    # without waiting for the level (controller/units/te/level_sag.py): with any of
+    # them as now the free rise does not trip either (with the lead: peak 2903.5 kPa);
+    # the product runs on
     runs = {}
     kw_run = dict(noise=True, seed=17, plant_seed=plant_seed_for(17), idv={13: 2.0})
     for name, kw in (("held", {}), ("free", {"a_rise_hold_kpa": None})):
         guards = TransitionGuards(**{**GUARDS_MPC.__dict__, **kw})
         runs[name] = run_te("ssmpc", TransitionPlan("mode2"), 10.0, guards=guards,
-                            pressure_gain=False, mpc=TEMPCOptions(nls_gain=10.0), **kw_run)
+                            pressure_gain=False, mpc=TEMPCOptions(nls_gain=10.0),
+                            level_sag=LevelSagSettings(return_lead_pct=50.0), **kw_run)
     assert runs["free"].shutdown is not None  # the case as it was
     product = run_te("ssmpc", TransitionPlan("mode2"), 10.0, **kw_run)
     assert product.shutdown is None, product.shutdown
