@@ -121,7 +121,7 @@ from controller.nls_kernel import (
     nls_step,
 )
 from controller.packing import pack_array, unpack_array
-from controller.readback import finite_number
+from controller.readback import count_below, finite_number
 
 __all__ = ["AdaptiveKind", "NLSSettings", "NLSStep", "NormalizedLeastSquares"]
 
@@ -745,7 +745,7 @@ class NormalizedLeastSquares:
             self._set_lowrank(c, V)
         self.p = p.copy()
         since = state.get("since_sym", 0)
-        self._since_sym = since if type(since) is int and 0 <= since < SYMMETRIZE_EVERY else 0
+        self._since_sym = since if count_below(since, SYMMETRIZE_EVERY) else 0
         stored = float(state["lower"]) if finite_number(state.get("lower")) else None
         if self._Pd is None or p.size <= self.settings.exact_check_max_params:
             # never trust a stored bound when the exact value is cheap, but keep one

@@ -16,13 +16,19 @@ import math
 
 import numpy as np
 
-__all__ = ["finite_number", "finite_vector"]
+__all__ = ["count_below", "finite_number", "finite_vector"]
 
 
 def finite_number(v) -> bool:
     """Whether ``v`` is a finite int or float (a bool is not a number here); the TE
     settings check it as :func:`controller.units.te.settings_check.is_finite_number`."""
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def count_below(v, stop: float = math.inf) -> bool:
+    """Whether ``v`` is a count below ``stop``: an int (a bool is not one here) with
+    ``0 <= v < stop``."""
+    return isinstance(v, int) and not isinstance(v, bool) and 0 <= v < stop
 
 
 def finite_vector(v, n: int, name: str) -> np.ndarray:

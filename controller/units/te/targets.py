@@ -109,7 +109,7 @@ from operator import is_not
 import numpy as np
 
 from controller.finite_kernel import all_finite
-from controller.readback import finite_vector
+from controller.readback import count_below, finite_vector
 from controller.target_solver import TargetSolver, _cost
 from controller.targets import VIOLATION_TOL, TargetProblem, TargetResult
 from controller.units.te.targets_kernel import (
@@ -299,8 +299,7 @@ def _standing_steady_state(entry, refresh_samples: int):
     if not isinstance(entry, dict):
         return None
     j, age = entry.get("model"), entry.get("age")
-    if not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in (j, age)) \
-            or age >= refresh_samples:
+    if not (count_below(j) and count_below(age, refresh_samples)):
         return None
     gain, bias = entry.get("gain"), entry.get("bias")
     if gain is None and bias is None:
