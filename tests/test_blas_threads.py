@@ -14,6 +14,8 @@ from threadpoolctl import threadpool_limits
 from controller.blas import blas_threads
 from controller.interfaces import ControlDecision
 
+pytestmark = pytest.mark.realtime
+
 
 @pytest.fixture
 def two_blas_threads():

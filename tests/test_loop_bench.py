@@ -8,6 +8,8 @@ import pytest
 
 from services.cli import main
 
+pytestmark = pytest.mark.realtime
+
 
 def test_bench_loop_jitter_and_speed_rungs(capsys):
     # a slow unit at a low speed: one rung, real nodes over Zenoh, jitter before and after

@@ -20,7 +20,7 @@ from services.registry import get_unit
 from services.store import UnitStore
 from services.telemetry import TelemetryLogger
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(120)]
+pytestmark = [pytest.mark.realtime, pytest.mark.integration, pytest.mark.timeout(120)]
 
 LEASE_MS = 1000
 # The harness's default speed. A lock-step loop runs as fast as it goes, so the speed sets

@@ -17,7 +17,7 @@ from services.io import keys
 from services.io.messages import Reply, Request
 from services.registry import get_unit
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
+pytestmark = [pytest.mark.realtime, pytest.mark.integration, pytest.mark.timeout(180)]
 
 # Downs & Vogel interlock: reactor pressure > 3000 kPa gauge (facts te.md)
 PRESSURE_TRIP_KPA = 3000.0

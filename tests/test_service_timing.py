@@ -7,6 +7,8 @@ import pytest
 
 from services.timing import DeadlineStats, SampleClock, TimingBudget, Watchdog, thread_switches
 
+pytestmark = pytest.mark.realtime
+
 
 def test_budget_is_fraction_of_scaled_period():
     b = TimingBudget(sample_period_s=36.0, speed=10_000.0, fraction=0.5)

@@ -18,7 +18,7 @@ import pytest
 from services.soak.faults import default_faults, parse_faults
 from services.soak.run import REPORT_KEYS, SoakSettings, bumpless_verdict, run_soak
 
-pytestmark = [pytest.mark.integration, pytest.mark.timeout(400)]
+pytestmark = [pytest.mark.realtime, pytest.mark.integration, pytest.mark.timeout(400)]
 
 CI_HOURS = 2.0
 CI_SPEED = 720.0

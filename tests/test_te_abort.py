@@ -22,6 +22,8 @@ from controller.units.te.service import HeldPlan, TEServiceController
 from controller.units.te.structure import te_mv_names
 from services.registry import get_unit
 
+pytestmark = pytest.mark.realtime
+
 STRATEGIES = ("ssmpc", "fixed", "pi", "decentralized")
 HOURS = 3600.0
 
