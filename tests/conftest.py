@@ -3,11 +3,17 @@
 import os
 
 import pytest
+from hypothesis import settings
 
 # As in the CLI: single-threaded BLAS for small matrices (set before numpy loads).
 for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+# Property tests judge results, not speed: no per-example wall-clock deadline (the
+# suite runs on two workers, and a loaded core must not fail an example that is right).
+settings.register_profile("suite", deadline=None)
+settings.load_profile("suite")
 
 
 @pytest.fixture
