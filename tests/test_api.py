@@ -154,8 +154,8 @@ def test_controller_gone_is_503(stack):
 def test_silent_controller_is_504_not_a_hang(stack):
     h, api = stack
     s = h.s_client
-    token = s.liveliness().declare_token(keys.alive("mute", "controller"))
     q = s.declare_queryable(keys.cmd_all("mute"), lambda query: time.sleep(3.0))
+    token = s.liveliness().declare_token(keys.alive("mute", "controller"))
     t_end = time.monotonic() + 5
     while not api.mesh.alive("mute", "controller") and time.monotonic() < t_end:
         time.sleep(0.02)

@@ -153,8 +153,10 @@ def _fake_controller(session, unit, answer):
         else:
             query.reply(query.key_expr, payload)
 
-    token = session.liveliness().declare_token(keys.alive(unit, "controller"))
+    # the queryable before the token, as the controller node declares them: a client that
+    # sees the token alive then finds the queryable (declarations arrive in order)
     q = session.declare_queryable(keys.cmd_all(unit), on_query)
+    token = session.liveliness().declare_token(keys.alive(unit, "controller"))
     return token, q, held
 
 
