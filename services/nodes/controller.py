@@ -499,23 +499,16 @@ class ControllerNode:
         A record this unit cannot run (:meth:`TransitionManager.checked_record
         <services.transitions.TransitionManager.checked_record>`: a target of the wrong
         length, an unknown grade, ...) refuses the start with a
-        :class:`~services.store.StoreError`, as a checkpoint that does not fit does.
+        :class:`~services.store.StoreError`, as a checkpoint that does not fit does. Only
+        the reading of a record is judged so; an error elsewhere is not a misfit.
         """
-        try:
-            self._reconcile_records()
-        except CHECKPOINT_MISFIT as exc:
-            raise StoreError(f"store: {self.store.path}: a transition record does not fit "
-                             f"this controller ({type(exc).__name__}: {exc}); move the store "
-                             "aside to start afresh") from None
-
-    def _reconcile_records(self) -> None:
         tm = self.tm
         known = {tr.id for tr in ([tm.active] if tm.active is not None else []) + tm.queued}
         for tr in ([tm.active] if tm.active is not None else []) + list(tm.queued):
             rec = self.store.transition(tr.id)
-            if rec is None or rec["state"] not in TERMINAL or tr.terminal:
+            if rec is None or self._stored(rec, "state") not in TERMINAL or tr.terminal:
                 continue
-            ended = tm.checked_record(rec)
+            ended = self._stored_transition(rec)
             if tr is tm.active:
                 # hold the set points of the moment it ended (settled: its target)
                 t_end = ended.ended_t if ended.ended_t is not None else self.t
@@ -528,10 +521,11 @@ class ControllerNode:
             self.alarms.append(f"transition {tr.id}: the store has it {ended.state}; "
                                "the older checkpoint's state was dropped")
         for rec in self.store.transitions():
-            if rec["id"] in known or rec["state"] in TERMINAL:
+            tid, state = self._stored(rec, "id"), self._stored(rec, "state")
+            if tid in known or state in TERMINAL:
                 continue
-            tr = tm.checked_record(rec)
-            if rec["state"] == "pending":
+            tr = self._stored_transition(rec)
+            if state == "pending":
                 tr.detail = "queued"
                 tm.queued.append(tr)  # acknowledged, never started: it runs
                 self.alarms.append(f"transition {tr.id}: pending in the store, not in the "
@@ -543,6 +537,27 @@ class ControllerNode:
                                            detail=tr.detail, events=(transition_event(
                                                tr.as_dict(), "failed", self.t),))
                 self.alarms.append(f"transition {tr.id}: {tr.detail}")
+
+    def _misfit(self, exc: BaseException) -> StoreError:
+        return StoreError(f"store: {self.store.path}: a transition record does not fit "
+                          f"this controller ({type(exc).__name__}: {exc}); move the store "
+                          "aside to start afresh")
+
+    def _stored(self, rec, name: str):
+        """Field ``name`` of a committed record (a damaged record: StoreError)."""
+        try:
+            value = rec[name]
+            hash(value)  # what set membership will ask of it
+        except CHECKPOINT_MISFIT as exc:
+            raise self._misfit(exc) from None
+        return value
+
+    def _stored_transition(self, rec) -> Transition:
+        """A committed record as a transition of this unit (one it cannot run: StoreError)."""
+        try:
+            return self.tm.checked_record(rec)
+        except CHECKPOINT_MISFIT as exc:
+            raise self._misfit(exc) from None
 
     # -- the store's health --------------------------------------------------------------
     def _store_failed(self, what: str, exc: BaseException) -> None:
