@@ -84,6 +84,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from controller.units.te.settings_check import check_finite_fields, check_range, is_finite_number
+from controller.units.te.steady_share import ramp_share
 
 __all__ = ["ReactorFeedBalance", "ReactorFeedBalanceSettings"]
 
@@ -157,11 +158,8 @@ class ReactorFeedBalance:
             the trim goes, at the ramp's rate.
         """
         s = self.settings
-        step = self.sample_h / s.ramp_h
-        if since_h >= s.after_h and not held:
-            self.share = min(self.share + step, 1.0)
-        else:
-            self.share = max(self.share - step, 0.0)
+        self.share = ramp_share(self.share, since_h >= s.after_h and not held,
+                                self.sample_h, s.ramp_h)
         c = float(xmeas[22]) + float(xmeas[24])
         if not math.isfinite(c):
             return self.trim if self.share > 0.0 else 0.0

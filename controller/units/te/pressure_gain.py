@@ -133,6 +133,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from controller.units.te.settings_check import check_finite_fields, check_range, is_finite_number
+from controller.units.te.steady_share import ramp_share
 
 __all__ = ["SteadyPressureGainSettings", "SteadyPressureGain"]
 
@@ -238,13 +239,11 @@ class SteadyPressureGain:
         s = self.settings
         if self._pending:  # no word since: the plant took the last set point written
             self.offset_in_force = self.offset_written
-        step = self.sample_h / s.ramp_h
         if self.operator_held:
             self.share = self.bias = 0.0
-        elif since_h >= s.after_h and not held:
-            self.share = min(self.share + step, 1.0)
         else:
-            self.share = max(self.share - step, 0.0)
+            self.share = ramp_share(self.share, since_h >= s.after_h and not held,
+                                    self.sample_h, s.ramp_h)
         self.bias = (min(self.bias + self.bias_step, 0.0) if self.bias < 0.0
                      else max(self.bias - self.bias_step, 0.0))
         out = setpoint
