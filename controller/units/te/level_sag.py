@@ -10,6 +10,12 @@ opening the condenser, the reactor level fell to 60 %, its loop raised the D fee
 13 to 30-42 %, C in the reactor feed fell 19 -> 12 mol %, the E left unreacted gathered
 (26 -> 39 mol %) and the pressure reached the interlock 2-3 h later. The grade plan
 alone, whose pressure did not fall as fast, kept the D feed at 12-16 % and held.
+The same sequence with this guard (``ssmpc``, IDV(13) at mode 2, seed 4, 6.75-7.5 h,
+eighth-hour means): the pressure reached 2880-2891 kPa, the core opened the condenser
+(XMV 11) from 13 to 21 %, the separator cooled from 90 to 80 degC, and the reactor level
+fell from 64 to 51 % in 0.6 h while the pressure came down to 2853 kPa and the reactor
+temperature rose by 0.7 degC; the D feed rose from 10 to 28 % with the E valve at 100 %,
+and the level rose again as the condenser closed.
 
 The guard: at a steady grade (:attr:`LevelSagSettings.after_h` after the last grade
 change), while the reactor pressure (XMEAS 7) is at or above
