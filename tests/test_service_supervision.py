@@ -26,7 +26,7 @@ def _role_pids(pid: int) -> dict[str, int]:
     for task in Path(f"/proc/{pid}/task").iterdir():
         for child in (task / "children").read_text().split():
             argv = Path(f"/proc/{child}/cmdline").read_bytes().split(b"\0")
-            for role in (b"controller", b"plant", b"api"):
+            for role in (b"controller", b"plant", b"api", b"router"):
                 if role in argv[3:5]:
                     out[role.decode()] = int(child)
     return out
@@ -69,12 +69,12 @@ def test_a_killed_controller_is_restarted_and_the_plant_keeps_running(tmp_path):
     try:
         up.wait_line("ssmpc up:")
         pids = _role_pids(up.proc.pid)
-        assert set(pids) == {"controller", "plant", "api"}
+        assert set(pids) == {"controller", "plant", "api", "router"}
         os.kill(pids["controller"], signal.SIGKILL)
         up.wait_line("alarm: the controller node exited", timeout=30)
         up.wait_line("ready controller", n=2, timeout=120)
         after = _role_pids(up.proc.pid)
-        assert after["plant"] == pids["plant"] and after["api"] == pids["api"]
+        assert all(after[r] == pids[r] for r in ("plant", "api", "router"))
         assert after["controller"] != pids["controller"]
         with httpx.Client(base_url=f"http://127.0.0.1:{up.port}", timeout=10) as c:
             t_end = time.monotonic() + 60
@@ -102,6 +102,46 @@ def test_a_killed_controller_is_restarted_and_the_plant_keeps_running(tmp_path):
                 assert any("plant node lost" in a for a in st["alarms"])
         finally:
             os.kill(after["plant"], signal.SIGCONT)
+    finally:
+        up.close()
+
+
+def _status(c: httpx.Client, until, timeout: float = 60.0) -> dict:
+    """The controller's status through the API, polled until ``until(status)``."""
+    t_end = time.monotonic() + timeout
+    while True:
+        r = c.get("/api/v1/units/cstr/status")
+        if r.status_code == 200 and until(r.json()):
+            return r.json()
+        assert time.monotonic() < t_end, f"status never as awaited: {r.status_code} {r.text}"
+        time.sleep(0.2)
+
+
+def test_a_killed_router_is_restarted_and_the_nodes_reconnect(tmp_path):
+    """The router is a child of its own: its crash is an alarm and a restart on the same
+    endpoint, not the end of ``up``; the nodes are not restarted, their sessions
+    reconnect, and the loop runs on (the controller counts new samples, the plant is
+    seen alive again)."""
+    up = _Up(tmp_path)
+    try:
+        up.wait_line("ssmpc up:")
+        pids = _role_pids(up.proc.pid)
+        endpoint = next(ln for ln in up.lines if ln.startswith("ready router")).split(
+            "listen=")[1].split()[0]
+        with httpx.Client(base_url=f"http://127.0.0.1:{up.port}", timeout=10) as c:
+            before = _status(c, lambda st: st["sample"] > 0 and st["plant_alive"])["sample"]
+            os.kill(pids["router"], signal.SIGKILL)
+            up.wait_line("alarm: the router node exited", timeout=30)
+            up.wait_line("ready router", n=2, timeout=60)
+            again = next(ln for ln in reversed(up.lines) if ln.startswith("ready router"))
+            assert f"listen={endpoint}" in again
+            st = _status(c, lambda st: st["plant_alive"] and st["sample"] > before + 20)
+        after = _role_pids(up.proc.pid)
+        assert after["router"] != pids["router"]
+        assert all(after[r] == pids[r] for r in ("controller", "plant", "api"))
+        assert up.proc.poll() is None and st["plant_alive"] is True
+        assert not any(ln.startswith(("alarm: the controller", "alarm: the plant",
+                                      "alarm: the api")) for ln in up.lines)
     finally:
         up.close()
 

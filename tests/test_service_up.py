@@ -51,16 +51,16 @@ def test_up_transition_and_clean_shutdown(tmp_path):
             lines.append(line)
             if line.startswith("ssmpc up:"):
                 break
-        # it says what it starts, then each node's ready line: the plant only once the
-        # controller is ready, the API alongside the controller
+        # it says what it starts, then each node's ready line: the router first, the
+        # plant only once the controller is ready, the API alongside the controller
         ready = [ln.split()[1] for ln in lines if ln.startswith("ready")]
-        assert ready == ["controller", "plant", "api"]
+        assert ready == ["router", "controller", "plant", "api"]
         starting = [ln.split()[2] for ln in lines if ln.startswith("starting the")]
-        assert starting == ["controller", "api", "plant"]
+        assert starting == ["router", "controller", "api", "plant"]
         assert lines.index(next(ln for ln in lines if ln.startswith("ready controller"))) \
             < lines.index(next(ln for ln in lines if ln.startswith("starting the plant")))
         children = _children(proc.pid)
-        assert len(children) == 3
+        assert len(children) == 4  # router, controller, plant, api
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as c:
             assert c.get("/health").status_code == 200
             r = c.post("/api/v1/units/cstr/transitions", json={"grade": "OPII"})
@@ -117,7 +117,7 @@ def test_up_ctrl_c_stops_every_process(tmp_path, busy_poll):
             if line.startswith("ssmpc up:"):
                 break
         children = _children(proc.pid)
-        assert len(children) == 3
+        assert len(children) == 4  # router, controller, plant, api
         cmdlines = [open(f"/proc/{c}/cmdline", "rb").read().split(b"\0") for c in children]
         polling = [c for c in cmdlines if b"controller" in c and b"--busy-poll" in c]
         assert len(polling) == (1 if busy_poll else 0)

@@ -1,10 +1,14 @@
 """The authenticated Zenoh router of a mesh: user/password per identity, ACL by role.
 
-``ssmpc up`` runs one in its own process (:func:`open_router`) on a loopback port,
-with the credentials of :mod:`services.io.mesh_auth` and the access-control list of
+``ssmpc up`` runs one as a child process of its own (``ssmpc router``, the arguments
+of :func:`router_arguments`) on a loopback port it picks once (:func:`plan_mesh`), with
+the credentials of :mod:`services.io.mesh_auth` and the access-control list of
 :mod:`services.io.acl`; its nodes join it as Zenoh clients (:func:`node_arguments`)
 and listen on nothing themselves, so the router is the only way onto that mesh.
-``ssmpc router --credentials DIR`` runs the same router for a mesh across hosts.
+A router that dies is restarted by ``up`` on the same endpoint, and the clients'
+sessions reconnect by themselves (Zenoh redeclares their subscribers, queryables and
+liveliness tokens). ``ssmpc router --credentials DIR`` runs the same router for a mesh
+across hosts; :func:`open_router` opens one in the calling process (``ssmpc bench``).
 
 Cost, ``ssmpc bench loop --unit U --cases latency,mesh`` (lock-step loop,
 measurement out to move back, loopback, the 2-core machine at load average 8-12;
@@ -29,7 +33,8 @@ from pathlib import Path
 from services.io import mesh_auth
 from services.io.acl import access_control
 
-__all__ = ["RouterMesh", "router_settings", "open_router", "node_arguments"]
+__all__ = ["MeshPlan", "RouterMesh", "router_settings", "plan_mesh", "open_router",
+           "router_arguments", "node_arguments"]
 
 
 def router_settings(credentials_dir, *, listen=(), connect=(), lease_ms=None,
@@ -41,6 +46,48 @@ def router_settings(credentials_dir, *, listen=(), connect=(), lease_ms=None,
     return SessionSettings(config_file=config_file, mode="router", listen=tuple(listen),
                            connect=tuple(connect), lease_ms=lease_ms,
                            dictionary_file=str(dictionary), access_control=access_control())
+
+
+@dataclass(frozen=True)
+class MeshPlan:
+    """Where a mesh's router listens and its credentials lie, before it runs.
+
+    Attributes
+    ----------
+    endpoint : str
+        The router's loopback endpoint, ``tcp/127.0.0.1:<port>``; a restarted router
+        listens on the same one.
+    credentials_dir : pathlib.Path
+        The owner-only credentials directory (``<state-dir>/mesh``).
+    made : list of str
+        The identities whose credentials this plan made (empty when reused).
+    """
+
+    endpoint: str
+    credentials_dir: Path
+    made: list = field(default_factory=list)
+
+
+def plan_mesh(state_dir) -> MeshPlan:
+    """Make (first start) or reuse the credentials in ``<state_dir>/mesh`` and pick a
+    free loopback port for the router.
+
+    Raises
+    ------
+    ValueError
+        Credentials that cannot be made or are not owner-only.
+    """
+    from services.io.zenoh_session import free_tcp_endpoint
+
+    cred_dir = mesh_auth.credentials_directory(state_dir)
+    made = mesh_auth.make_credentials(cred_dir)
+    return MeshPlan(endpoint=free_tcp_endpoint(), credentials_dir=cred_dir, made=made)
+
+
+def router_arguments(plan: MeshPlan, *, lease_ms=None) -> list[str]:
+    """``ssmpc`` arguments of the router process of ``plan``."""
+    argv = ["router", "--credentials", str(plan.credentials_dir), "--listen", plan.endpoint]
+    return argv + ([] if lease_ms is None else ["--lease-ms", str(int(lease_ms))])
 
 
 @dataclass
@@ -58,7 +105,7 @@ class RouterMesh:
 
 def open_router(state_dir, *, lease_ms=None) -> RouterMesh:
     """Make (first start) or reuse the credentials in ``<state_dir>/mesh`` and open the
-    router on a free loopback port.
+    router in this process on a free loopback port.
 
     Raises
     ------
@@ -66,16 +113,16 @@ def open_router(state_dir, *, lease_ms=None) -> RouterMesh:
         Credentials that cannot be made or are not owner-only, or a router Zenoh
         cannot open.
     """
-    from services.io.zenoh_session import free_tcp_endpoint, open_session
+    from services.io.zenoh_session import open_session
 
-    cred_dir = mesh_auth.credentials_directory(state_dir)
-    made = mesh_auth.make_credentials(cred_dir)
-    endpoint = free_tcp_endpoint()
-    session = open_session(router_settings(cred_dir, listen=(endpoint,), lease_ms=lease_ms))
-    return RouterMesh(session=session, endpoint=endpoint, credentials_dir=cred_dir, made=made)
+    plan = plan_mesh(state_dir)
+    session = open_session(router_settings(plan.credentials_dir, listen=(plan.endpoint,),
+                                           lease_ms=lease_ms))
+    return RouterMesh(session=session, endpoint=plan.endpoint,
+                      credentials_dir=plan.credentials_dir, made=plan.made)
 
 
-def node_arguments(mesh: RouterMesh) -> list[str]:
+def node_arguments(mesh: MeshPlan | RouterMesh) -> list[str]:
     """Command-line arguments of a node that joins ``mesh`` as a client with its role's
     credentials (the role is the node's own command)."""
     return ["--mode", "client", "--connect", mesh.endpoint,

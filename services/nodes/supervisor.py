@@ -1,8 +1,8 @@
 """``ssmpc up``: plant + controller + api of one unit on the embedded default.
 
 Three child processes (``ssmpc plant|controller|api``) joined by an authenticated
-Zenoh router that ``up`` runs in its own process on a fresh loopback port
-(:mod:`services.io.mesh_router`): on first start it makes one password per node
+Zenoh router, a fourth child (``ssmpc router``) on a fresh loopback port
+(:mod:`services.io.mesh_router`): on first start ``up`` makes one password per node
 identity in ``<state-dir>/mesh`` (owner-only; reused later), the nodes join as Zenoh
 clients with their identity's credentials and listen on nothing, and the router's
 access-control list lets only the controller move the plant, only the plant publish
@@ -14,10 +14,16 @@ plant starts afresh, so by default a previous run's store and recording are
 renamed with a time stamp (``--resume`` keeps the store, e.g. to continue). ``up`` waits
 until each child prints ``ready``, then runs until Ctrl-C/SIGTERM or
 ``--duration`` wall seconds, and stops the children with SIGTERM (SIGKILL after
-a grace period). It supervises them: a node that dies is restarted with a growing
-pause (:data:`RESTART_BACKOFF_S`, doubling), with an ``alarm:`` line, while the others
-keep running (the controller resumes from its store, bumplessly); a node that dies
-more than :data:`RESTART_LIMIT` times within :data:`RESTART_WINDOW_S` stops ``up``.
+a grace period; the router last). It supervises them: a node that dies is restarted
+with a growing pause (:data:`RESTART_BACKOFF_S`, doubling), with an ``alarm:`` line,
+while the others keep running (the controller resumes from its store, bumplessly); a
+node that dies more than :data:`RESTART_LIMIT` times within :data:`RESTART_WINDOW_S`
+stops ``up``. The router is supervised the same way, and on the same endpoint, so the
+supervisor outlives a crash of the Zenoh library in the router (seen once in CI: a
+general-protection fault in the router's receive thread as a killed client's link
+closed); while it is down the nodes are cut off from each other, the plant holds its
+last moves and the controller reports the plant lost, and once it is back the nodes'
+sessions reconnect by themselves.
 Children get the parent-death signal, so no orphan survives
 even if ``up`` itself is killed.
 
@@ -201,10 +207,10 @@ def run_up(args) -> int:
     if args.restart_limit < 0:
         raise CLIError(f"restart_limit: must be >= 0, got {args.restart_limit}")
     os.makedirs(args.state_dir, exist_ok=True)
-    from services.io.mesh_router import node_arguments, open_router
+    from services.io.mesh_router import node_arguments, plan_mesh, router_arguments
 
-    # credentials not owner-only, or a router that cannot open: exit 2 before anything moves
-    mesh = open_router(args.state_dir, lease_ms=args.lease_ms)
+    # credentials not owner-only: exit 2 before anything moves
+    mesh = plan_mesh(args.state_dir)
     if mesh.made:
         print(f"mesh credentials made in {mesh.credentials_dir} (owner-only)", flush=True)
     print(f"mesh: Zenoh router on {mesh.endpoint}, user/password per node and access "
@@ -239,12 +245,13 @@ def run_up(args) -> int:
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
     procs: list[subprocess.Popen] = []
+    routers: list[subprocess.Popen] = []
     nodes: dict[str, dict] = {}
 
     def spawn(role: str, argv: list[str], doing: str) -> None:
         print(f"starting the {role} node: {doing}", flush=True)
         proc = _spawn(argv)
-        procs.append(proc)
+        (routers if role == "router" else procs).append(proc)
         nodes.setdefault(role, {"argv": argv, "doing": doing, "restarts": []})["proc"] = proc
 
     def ready(role: str) -> None:
@@ -263,6 +270,9 @@ def run_up(args) -> int:
 
     try:
         deadline = time.monotonic() + args.ready_timeout
+        # a router that cannot listen (the port taken meanwhile): exit before anything moves
+        start("router", router_arguments(mesh, lease_ms=args.lease_ms),
+              f"the Zenoh router on {mesh.endpoint}")
         controller = (["controller", *common, "--state-dir", args.state_dir]
                       + (["--busy-poll"] if args.busy_poll else []))
         plant = (["opcua" if opcua else "plant", *common]
@@ -305,7 +315,9 @@ def run_up(args) -> int:
                                    "stopping the others", code=1)
                 pause = RESTART_BACKOFF_S * 2 ** len(node["restarts"])
                 node["restarts"].append(now)
-                print(f"alarm: the {role} node exited (code {code}); restarting it in "
+                cut_off = (" (the nodes are cut off from each other until it is back; the "
+                           "plant holds its last moves)" if role == "router" else "")
+                print(f"alarm: the {role} node exited (code {code}){cut_off}; restarting it in "
                       f"{pause:g} s (restart {len(node['restarts'])} of at most "
                       f"{args.restart_limit} in {RESTART_WINDOW_S / 60:.0f} min)", flush=True)
                 if stop.wait(pause):
@@ -315,5 +327,5 @@ def run_up(args) -> int:
             stop.wait(0.2)
     finally:
         stop_children(procs)
-        mesh.close()
+        stop_children(routers)  # last: the nodes' goodbyes still travel
     return 0
