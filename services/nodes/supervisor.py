@@ -24,6 +24,9 @@ general-protection fault in the router's receive thread as a killed client's lin
 closed); while it is down the nodes are cut off from each other, the plant holds its
 last moves and the controller reports the plant lost, and once it is back the nodes'
 sessions reconnect by themselves.
+Measured (``up --unit cstr --speed 20 --lease-ms 500``, 2-vCPU Xeon, three runs): the
+router SIGKILLed was ready again 2.7-2.9 s later (the 1 s pause and its start), and
+the controller counted new samples, the plant alive again, 0.1-0.4 s after that.
 Children get the parent-death signal, so no orphan survives
 even if ``up`` itself is killed.
 
