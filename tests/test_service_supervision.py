@@ -4,6 +4,7 @@ stops with an error. A lost plant is an alarm in the controller's status."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -121,7 +122,8 @@ def test_a_killed_router_is_restarted_and_the_nodes_reconnect(tmp_path):
     """The router is a child of its own: its crash is an alarm and a restart on the same
     endpoint, not the end of ``up``; the nodes are not restarted, their sessions
     reconnect, and the loop runs on (the controller counts new samples, the plant is
-    seen alive again)."""
+    seen alive again) and carries a grade change acknowledged before the crash to its
+    grade."""
     up = _Up(tmp_path)
     try:
         up.wait_line("ssmpc up:")
@@ -130,12 +132,28 @@ def test_a_killed_router_is_restarted_and_the_nodes_reconnect(tmp_path):
             "listen=")[1].split()[0]
         with httpx.Client(base_url=f"http://127.0.0.1:{up.port}", timeout=10) as c:
             before = _status(c, lambda st: st["sample"] > 0 and st["plant_alive"])["sample"]
+            # a grade change acknowledged before the crash is carried through it: over
+            # 180 process s (9 wall s at 20x), so the cut (about 3 wall s, 60 process s)
+            # stays inside the 3 x duration it is given to settle; over the default 20 s
+            # it is "failed: not settled within 3 x duration", as the cut alone is longer
+            r = c.post("/api/v1/units/cstr/transitions",
+                       json={"grade": "OPII", "duration_h": 0.05})
+            assert r.status_code == 202
+            loc = r.headers["location"]
             os.kill(pids["router"], signal.SIGKILL)
             up.wait_line("alarm: the router node exited", timeout=30)
             up.wait_line("ready router", n=2, timeout=60)
             again = next(ln for ln in reversed(up.lines) if ln.startswith("ready router"))
             assert f"listen={endpoint}" in again
             st = _status(c, lambda st: st["plant_alive"] and st["sample"] > before + 20)
+            t_end = time.monotonic() + 90
+            while (v := c.get(loc).json())["state"] in ("pending", "running"):
+                assert time.monotonic() < t_end, f"the grade change never ended: {v}"
+                time.sleep(0.2)
+            assert v["state"] == "settled", json.dumps(v)
+            st = c.get("/api/v1/units/cstr/status").json()
+            assert abs(st["cv"]["y"] - 5.0) < 0.05  # OPII's y (tests/test_service_up.py)
+            assert any("plant node lost" in a for a in st["alarms"])  # the cut was seen
         after = _role_pids(up.proc.pid)
         assert after["router"] != pids["router"]
         assert all(after[r] == pids[r] for r in ("controller", "plant", "api"))
