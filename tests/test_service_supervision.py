@@ -164,6 +164,41 @@ def test_a_killed_router_is_restarted_and_the_nodes_reconnect(tmp_path):
         up.close()
 
 
+def test_a_router_whose_port_was_taken_meanwhile_stops_up_with_an_error(tmp_path):
+    """Another process binds the router's port while the crashed router waits for its
+    restart: the nodes' endpoint is gone, so ``up`` stops everything with an error
+    line naming the router, never a traceback."""
+    import socket
+
+    up = _Up(tmp_path)
+    try:
+        up.wait_line("ssmpc up:")
+        line = next(ln for ln in up.lines if ln.startswith("ready router"))
+        port = int(line.split("listen=")[1].split()[0].rsplit(":", 1)[1])
+        pid = _role_pids(up.proc.pid)["router"]
+        os.kill(pid, signal.SIGKILL)
+        with socket.socket() as squatter:
+            # SO_REUSEADDR, as the router's own listener has: the links the killed
+            # router closed keep its port in TIME_WAIT
+            squatter.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            t_end = time.monotonic() + 5
+            while True:
+                try:
+                    squatter.bind(("127.0.0.1", port))
+                    break
+                except OSError:
+                    assert time.monotonic() < t_end, "the dead router's port stayed bound"
+                    time.sleep(0.01)
+            squatter.listen()
+            assert up.proc.wait(60) != 0
+        err = up.proc.stderr.read()
+        assert err.splitlines()[-1].startswith("error: router: node exited with code")
+        assert "Traceback" not in err
+        assert any(ln.startswith("alarm: the router node exited") for ln in up.lines)
+    finally:
+        up.close()
+
+
 def test_up_gives_up_beyond_its_restart_limit(tmp_path):
     up = _Up(tmp_path, "--restart-limit", "1")
     try:
