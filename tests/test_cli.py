@@ -18,6 +18,23 @@ def test_help_lists_core_commands(capsys):
         assert cmd in out
 
 
+def test_only_ssmpc_bench_loads_the_benchmarks():
+    """A command other than ``bench`` (a node, the router) starts without importing the
+    benchmarks and the numerical core behind them; ``ssmpc bench --help`` lists them."""
+    probe = ("import sys; from services.cli import main\n"
+             "try:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+             "print(sorted(m for m in sys.modules if m.startswith(('services.bench.', "
+             "'numba'))))")
+    router = subprocess.run([sys.executable, "-c", probe, "router", "--help"],
+                            capture_output=True, text=True, timeout=120)
+    assert router.returncode == 0 and "--credentials" in router.stdout
+    assert router.stdout.strip().splitlines()[-1] == "[]"
+    bench = subprocess.run([sys.executable, "-c", probe, "bench", "--help"],
+                           capture_output=True, text=True, timeout=120)
+    assert bench.returncode == 0 and "adapt-switch" in bench.stdout
+    assert "services.bench.qp" in bench.stdout.strip().splitlines()[-1]
+
+
 def test_reproduce_unknown_id_is_a_clear_error(capsys):
     code = main(["reproduce", "R99.9", "--json"])
     assert code == 2
