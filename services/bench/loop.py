@@ -124,7 +124,7 @@ class _Nodes:
             from services.io.mesh_router import node_arguments, open_router
 
             self.router = open_router(state_dir, lease_ms=1000)
-            join = node_arguments(self.router)
+            join = node_arguments(self.router.plan)
         ep_c, ep_p, ep_a = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
         self.ep_c, self.ep_p = ep_c, ep_p
         self.port = free_port()
@@ -208,8 +208,8 @@ def _client_session(nodes: _Nodes):
     if nodes.router is not None:  # the operator's identity on the authenticated mesh
         from services.io.mesh_auth import node_credentials
 
-        cred = node_credentials(nodes.router.credentials_dir, "cli")
-        s = open_session(SessionSettings(mode="client", connect=(nodes.router.endpoint,),
+        cred = node_credentials(nodes.router.plan.credentials_dir, "cli")
+        s = open_session(SessionSettings(mode="client", connect=(nodes.router.plan.endpoint,),
                                          user=cred.user, password=cred.password))
     else:
         s = open_session(SessionSettings(connect=(nodes.ep_c, nodes.ep_p)))

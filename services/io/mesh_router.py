@@ -92,12 +92,10 @@ def router_arguments(plan: MeshPlan, *, lease_ms=None) -> list[str]:
 
 @dataclass
 class RouterMesh:
-    """A running router: its session, endpoint and credentials directory."""
+    """A router running in this process: its plan (endpoint, credentials) and session."""
 
+    plan: MeshPlan
     session: object
-    endpoint: str
-    credentials_dir: Path
-    made: list = field(default_factory=list)
 
     def close(self) -> None:
         self.session.close()
@@ -118,11 +116,10 @@ def open_router(state_dir, *, lease_ms=None) -> RouterMesh:
     plan = plan_mesh(state_dir)
     session = open_session(router_settings(plan.credentials_dir, listen=(plan.endpoint,),
                                            lease_ms=lease_ms))
-    return RouterMesh(session=session, endpoint=plan.endpoint,
-                      credentials_dir=plan.credentials_dir, made=plan.made)
+    return RouterMesh(plan=plan, session=session)
 
 
-def node_arguments(mesh: MeshPlan | RouterMesh) -> list[str]:
+def node_arguments(mesh: MeshPlan) -> list[str]:
     """Command-line arguments of a node that joins ``mesh`` as a client with its role's
     credentials (the role is the node's own command)."""
     return ["--mode", "client", "--connect", mesh.endpoint,
