@@ -168,7 +168,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     parsers are built only for ``ssmpc bench``.
 
     Building them imports every benchmark and, through them, the controller's numerical
-    core (numba, scipy): about 1 s of every command's start on a 2-vCPU Xeon, and of
+    core (numba, scipy): about 1 s of every command's start on a 2-vCPU AMD EPYC, and of
     every node's start and restart under ``ssmpc up``. Without ``argv`` the whole
     parser is built.
     """

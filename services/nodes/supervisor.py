@@ -26,7 +26,7 @@ router); while it is down the nodes are cut off from each other, the plant holds
 last moves and the controller reports the plant lost, and once it is back the nodes'
 sessions reconnect by themselves (a grade change under way goes on; it fails as "not
 settled" when the cut leaves it too little of the time it was given to settle).
-Measured (``up --unit cstr --speed 20 --lease-ms 500``, 2-vCPU Xeon, three runs):
+Measured (``up --unit cstr --speed 20 --lease-ms 500``, 2-vCPU AMD EPYC, three runs):
 the router SIGKILLed was ready again 1.8-1.9 s later (the 1 s pause and its 0.75 s
 start), and the controller counted new samples, the plant alive again, 0.03-0.06 s
 after that (the clients retry their router every 100-500 ms,
