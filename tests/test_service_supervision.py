@@ -65,6 +65,22 @@ class _Up:
                 self.proc.kill()
 
 
+def _status(c: httpx.Client, until, timeout: float = 60.0) -> dict:
+    """The controller's status through the API, polled until ``until(status)``."""
+    t_end = time.monotonic() + timeout
+    while True:
+        r = c.get("/api/v1/units/cstr/status")
+        if r.status_code == 200 and until(r.json()):
+            return r.json()
+        assert time.monotonic() < t_end, f"status never as awaited: {r.status_code} {r.text}"
+        time.sleep(0.2)
+
+
+def _router_endpoint(line: str) -> str:
+    """The endpoint of a router's ``ready router ... listen=<endpoint> ...`` line."""
+    return line.split("listen=")[1].split()[0]
+
+
 def test_a_killed_controller_is_restarted_and_the_plant_keeps_running(tmp_path):
     up = _Up(tmp_path)
     try:
@@ -78,13 +94,7 @@ def test_a_killed_controller_is_restarted_and_the_plant_keeps_running(tmp_path):
         assert all(after[r] == pids[r] for r in ("plant", "api", "router"))
         assert after["controller"] != pids["controller"]
         with httpx.Client(base_url=f"http://127.0.0.1:{up.port}", timeout=10) as c:
-            t_end = time.monotonic() + 60
-            while time.monotonic() < t_end:
-                r = c.get("/api/v1/units/cstr/status")
-                if r.status_code == 200 and r.json()["sample"] > 0:
-                    break
-                time.sleep(0.2)
-            first = r.json()["sample"]
+            first = _status(c, lambda st: st["sample"] > 0)["sample"]
             time.sleep(1.0)
             assert c.get("/api/v1/units/cstr/status").json()["sample"] > first
         # the controller's restart said so; the plant was never restarted
@@ -93,29 +103,13 @@ def test_a_killed_controller_is_restarted_and_the_plant_keeps_running(tmp_path):
         os.kill(after["plant"], signal.SIGSTOP)
         try:
             with httpx.Client(base_url=f"http://127.0.0.1:{up.port}", timeout=10) as c:
-                t_end = time.monotonic() + 20
-                while time.monotonic() < t_end:
-                    st = c.get("/api/v1/units/cstr/status").json()
-                    if st.get("plant_alive") is False:
-                        break
-                    time.sleep(0.2)
+                st = _status(c, lambda st: st.get("plant_alive") is False, timeout=20)
                 assert st["plant_alive"] is False
                 assert any("plant node lost" in a for a in st["alarms"])
         finally:
             os.kill(after["plant"], signal.SIGCONT)
     finally:
         up.close()
-
-
-def _status(c: httpx.Client, until, timeout: float = 60.0) -> dict:
-    """The controller's status through the API, polled until ``until(status)``."""
-    t_end = time.monotonic() + timeout
-    while True:
-        r = c.get("/api/v1/units/cstr/status")
-        if r.status_code == 200 and until(r.json()):
-            return r.json()
-        assert time.monotonic() < t_end, f"status never as awaited: {r.status_code} {r.text}"
-        time.sleep(0.2)
 
 
 def test_a_killed_router_is_restarted_and_the_nodes_reconnect(tmp_path):
@@ -128,8 +122,8 @@ def test_a_killed_router_is_restarted_and_the_nodes_reconnect(tmp_path):
     try:
         up.wait_line("ssmpc up:")
         pids = _role_pids(up.proc.pid)
-        endpoint = next(ln for ln in up.lines if ln.startswith("ready router")).split(
-            "listen=")[1].split()[0]
+        endpoint = _router_endpoint(next(ln for ln in up.lines
+                                         if ln.startswith("ready router")))
         with httpx.Client(base_url=f"http://127.0.0.1:{up.port}", timeout=10) as c:
             before = _status(c, lambda st: st["sample"] > 0 and st["plant_alive"])["sample"]
             # a grade change acknowledged before the crash is carried through it: over
@@ -144,7 +138,7 @@ def test_a_killed_router_is_restarted_and_the_nodes_reconnect(tmp_path):
             up.wait_line("alarm: the router node exited", timeout=30)
             up.wait_line("ready router", n=2, timeout=60)
             again = next(ln for ln in reversed(up.lines) if ln.startswith("ready router"))
-            assert f"listen={endpoint}" in again
+            assert _router_endpoint(again) == endpoint
             st = _status(c, lambda st: st["plant_alive"] and st["sample"] > before + 20)
             t_end = time.monotonic() + 90
             while (v := c.get(loc).json())["state"] in ("pending", "running"):
@@ -174,7 +168,7 @@ def test_a_router_whose_port_was_taken_meanwhile_stops_up_with_an_error(tmp_path
     try:
         up.wait_line("ssmpc up:")
         line = next(ln for ln in up.lines if ln.startswith("ready router"))
-        port = int(line.split("listen=")[1].split()[0].rsplit(":", 1)[1])
+        port = int(_router_endpoint(line).rsplit(":", 1)[1])
         pid = _role_pids(up.proc.pid)["router"]
         os.kill(pid, signal.SIGKILL)
         with socket.socket() as squatter:
