@@ -46,3 +46,19 @@ def test_the_disturbance_spec_is_the_matrix_disturbance_part():
     matrix = {c.name: c for c in _cases("te_matrix.json") if not c.legs}
     dist = {c.name: c for c in _cases("te_disturbances.json")}
     assert dist == matrix
+
+
+def test_the_more_seeds_spec_is_the_matrix_on_seeds_it_does_not_run():
+    """``te_matrix_seeds_4_9.json`` runs the matrix's cases on six other plant seeds,
+    for the MPC strategies: the same cases, hours and noise, disjoint seeds."""
+    matrix = {c.name: c for c in _cases("te_matrix.json")}
+    more = {c.name: c for c in _cases("te_matrix_seeds_4_9.json")}
+    assert more.keys() == matrix.keys()
+    for name, c in more.items():
+        m = matrix[name]
+        assert (c.start, c.legs, c.idvs, c.hours, c.noise) == (m.start, m.legs, m.idvs,
+                                                                m.hours, m.noise)
+        assert tuple(c.seeds) == (4, 5, 6, 7, 8, 9)
+        assert not set(c.seeds) & set(m.seeds)
+    spec = parse_spec(json.loads((SPECS / "te_matrix_seeds_4_9.json").read_text()))
+    assert set(spec.strategies) == {"ssmpc", "fixed"}
