@@ -24,8 +24,12 @@ def test_every_shipped_spec_parses(path):
     assert spec.cases
 
 
+def _spec(name):
+    return parse_spec(json.loads((SPECS / name).read_text()))
+
+
 def _cases(name):
-    return parse_spec(json.loads((SPECS / name).read_text())).cases
+    return _spec(name).cases
 
 
 def test_the_matrix_holds_every_transition_disturbance_and_idv8_leg():
@@ -51,8 +55,9 @@ def test_the_disturbance_spec_is_the_matrix_disturbance_part():
 def test_the_more_seeds_spec_is_the_matrix_on_seeds_it_does_not_run():
     """``te_matrix_seeds_4_9.json`` runs the matrix on six other plant seeds: the same
     cases, hours, noise and strategies, disjoint seeds."""
-    matrix = {c.name: c for c in _cases("te_matrix.json")}
-    more = {c.name: c for c in _cases("te_matrix_seeds_4_9.json")}
+    matrix_spec, more_spec = _spec("te_matrix.json"), _spec("te_matrix_seeds_4_9.json")
+    matrix = {c.name: c for c in matrix_spec.cases}
+    more = {c.name: c for c in more_spec.cases}
     assert more.keys() == matrix.keys()
     for name, c in more.items():
         m = matrix[name]
@@ -60,6 +65,4 @@ def test_the_more_seeds_spec_is_the_matrix_on_seeds_it_does_not_run():
                                                                 m.hours, m.noise)
         assert tuple(c.seeds) == (4, 5, 6, 7, 8, 9)
         assert not set(c.seeds) & set(m.seeds)
-    spec = parse_spec(json.loads((SPECS / "te_matrix_seeds_4_9.json").read_text()))
-    matrix_spec = parse_spec(json.loads((SPECS / "te_matrix.json").read_text()))
-    assert spec.strategies == matrix_spec.strategies
+    assert more_spec.strategies == matrix_spec.strategies
