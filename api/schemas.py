@@ -240,6 +240,9 @@ class StatusView(BaseModel):
     J: Numbers | None = Field(default=None, description="performance index per model")
     composition: CompositionView | None = Field(default=None, description="TE: the "
                                                 "composition core (MPC strategies)")
+    tuning: str | None = Field(default=None, description="the plant side's tuning set "
+                               "the controller sends with its moves (TE MPC strategies: "
+                               "'steady' or 'grade_change'); null: the plant's default")
     solve_ms: float | None = Field(default=None, description="last controller step, ms")
     controller_status: str | None = None
     deadline_misses: int | None = None

@@ -6,18 +6,23 @@ runs as fast as the link allows): the namespace is browsed and read as any OPC U
 client would, the roles are tried, bad writes are answered per item, a grade change
 over REST completes with the controller on OPC UA, and the controller's death makes
 the plant shed and hold within the watchdog time; a new controller takes over
-bumplessly.
+bumplessly. Then the TE unit: its loops' tuning set travels with the moves
+(``Status/Tuning``), an unknown one is refused, and a shed puts the loops back on
+their default set.
 """
 
 import asyncio
 import math
 import threading
 import time
+from dataclasses import replace
 
 import pytest
 from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
+from controller.units.baselines import HoldController
+from controller.units.config import grade_setpoints
 from services.io.opcua.client import ControllerOPCUALink
 from services.io.opcua.server import PlantOPCUAServer
 from services.io.opcua.settings import NAMESPACE_URI, OPCUASettings
@@ -119,12 +124,14 @@ def test_third_party_client_browses_and_reads(loop):
             rng = await (await u.get_child("0:EURange")).read_value()
             sample = await folders["Status"].get_child(f"{ns}:Sample")
             state = await folders["Status"].get_child(f"{ns}:WatchdogState")
+            tunings = [await (await folders["Status"].get_child(f"{ns}:{n}")).read_value()
+                       for n in ("Tuning", "AppliedTuning")]
             first = [await sample.read_value(), await y.read_data_value()]
             await asyncio.sleep(0.5)
             second = [await sample.read_value(), await y.read_data_value()]
-            return eu, desc, rng, first, second, await state.read_value()
+            return eu, desc, rng, first, second, await state.read_value(), tunings
 
-    eu, desc, rng, first, second, state = _run(main())
+    eu, desc, rng, first, second, state, tunings = _run(main())
     # CSTR (plant_sim.cstr): the output is the dimensionless reactor temperature
     assert eu.DisplayName.Text == "-"
     assert "reactor temperature" in desc.Text
@@ -133,6 +140,7 @@ def test_third_party_client_browses_and_reads(loop):
     assert second[1].SourceTimestamp > first[1].SourceTimestamp
     assert math.isfinite(second[1].Value.Value)
     assert state == "ok"
+    assert tunings == ["", ""]  # the CSTR plant has no loops of its own to tune
 
 
 def test_operator_and_anonymous_cannot_write_setpoints(loop):
@@ -250,7 +258,7 @@ def test_grade_change_over_rest_with_the_controller_on_opcua(loop):
     finally:
         api.close()
     assert loop.plant.status()["mv_rejected"] == {"decode": 0, "sender": 0, "stale": 0,
-                                                  "jump": 0}
+                                                  "jump": 0, "tuning": 0}
 
 
 def test_controller_death_sheds_and_holds_then_returns_bumpless(loop):
@@ -358,3 +366,168 @@ def test_te_serves_its_valves_and_loop_setpoints(tmp_path):
     assert {"reactor_pressure_sp", "reactor_level_sp"} <= set(sp_names)
     assert any(n.startswith("XMV") for n in sp_names)
     assert state == "shed"  # no controller has ever written a heartbeat
+
+
+class SteadyTuning(HoldController):
+    """Holds every MV and selects the plant side's tuning set ``tuning`` ("steady"), as
+    the TE MPC strategies do at a steady grade."""
+
+    def __init__(self, cfg):
+        super().__init__(grade_setpoints(cfg, None)[cfg.initial_grade]["mv"])
+        self.tuning = "steady"
+
+    def step(self, k, t, y, reference):
+        return replace(super().step(k, t, y, reference), extra={"tuning": self.tuning})
+
+
+class TELoop:
+    """TE plant node with its OPC UA server, a holding controller node over OPC UA.
+
+    Their Zenoh sessions are not connected: the plant knows the controller through the
+    link alone (no liveliness), so a lost controller is the watchdog's to notice."""
+
+    def __init__(self, tmp):
+        self.cfg = get_unit("te")
+        self.settings = OPCUASettings(endpoint=f"opc.tcp://127.0.0.1:{free_port()}/ssmpc",
+                                      cert_dir=str(tmp / "opcua"), watchdog_s=WATCHDOG_S,
+                                      heartbeat_s=0.2)
+        self.s_plant = open_session(SessionSettings(lease_ms=1000))
+        self.s_ctrl = open_session(SessionSettings(lease_ms=1000))
+        self.server = PlantOPCUAServer(self.cfg, self.settings)
+        self.plant = PlantNode(self.cfg, self.s_plant, speed=1.0, lockstep=True,
+                               lockstep_timeout_s=0.5, link=self.server)
+        self.stop_plant = threading.Event()
+        self.plant_thread = threading.Thread(target=self.plant.run, args=(self.stop_plant,),
+                                             daemon=True)
+        self.plant_thread.start()
+        self.store = UnitStore(tmp / "te.sqlite", "te")
+        self.link = ControllerOPCUALink(self.cfg, self.settings)
+        self.ctrl = ControllerNode(self.cfg, self.s_ctrl, self.store, None, speed=1.0,
+                                   controller=SteadyTuning(self.cfg), plant_link=self.link)
+        assert self.link.wait_connected(30), self.link.last_error
+
+    def stop_controller(self):
+        self.ctrl.close()
+        self.store.close()
+        self.ctrl = None
+
+    def wait(self, cond, timeout=20.0):
+        t_end = time.monotonic() + timeout
+        while not cond() and time.monotonic() < t_end:
+            time.sleep(0.02)
+        return cond()
+
+    def read(self, *names, identity="operator"):
+        """``Status/<name>`` values, read by a plain asyncua client."""
+        async def main():
+            c = await _client(self, identity)
+            async with c:
+                ns = await c.get_namespace_index(NAMESPACE_URI)
+                return await c.read_values([c.get_node(ua.NodeId(f"te.Status.{n}", ns))
+                                            for n in names])
+
+        return _run(main())
+
+    def close(self):
+        if self.ctrl is not None:
+            self.stop_controller()
+        self.stop_plant.set()
+        self.plant_thread.join(5)
+        self.plant.close()
+        for s in (self.s_plant, self.s_ctrl):
+            s.close()
+
+
+@pytest.fixture(scope="module")
+def te_loop(tmp_path_factory):
+    lp = TELoop(tmp_path_factory.mktemp("opcua-te"))
+    yield lp
+    lp.close()
+
+
+def test_te_tuning_set_the_controller_selects_reaches_the_plant(te_loop):
+    plant, ctl = te_loop.plant, te_loop.ctrl.controller
+    assert te_loop.wait(lambda: plant.runner.tuning == "steady")
+    assert te_loop.wait(lambda: te_loop.read("AppliedTuning") == ["steady"])
+    assert te_loop.read("Tuning") == ["steady"]
+    assert plant.status()["tuning"] == "steady"
+    # the controller selects the grade changes' set: the plant and the DCS follow
+    ctl.tuning = "grade_change"
+    assert te_loop.wait(lambda: plant.runner.tuning == "grade_change")
+    assert te_loop.wait(lambda: te_loop.read("Tuning", "AppliedTuning")
+                        == ["grade_change", "grade_change"])
+    ctl.tuning = "steady"
+    assert te_loop.wait(lambda: plant.runner.tuning == "steady")
+    assert te_loop.server.state == "ok"
+    assert plant.status()["mv_rejected"]["tuning"] == 0
+
+
+def test_te_unknown_or_malformed_tuning_is_refused(te_loop):
+    plant, server = te_loop.plant, te_loop.server
+    assert te_loop.wait(lambda: plant.runner.tuning == "steady")
+    refused = dict(server.refused)
+
+    async def main():
+        c = await _client(te_loop, "controller")
+        async with c:
+            ns = await c.get_namespace_index(NAMESPACE_URI)
+
+            def nid(name):
+                return ua.NodeId(f"te.{name}", ns)
+
+            u = await c.get_node(nid("Status.AppliedMoves")).read_value()
+            sps = [nid(f"Setpoints.{n}") for n in te_loop.link.mv_names]
+            S, D = ua.VariantType.String, ua.VariantType.Double
+            # set points with a set this plant does not know: written, the move refused
+            unknown = await c.uaclient.write_attributes(
+                sps + [nid("Status.Tuning")],
+                [ua.DataValue(ua.Variant(float(x), D)) for x in u]
+                + [ua.DataValue(ua.Variant("aggressive", S))])
+            bad = await c.uaclient.write_attributes(
+                [nid("Status.Tuning"), nid("Status.Tuning"), nid("Status.AppliedTuning")],
+                [ua.DataValue(ua.Variant("x" * 65, S)), ua.DataValue(ua.Variant(1.0, D)),
+                 ua.DataValue(ua.Variant("steady", S))])
+            return [r.name for r in unknown], [r.name for r in bad]
+
+    unknown, bad = _run(main())
+    assert set(unknown) == {"Good"}
+    assert bad == ["BadOutOfRange", "BadTypeMismatch", "BadUserAccessDenied"]
+    assert server.refused["range"] == refused["range"] + 1
+    assert server.refused["type"] == refused["type"] + 1
+    assert te_loop.wait(lambda: plant.status()["mv_rejected"]["tuning"] == 1)
+    st = plant.status()
+    assert any("unknown tuning set 'aggressive'" in a for a in st["alarms"])
+
+    async def operator_write():  # only the controller's identity writes it
+        c = await _client(te_loop, "operator")
+        async with c:
+            ns = await c.get_namespace_index(NAMESPACE_URI)
+            with pytest.raises(ua.UaStatusCodeError) as err:
+                await c.get_node(ua.NodeId("te.Status.Tuning", ns)).write_value(
+                    ua.DataValue(ua.Variant("grade_change", ua.VariantType.String)))
+            return type(err.value).__name__
+
+    assert "BadUserAccessDenied" in _run(operator_write())
+    # the plant runs on with the controller's set: its next moves name it again
+    sample = plant.status()["sample"]
+    assert te_loop.wait(lambda: plant.status()["sample"] > sample + 5)
+    assert plant.runner.tuning == "steady" and server.state == "ok"
+    assert te_loop.read("Tuning", "AppliedTuning") == ["steady", "steady"]
+
+
+def test_te_heartbeat_loss_sheds_the_tuning_to_the_default(te_loop):
+    """Last of the TE tests: it stops the controller."""
+    plant, server = te_loop.plant, te_loop.server
+    assert te_loop.wait(lambda: plant.runner.tuning == "steady")
+    sheds = server.sheds
+    te_loop.stop_controller()
+    assert te_loop.wait(lambda: server.state == "shed", timeout=WATCHDOG_S + 5)
+    assert te_loop.wait(lambda: plant.runner.tuning == "grade_change", timeout=5)
+    assert server.sheds == sheds + 1
+    assert plant.controller_alive is False  # no liveliness here: the watchdog did it
+    # the DCS sees the default set in force; a returning controller must name its own
+    assert te_loop.wait(lambda: te_loop.read("WatchdogState", "Tuning", "AppliedTuning")
+                        == ["shed", "", "grade_change"])
+    sample = plant.status()["sample"]
+    assert te_loop.wait(lambda: plant.status()["sample"] > sample)  # held, running on
+    assert plant.status()["tuning"] == "grade_change"

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from services.io import keys
-from services.io.messages import Measurement, MVMessage, Reply, Request
+from services.io.messages import SCHEMA_VERSION, Measurement, MVMessage, Reply, Request
 from services.io.zenoh_session import SessionSettings, free_tcp_endpoint, open_session
 from services.nodes.controller import ControllerNode
 from services.nodes.plant import PlantNode
@@ -205,7 +205,8 @@ def test_closed_loop_transition_settles_at_the_grade(harness):
     expected = ["pending", "running", "settled"]
     assert h.wait_events(rep.data["id"], expected) == expected
     ps = h.plant.status()
-    assert ps["mv_rejected"] == {"decode": 0, "sender": 0, "stale": 0, "jump": 0}
+    assert ps["mv_rejected"] == {"decode": 0, "sender": 0, "stale": 0, "jump": 0,
+                                 "tuning": 0}
     assert ps["lockstep_timeouts"] == 0
 
 
@@ -230,19 +231,24 @@ def test_plant_ignores_mv_from_wrong_sender_stale_and_malformed(harness, plant_b
     good = MVMessage(unit="cstr", seq=10, meas_seq=0, u=(0.45,), sender="cstr-controller")
     wrong = MVMessage(unit="cstr", seq=11, meas_seq=0, u=(9.0,), sender="intruder")
     stale = MVMessage(unit="cstr", seq=5, meas_seq=0, u=(8.0,), sender="cstr-controller")
-    nan = json.dumps({"schema": 2, "kind": "mv", "unit": "cstr", "seq": 12, "meas_seq": 0,
-                      "u": [float("nan")], "sender": "cstr-controller"}).encode()
+    nan = json.dumps({"schema": SCHEMA_VERSION, "kind": "mv", "unit": "cstr", "seq": 12,
+                      "meas_seq": 0, "u": [float("nan")], "sender": "cstr-controller"}).encode()
     v2 = json.loads(good.to_bytes())
     v2["schema"] = 1  # an older version
     v2["seq"] = 13
+    # a CSTR has no loops of its own: a move naming a tuning set is refused whole
+    tuned = MVMessage(unit="cstr", seq=14, meas_seq=0, u=(7.0,), sender="cstr-controller",
+                      tuning="steady")
     for payload in (good.to_bytes(), wrong.to_bytes(), stale.to_bytes(), nan,
-                    json.dumps(v2).encode(), b"\x00garbage"):
+                    json.dumps(v2).encode(), b"\x00garbage", tuned.to_bytes()):
         pub.put(payload)
     t_end = time.monotonic() + 5
-    while time.monotonic() < t_end and sum(h.plant.status()["mv_rejected"].values()) < 5:
+    while time.monotonic() < t_end and sum(h.plant.status()["mv_rejected"].values()) < 6:
         time.sleep(0.02)
     st = h.plant.status()
-    assert st["mv_rejected"] == {"decode": 3, "sender": 1, "stale": 1, "jump": 0}
+    assert st["mv_rejected"] == {"decode": 3, "sender": 1, "stale": 1, "jump": 0,
+                                 "tuning": 1}
+    assert st["tuning"] is None
     time.sleep(0.1)
     assert h.plant.runner.u[0] == pytest.approx(0.45)  # only the good one was applied
     pub.undeclare()

@@ -143,6 +143,9 @@ def test_rest_request_moves_te_from_mode0_to_mode2_over_zenoh(tmp_path):
     api = ApiServer(h)
     try:
         h.wait_samples(5, timeout=60)
+        # no grade change yet: the MPC selects the steady grade's tuning of the plant
+        # side's loops (controller.units.te.loop_tuning), and the plant runs it
+        assert h.plant.status()["tuning"] == "steady"
         grades = api.client.get("/api/v1/units/te/grades").json()["grades"]
         assert grades["mode2"]["g_h_mass_ratio"] == "10/90"
         assert grades["mode2"]["product_kg_h"] == {"G": 1408.0, "H": 12669.0}
@@ -159,6 +162,8 @@ def test_rest_request_moves_te_from_mode0_to_mode2_over_zenoh(tmp_path):
         assert v["state"] == "settled", (v.get("detail"), v, st)
         assert abs(st["cv"]["XMEAS40"] - G_MODE2) <= G_BAND
         assert st["plant_shutdown"] is False and st["grade"] == "mode2"
+        assert h.plant.status()["tuning"] == "grade_change"  # within a day of the change
+        assert st["tuning"] == "grade_change"  # what the controller sends, over REST
         assert st["solve_ms"] is not None and st["deadline_misses"] >= 0
         # the state-shared MPC reports its models, their J (eq. 4.6) and its solve time
         assert st["active_model_name"] in st["J"] and len(st["J"]) >= 3
@@ -179,3 +184,69 @@ def test_rest_request_moves_te_from_mode0_to_mode2_over_zenoh(tmp_path):
     for p in ("/te/cv/XMEAS40", "/te/ref/XMEAS40", "/te/mv/reactor_temperature_sp",
               "/te/model/active", "/te/timing/solve_ms", "/te/timing/slack_ms"):
         assert p in paths
+
+
+class SteadyTuning(HoldController):
+    """Holds every MV and selects the plant side's ``"steady"`` tuning set, as the TE MPC
+    strategies do at a steady grade (:mod:`controller.units.te.loop_tuning`)."""
+
+    def __init__(self, cfg):
+        super().__init__(grade_setpoints(cfg, None)[cfg.initial_grade]["mv"])
+        self.tuning = "steady"
+
+    def step(self, k, t, y, reference):
+        from dataclasses import replace
+
+        return replace(super().step(k, t, y, reference), extra={"tuning": self.tuning})
+
+
+def test_te_plant_runs_the_tuning_set_the_controller_selects_over_zenoh(tmp_path):
+    from controller.units.te.loops import LOOP_TUNING_SETS, REACTOR_TEMPERATURE_CASCADE
+    from services.io.messages import MVMessage
+
+    h = Harness(tmp_path, unit="te", speed=10_000.0, controller="hold", telemetry=False,
+                controller_factory=SteadyTuning)
+    try:
+        h.wait_samples(5, timeout=60)
+        plant = h.plant
+        published = LOOP_TUNING_SETS["steady"][REACTOR_TEMPERATURE_CASCADE.name]
+        assert plant.status()["tuning"] == "steady"
+        assert plant.runner.reg.gains[0] == published  # the published 28.3 degC/degC
+        # the controller selects the grade changes' set: the plant follows
+        h.ctrl.controller.tuning = "grade_change"
+        h.wait_samples(3, timeout=60)
+        assert plant.status()["tuning"] == "grade_change"
+        assert plant.runner.reg.gains[0] == REACTOR_TEMPERATURE_CASCADE.gain
+        # a move naming a set this plant does not know is refused whole, with an alarm
+        pub = h.s_client.declare_publisher(keys.mv("te"))
+        bad = MVMessage(unit="te", seq=h.plant.last_mv_seq + 1, meas_seq=h.plant.k,
+                        u=tuple(plant.runner.u), sender=h.plant.expected_sender,
+                        tuning="aggressive")
+        pub.put(bad.to_bytes())
+        t_end = time.monotonic() + 10
+        while plant.status()["mv_rejected"]["tuning"] == 0 and time.monotonic() < t_end:
+            time.sleep(0.02)
+        st = plant.status()
+        assert st["mv_rejected"]["tuning"] == 1 and st["tuning"] == "grade_change"
+        assert any("unknown tuning set 'aggressive'" in a for a in st["alarms"])
+        pub.undeclare()
+        # the controller lost (its liveliness gone): the loops shed to the default set
+        h.ctrl.controller.tuning = "steady"
+        h.wait_samples(3, timeout=60)
+        assert plant.status()["tuning"] == "steady"
+        h.stop_controller()
+        t_end = time.monotonic() + 10
+        while plant.status()["tuning"] != "grade_change" and time.monotonic() < t_end:
+            time.sleep(0.05)
+        assert plant.status()["tuning"] == "grade_change"
+        assert plant.runner.reg.gains[0] == REACTOR_TEMPERATURE_CASCADE.gain
+        time.sleep(0.5)  # a move still on its way from the lost controller sets nothing
+        assert plant.status()["tuning"] == "grade_change"
+        # a controller back (its liveliness again): its moves select the set again
+        h.start_controller()
+        t_end = time.monotonic() + 30
+        while plant.status()["tuning"] != "steady" and time.monotonic() < t_end:
+            time.sleep(0.05)
+        assert plant.status()["tuning"] == "steady"
+    finally:
+        h.close()

@@ -367,6 +367,31 @@ class RegulatoryLayer:
         """Per loop: 0 free, 1 latched high, 2 latched low (:class:`ValveOverride`)."""
         return tuple(int(v) for v in self._ovr_state[self._public])
 
+    @property
+    def gains(self) -> np.ndarray:
+        """Gains in force, one per loop (a cascaded loop's primary), a copy."""
+        return self._gain[self._public]
+
+    def set_gains(self, values) -> None:
+        """Retune the loops' gains (one per loop; a cascaded loop's primary), a DCS's
+        tuning-set switch. NaN keeps a loop's gain in force.
+
+        In the velocity form a new gain changes no output at the switch: the loop acts
+        with it on the error's next changes (bumpless). Integral times stay.
+
+        Raises
+        ------
+        PlantInputError
+            Wrong length or an infinite value (the loop is named).
+        """
+        arr = np.asarray(values, dtype=float).reshape(-1)
+        if arr.shape[0] != len(self.loops):
+            raise PlantInputError(f"gains: expected {len(self.loops)}, got {arr.shape[0]}")
+        for lp, v in zip(self.loops, arr.tolist(), strict=True):
+            if math.isinf(v):
+                raise PlantInputError(f"gains: {lp.name} gain is not finite ({v})")
+        self._gain[self._public] = np.where(np.isnan(arr), self._gain[self._public], arr)
+
     def set_setpoints(self, values) -> None:
         """Set all set points (one per loop).
 

@@ -51,6 +51,7 @@ def _settings_json(unit: str) -> str:
             FEED_BALANCE_MPC,
             GUARDS_MPC,
             LEG_REFERENCES_MPC,
+            LOOP_TUNING_MPC,
             PRESSURE_GAIN_MPC,
             PRODUCTION_CONDENSER_LOOP,
             PRODUCTION_CONDENSER_MEAN_H,
@@ -69,7 +70,7 @@ def _settings_json(unit: str) -> str:
         from controller.units.te.floating_pressure import FloatingPressureSettings
         from controller.units.te.grades import TAU_DEFAULT_H
         from controller.units.te.level_sag import LevelSagSettings
-        from controller.units.te.loops import INNER_LOOPS, MODEL_LOOPS
+        from controller.units.te.loops import INNER_LOOPS, LOOP_TUNING_SETS, MODEL_LOOPS
         from controller.units.te.overrides import FeedOverrideSettings
         from controller.units.te.production_index import ProductionIndexSettings
         from controller.units.te.reactant_trim import ReactantTrimSettings
@@ -90,6 +91,8 @@ def _settings_json(unit: str) -> str:
                                "on": _default_of(make_te_controller, "pressure_gain")},
              "feed_balance": {**asdict(FEED_BALANCE_MPC),
                               "on": _default_of(make_te_controller, "feed_balance")},
+             "loop_tuning": {**asdict(LOOP_TUNING_MPC), "sets": LOOP_TUNING_SETS,
+                             "on": _default_of(make_te_controller, "loop_tuning")},
              "feeds": asdict(FeedOverrideSettings()),
              "production": asdict(ProductionIndexSettings()),
              "level_sag": asdict(LevelSagSettings()),

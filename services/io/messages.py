@@ -37,7 +37,11 @@ __all__ = [
 #: 2: :class:`Measurement` carries the plant's ``incarnation`` (required). A node
 #: refuses every message of another version (it names both), so nodes of versions
 #: 1 and 2 do not talk to each other: upgrade the nodes of a unit together.
-SCHEMA_VERSION = 2
+#: 3: :class:`MVMessage` may carry the plant side's ``tuning`` set (optional).
+SCHEMA_VERSION = 3
+
+#: Longest name of a tuning set an MV message may carry, characters.
+TUNING_NAME_MAX = 64
 
 
 class MessageError(ValueError):
@@ -138,6 +142,14 @@ def _str(obj: dict, name: str) -> str:
     v = obj[name]
     if not isinstance(v, str) or not v:
         raise MessageError(f"{name}: expected a non-empty string")
+    return v
+
+
+def _tuning_name(v) -> str:
+    """A tuning set's name: a string of 1..:data:`TUNING_NAME_MAX` characters (whether
+    the plant knows it is the plant's check)."""
+    if not (isinstance(v, str) and 0 < len(v) <= TUNING_NAME_MAX):
+        raise MessageError(f"tuning: expected a string of 1..{TUNING_NAME_MAX} characters")
     return v
 
 
@@ -275,6 +287,10 @@ class MVMessage:
         Identity of the controller; the plant accepts MVs only from its expected sender.
     fallback : bool
         True when the move is not a fresh optimum (deadline miss, hold, solver failure).
+    tuning : str, optional
+        The tuning set of the plant side's loops for the interval (a name the unit's
+        plant knows, 1..:data:`TUNING_NAME_MAX` characters); None: the plant's default.
+        Encoded only when given.
     """
 
     unit: str
@@ -283,6 +299,7 @@ class MVMessage:
     u: tuple[float, ...]
     sender: str
     fallback: bool = False
+    tuning: str | None = None
 
     KIND = "mv"
 
@@ -290,25 +307,33 @@ class MVMessage:
         object.__setattr__(self, "u", _finite_tuple(self.u, "u"))
         if self.seq < 0:
             raise MessageError(f"seq: must be >= 0, got {self.seq}")
+        if self.tuning is not None:
+            _tuning_name(self.tuning)
 
     def to_bytes(self) -> bytes:
-        return encode({"schema": SCHEMA_VERSION, "kind": self.KIND, "unit": self.unit,
-                       "seq": self.seq, "meas_seq": self.meas_seq, "u": list(self.u),
-                       "sender": self.sender, "fallback": self.fallback})
+        obj = {"schema": SCHEMA_VERSION, "kind": self.KIND, "unit": self.unit,
+               "seq": self.seq, "meas_seq": self.meas_seq, "u": list(self.u),
+               "sender": self.sender, "fallback": self.fallback}
+        if self.tuning is not None:
+            obj["tuning"] = self.tuning
+        return encode(obj)
 
     @classmethod
     def from_bytes(cls, payload, *, unit: str | None = None, nu: int | None = None) -> MVMessage:
         obj = decode_object(payload, cls.KIND)
-        _check_fields(obj, cls.KIND, {"unit", "seq", "meas_seq", "u", "sender"}, {"fallback"})
+        _check_fields(obj, cls.KIND, {"unit", "seq", "meas_seq", "u", "sender"},
+                      {"fallback", "tuning"})
         msg_unit = _str(obj, "unit")
         if unit is not None and msg_unit != unit:
             raise MessageError(f"unit: expected {unit!r}, got {msg_unit!r}")
         fallback = obj.get("fallback", False)
         if not isinstance(fallback, bool):
             raise MessageError("fallback: expected a boolean")
+        tuning = _tuning_name(obj["tuning"]) if "tuning" in obj else None  # absent: default
         return cls(unit=msg_unit, seq=_int(obj, "seq", minimum=0),
                    meas_seq=_int(obj, "meas_seq", minimum=-1), u=_vector(obj, "u", nu),
-                   sender=_str(obj, "sender"), fallback=fallback)
+                   sender=_str(obj, "sender"), fallback=fallback,
+                   tuning=tuning)
 
 
 @dataclass(frozen=True)

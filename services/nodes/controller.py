@@ -346,6 +346,9 @@ class ControllerNode:
         self.stats = DeadlineStats(self.budget.budget_s)
         self.sample_times = SampleTimes()  # arrival and move of the latest samples
         self.mv_seq = 0
+        #: the plant side's tuning set sent with each move (the controller's selection,
+        #: ``ControlDecision.extra["tuning"]``; None: the plant's default)
+        self.tuning: str | None = None
         self.k = -1
         self.t = 0.0
         self.y = np.full(self.ny, np.nan)
@@ -1112,6 +1115,7 @@ class ControllerNode:
                 "targets": None if d is None else _json_targets(d.extra.get("targets")),
                 # TE: the composition core's view (MPC strategies; None elsewhere)
                 "composition": None if d is None else d.extra.get("composition"),
+                "tuning": self.tuning,
                 "solve_ms": None if d is None else float(d.solve_ms),
                 "controller_status": None if d is None else d.status,
                 "deadline_misses": self.stats.misses,
@@ -1177,7 +1181,7 @@ class ControllerNode:
         # pass, not a conversion of each numpy scalar (the same numbers, the same bytes)
         msg = MVMessage(unit=self.cfg.unit, seq=self.mv_seq, meas_seq=meas_seq,
                         u=tuple(np.asarray(u, float).tolist()), sender=self.sender,
-                        fallback=fallback)
+                        fallback=fallback, tuning=self.tuning)
         self._mv_pub.put(msg.to_bytes())
 
     def _align(self, msg: Measurement) -> None:
@@ -1285,6 +1289,9 @@ class ControllerNode:
                 fb = decision.fallback
                 if self._ramp_in is not None:
                     u = self._ramp_limited(u, hold, msg.seq)
+                # the plant side's tuning set the controller selects (TE), sent with
+                # this move and every held one after it
+                self.tuning = decision.extra.get("tuning") if decision.extra else None
             self._publish_mv(msg.seq, u, fb)
         else:
             u = hold  # the watchdog sent the held move: the law goes on from it

@@ -15,11 +15,19 @@ not further ahead of it than the wall time since then allows (the controller
 numbers its moves by the wall clock in µs, see ``ControllerNode._publish_mv``; the
 first one may be at most that far ahead of this node's clock): a forged move with a
 huge ``seq`` would otherwise make every genuine move look stale. Everything else is
-counted by reason (``decode``, ``sender``, ``stale``, ``jump``) and ignored. A move of
-the expected sender refused as stale although it answers a sample as new as the
+counted by reason (``decode``, ``sender``, ``tuning``, ``stale``, ``jump``) and ignored.
+A move of the expected sender refused as stale although it answers a sample as new as the
 applied one's raises the alarm that the applied move is not the controller's latest.
 The move applied is then held inside the instrument ranges and rate limits of
 :mod:`services.nodes.plant_guard` (counted as ``moves_limited``, with an alarm).
+
+A move may name the tuning set of the plant's own loops for its interval (TE:
+:data:`controller.units.te.loops.LOOP_TUNING_SETS`); a move naming a set this plant
+does not know is refused whole (``tuning``, with an alarm), one naming none runs the
+default set. The set switches with the move it came with, before the interval is
+integrated; a held sample keeps the set in force. When the controller's liveliness is
+lost the loops shed to their default set (and the last move holds), as a DCS sheds
+its APC. ``status`` reports the set in force (``tuning``).
 
 Every measurement carries this run's ``incarnation`` (random at start), so the
 controller can tell a restarted plant from a forged or replayed sample. A controller move computed
@@ -98,6 +106,10 @@ class ODERunner:
         self.substeps = cfg.substeps
         self.t = 0.0
         self.shutdown = False
+        #: the plant side's tuning sets (an ODE plant has no loops: none) and the one in force
+        self.tunings: tuple[str, ...] = ()
+        self.tuning: str | None = None
+        self.default_tuning: str | None = None
         lo = np.array([self.plant.input_vars[i].lower for i in self.mvi])
         hi = np.array([self.plant.input_vars[i].upper for i in self.mvi])
         self.u_lower, self.u_upper = lo, hi
@@ -144,6 +156,7 @@ class TERunner:
 
     def __init__(self, cfg: UnitConfig, *, noise: bool = False, seed: float | None = None
                  ) -> None:
+        from controller.units.te.loops import DEFAULT_TUNING, LOOP_TUNING_SETS
         from controller.units.te.structure import (
             TE_EULER_STEP_S,
             te_mv_names,
@@ -159,6 +172,13 @@ class TERunner:
         self.sim = TESimulator(SimSettings(**kw))
         loops, _ = te_structure(cfg.strategy)
         self.reg = RegulatoryLayer(self.sim, loops=loops)
+        self._loops = loops
+        #: the loops' named tuning sets (:data:`controller.units.te.loops.LOOP_TUNING_SETS`;
+        #: the decentralized structure's loops have their published tuning only) and the
+        #: one in force, the default until a move selects another
+        self.tunings = ((DEFAULT_TUNING,) if cfg.strategy == "decentralized"
+                        else tuple(LOOP_TUNING_SETS))
+        self.tuning = self.default_tuning = DEFAULT_TUNING
         self.steps = int(round(cfg.sample_period_s / TE_EULER_STEP_S))
         self.cvi = [int(n[5:]) - 1 for n in cfg.cvs]
         sp_names = [te_setpoint_name(lp) for lp in loops]
@@ -204,6 +224,18 @@ class TERunner:
             self.sim.set_xmv(xmv)
         self.reg.run_steps(self.steps)
         self.t += dt_s
+
+    def set_tuning(self, name: str) -> None:
+        """Switch the loops to tuning set ``name`` (one of :attr:`tunings`; bumpless,
+        :meth:`plant_sim.tennessee_eastman.regulatory.RegulatoryLayer.set_gains`)."""
+        from controller.units.te.loops import tuning_gains
+
+        if name not in self.tunings:
+            raise ValueError(f"tuning: unknown tuning set {name!r}; known: "
+                             f"{', '.join(self.tunings)}")
+        if name != self.tuning:
+            self.reg.set_gains(tuning_gains(self._loops, name))
+            self.tuning = name
 
     def set_idv(self, k: int, on: bool) -> None:
         self.sim.set_idv(int(k), bool(on))
@@ -265,7 +297,7 @@ class PlantCounters:
     mv_accepted: int = 0
     mv_held: int = 0
     rejected: dict = field(default_factory=lambda: {"decode": 0, "sender": 0, "stale": 0,
-                                                    "jump": 0})
+                                                    "jump": 0, "tuning": 0})
     lockstep_timeouts: int = 0
     #: samples whose move was clamped or rate-limited (plant_guard)
     moves_limited: int = 0
@@ -336,6 +368,9 @@ class PlantNode:
         self.last_mv_seq = -1
         self._applied_mv_seq = -1
         self._pending: MVMessage | None = None
+        #: the loops shed to their default tuning set: the moves' sets are not taken
+        #: (the controller lost, until it is back)
+        self._tuning_shed = False
         self._cond = threading.Condition()
         self._lock = threading.Lock()
         self._published_at = 0.0
@@ -377,6 +412,12 @@ class PlantNode:
             if msg.sender != self.expected_sender:
                 self.counters.rejected["sender"] += 1
                 log.warning("MV rejected: sender %r is not %r", msg.sender, self.expected_sender)
+                return
+            if msg.tuning is not None and msg.tuning not in self.runner.tunings:
+                self.counters.rejected["tuning"] += 1
+                known = ", ".join(self.runner.tunings) or "none"
+                self._alarm("tuning", f"move for sample {msg.meas_seq} refused: unknown "
+                            f"tuning set {msg.tuning!r} (this plant knows: {known})")
                 return
             if msg.seq <= self.last_mv_seq:
                 self.counters.rejected["stale"] += 1
@@ -441,8 +482,30 @@ class PlantNode:
         if self.controller_alive and not alive:
             # Documented safe action: keep applying the last move (as a DCS holds its
             # outputs) and say so; a restarted controller resumes from its checkpoint.
+            # The loops shed to their default tuning set, as a DCS sheds its APC's.
             log.warning("controller of %s lost: holding the last MVs", self.cfg.unit)
+            self.shed_tuning()
+        elif alive:
+            self.resume_tuning()
         self.controller_alive = alive
+
+    def shed_tuning(self) -> None:
+        """The loops back on their default tuning set until :meth:`resume_tuning`: moves
+        applied meanwhile (one still on its way from the lost controller included) keep
+        their valves but not their tuning set."""
+        if not self.runner.tunings:
+            return
+        self._tuning_shed = True
+        with self._lock:
+            if self.runner.tuning == self.runner.default_tuning:
+                return
+            self.runner.set_tuning(self.runner.default_tuning)
+            log.warning("%s: loops back on their %r tuning", self.cfg.unit,
+                        self.runner.tuning)
+
+    def resume_tuning(self) -> None:
+        """The controller is back: its moves select the tuning set again."""
+        self._tuning_shed = False
 
     def _handle(self, req: Request) -> Reply:
         if req.action == "status":
@@ -502,6 +565,7 @@ class PlantNode:
                     "incarnation": self.incarnation,
                     "busy_poll": self.busy_poll,
                     "shutdown": bool(self.runner.shutdown),
+                    "tuning": self.runner.tuning,
                     "controller_alive": self.controller_alive,
                     "link": None if self.link is None else self.link.status()}
 
@@ -615,6 +679,9 @@ class PlantNode:
                 self._applied_mv_seq = msg.seq
             t_adv = time.perf_counter()
             with self._lock:
+                if msg is not None and self.runner.tunings:  # checked known on receipt
+                    self.runner.set_tuning(msg.tuning if msg.tuning and not self._tuning_shed
+                                           else self.runner.default_tuning)
                 self.runner.advance(u, self.cfg.sample_period_s)
             self.advance_max_s = max(self.advance_max_s, time.perf_counter() - t_adv)
             if not self.lockstep:

@@ -166,6 +166,8 @@ Use (service node and studies)::
     # dec.u: 12 XMV targets; write those in spec.written_xmvs, NaN = owned by a loop
     # (spec.loop_xmvs); dec.extra["setpoints"]: one per loop in spec.loops order
     # (T_r*, reactor level, separator level, stripper level, P_r*);
+    # MPC strategies: dec.extra["tuning"], the plant side's tuning set (loop_tuning)
+    reg.set_gains(tuning_gains(spec.loops, dec.extra.get("tuning", DEFAULT_TUNING)))
     reg.set_setpoints(dec.extra["setpoints"]); reg.run_steps(spec.sample_steps)
     ctl.retarget(new_plan)                                   # a new grade request
 
@@ -203,7 +205,8 @@ from controller.units.te.grades import TransitionPlan, limit_margins
 from controller.units.te.held_alarm import HeldAlarm
 from controller.units.te.leg_references import LegReferenceSettings
 from controller.units.te.level_sag import LevelSag, LevelSagSettings
-from controller.units.te.loops import INNER_LOOPS, PRESSURE_LOOP
+from controller.units.te.loop_tuning import LoopTuningSettings, select_tuning
+from controller.units.te.loops import DEFAULT_TUNING, INNER_LOOPS, PRESSURE_LOOP, tuning_gains
 from controller.units.te.models import MODEL_GRADES, MPC_ORDER
 from controller.units.te.overrides import FeedOverrides, FeedOverrideSettings
 from controller.units.te.path_kernel import compile_path_kernels
@@ -982,6 +985,11 @@ class TEController:
         MPC strategies: the A+C feed's target trimmed on A + C in the reactor feed's
         fast changes at a steady grade (:mod:`controller.units.te.feed_balance`);
         None (default): off.
+    loop_tuning : LoopTuningSettings, optional
+        MPC strategies: the plant side's tuning set selected each sample, the steady
+        grade's from a while after a grade change
+        (:mod:`controller.units.te.loop_tuning`, ``extra["tuning"]``); None (default):
+        no selection, the plant side's default set throughout.
     """
 
     def __init__(self, strategy: str, plan: TransitionPlan, core, ratio: RatioSettings,
@@ -1000,7 +1008,8 @@ class TEController:
                  composition: CompositionCoreSettings | None = None,
                  leg_references: LegReferenceSettings | None = None,
                  pressure_gain: SteadyPressureGainSettings | None = None,
-                 feed_balance: ReactorFeedBalanceSettings | None = None) -> None:
+                 feed_balance: ReactorFeedBalanceSettings | None = None,
+                 loop_tuning: LoopTuningSettings | None = None) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy: unknown {strategy!r}; known: {', '.join(STRATEGIES)}")
         self.strategy = strategy
@@ -1023,6 +1032,9 @@ class TEController:
         self.pressure_gain = (SteadyPressureGain(pressure_gain, self.sample_h)
                               if pressure_gain is not None and strategy in MPC_STRATEGIES
                               else None)
+        #: MPC strategies: the plant side's tuning set selected each sample
+        #: (:mod:`controller.units.te.loop_tuning`; None: no selection)
+        self.loop_tuning = loop_tuning if strategy in MPC_STRATEGIES else None
         #: MPC strategies: the A+C feed's target on A + C in the reactor feed at a steady
         #: grade (:mod:`controller.units.te.feed_balance`; None: off)
         self.feed_balance = (ReactorFeedBalance(feed_balance, self.sample_h)
@@ -1800,6 +1812,9 @@ class TEController:
         setpoints = np.array([core_u[3], level_sp, yl[11], yl[14], pr_sp])
         extra = {"setpoints": setpoints, "d_share": s, "core_u": np.asarray(core_u).copy(),
                  "pressure_floats": self.pressure_floats}
+        if self.loop_tuning is not None:
+            extra["tuning"] = select_tuning(self.loop_tuning, self._since,
+                                            bool(self.outer_held))
         if self.composition is not None and self.composition.share is not None:
             comp = self.composition
             extra["composition"] = {"planning": self._comp_share is not None,
@@ -2237,6 +2252,10 @@ LEG_REFERENCES_MPC = LegReferenceSettings()
 #: (:mod:`controller.units.te.pressure_gain`).
 PRESSURE_GAIN_MPC = SteadyPressureGainSettings()
 
+#: The settings of the MPC strategies' selection of the plant side's tuning set
+#: (:mod:`controller.units.te.loop_tuning`).
+LOOP_TUNING_MPC = LoopTuningSettings()
+
 #: The settings of the MPC strategies' reactor-feed balance when it is switched on
 #: (:mod:`controller.units.te.feed_balance`; off by default).
 FEED_BALANCE_MPC = ReactorFeedBalanceSettings()
@@ -2341,6 +2360,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        leg_references: LegReferenceSettings | bool = True,
                        pressure_gain: SteadyPressureGainSettings | bool = True,
                        feed_balance: ReactorFeedBalanceSettings | bool = False,
+                       loop_tuning: LoopTuningSettings | bool = True,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
 
@@ -2403,6 +2423,11 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         MPC strategies: the A+C feed's target trimmed on A + C in the reactor feed's
         fast changes at a steady grade (:mod:`controller.units.te.feed_balance`): False
         (default, off), True (:data:`FEED_BALANCE_MPC`), or settings.
+    loop_tuning : bool or LoopTuningSettings
+        MPC strategies: the plant side's tuning set selected each sample, the reactor
+        temperature's primary at its published gain at a steady grade
+        (:mod:`controller.units.te.loop_tuning`): True (default, :data:`LOOP_TUNING_MPC`),
+        False (the plant side's default set throughout), or settings.
 
     Returns
     -------
@@ -2460,7 +2485,10 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        feed_balance=(_settings_or_default("feed_balance", feed_balance,
                                                           FEED_BALANCE_MPC,
                                                           ReactorFeedBalanceSettings)
-                                     if mpc_core else None))
+                                     if mpc_core else None),
+                       loop_tuning=(_settings_or_default("loop_tuning", loop_tuning,
+                                                         LOOP_TUNING_MPC, LoopTuningSettings)
+                                    if mpc_core else None))
     return ctl, TEControlSpec(strategy, sample_h, int(round(steps)))
 
 
@@ -2581,6 +2609,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
     for k_idv, t_off in (idv_off or {}).items():
         sim.set_idv(int(k_idv), False, at_h=float(t_off))
     reg = RegulatoryLayer(sim, loops=spec.loops)
+    tuning = DEFAULT_TUNING  # the plant side's tuning set in force
     rng = np.random.default_rng(seed)
     n = int(round(hours / spec.sample_h))
     T = np.empty(n)
@@ -2613,6 +2642,10 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
                 xmv[i - 1] = v
         sim.set_xmv(xmv)
         reg.set_setpoints(dec.extra["setpoints"])
+        tuning_k = dec.extra.get("tuning", DEFAULT_TUNING)
+        if tuning_k != tuning:  # the plant side's set switches with the move (bumpless)
+            reg.set_gains(tuning_gains(spec.loops, tuning_k))
+            tuning = tuning_k
         T[k], X[k], U[k], S[k] = t, xmeas, xmv, dec.extra["setpoints"]
         flow[k] = sim.product_flow_lbmol_h  # priced with the XMEAS after the run
         act[k], ms[k] = dec.active_model, dec.solve_ms

@@ -14,8 +14,8 @@ from dataclasses import replace
 from controller.units.te.published_loops import published_cascade
 from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop
 
-__all__ = ["INNER_LOOPS", "MODEL_LOOPS", "PRESSURE_LOOP", "PUBLISHED_TEMPERATURE_CASCADE",
-           "REACTOR_TEMPERATURE_CASCADE"]
+__all__ = ["DEFAULT_TUNING", "INNER_LOOPS", "LOOP_TUNING_SETS", "MODEL_LOOPS", "PRESSURE_LOOP",
+           "PUBLISHED_TEMPERATURE_CASCADE", "REACTOR_TEMPERATURE_CASCADE", "tuning_gains"]
 
 #: A fifth inner loop, reactor pressure -> purge (XMV 6), whose set point the core
 #: writes in place of the purge valve (see :mod:`controller.units.te.control`, "Pressure").
@@ -65,3 +65,32 @@ REACTOR_TEMPERATURE_CASCADE = replace(PUBLISHED_TEMPERATURE_CASCADE, gain=10.0)
 #: cascade's own reduced models carry its fast modes (-30 +- 244j 1/h at mode 2 with the
 #: published tuning), and with them ``fixed`` tripped 0 -> 2 0.7 h after the request.
 INNER_LOOPS = (REACTOR_TEMPERATURE_CASCADE,) + MODEL_LOOPS[1:]
+
+#: The plant side's named tuning sets (set name -> loop name -> gain; a cascaded loop's
+#: primary). A loop a set does not name runs its gain of :data:`INNER_LOOPS`. The
+#: supervisory controller selects one each sample (:mod:`controller.units.te.loop_tuning`):
+#: ``"grade_change"``, the gains every grade change was tuned with; ``"steady"``, the
+#: reactor temperature's primary at its published 28.3 degC/degC.
+LOOP_TUNING_SETS = {
+    "grade_change": {},
+    "steady": {REACTOR_TEMPERATURE_CASCADE.name: PUBLISHED_TEMPERATURE_CASCADE.gain},
+}
+
+#: The tuning set the plant side runs when it hears no selection (a controller lost,
+#: held or of an older version): the grade changes' gains, safe through a grade change.
+DEFAULT_TUNING = "grade_change"
+
+
+def tuning_gains(loops, name: str) -> tuple[float, ...]:
+    """The gains of ``loops`` under tuning set ``name``, one per loop.
+
+    Raises
+    ------
+    ValueError
+        ``name`` is not a set of :data:`LOOP_TUNING_SETS` (the known ones are named).
+    """
+    if name not in LOOP_TUNING_SETS:
+        raise ValueError(f"tuning: unknown tuning set {name!r}; known: "
+                         f"{', '.join(LOOP_TUNING_SETS)}")
+    chosen = LOOP_TUNING_SETS[name]
+    return tuple(float(chosen.get(lp.name, lp.gain)) for lp in loops)

@@ -13,7 +13,8 @@ identity token. Per sample:
 3. the controller node processes it as it would a Zenoh measurement (the same
    strict decode, on this thread, as it runs on the Zenoh thread that delivers one);
 4. its move goes out in one Write request: the ``Setpoints``, ``AnsweredSample``,
-   ``MoveFallback``, ``ControllerMode`` and the ``ControllerHeartbeat`` counter.
+   ``MoveFallback``, ``Tuning`` (the move's tuning set of the plant's loops, empty
+   for none), ``ControllerMode`` and the ``ControllerHeartbeat`` counter.
 
 Between moves a heartbeat is written at least every ``heartbeat_s`` wall seconds (a
 slow unit's sample is longer than the plant's watchdog). A lost server is the
@@ -236,7 +237,8 @@ class ControllerOPCUALink:
                               + [nid("Status", n) for n in SAMPLE_STATUS])
             self._sp_ids = [nid("Setpoints", n) for n in self.mv_names]
             self._move_ids = self._sp_ids + [nid("Status", n) for n in (
-                "AnsweredSample", "MoveFallback", "ControllerMode", "ControllerHeartbeat")]
+                "AnsweredSample", "MoveFallback", "Tuning", "ControllerMode",
+                "ControllerHeartbeat")]
             self._beat_ids = [nid("Status", "ControllerMode"), nid("Status", "ControllerHeartbeat")]
             for n, dv in zip(self._read_ids + self._move_ids, await client.uaclient.read_attributes(
                     self._read_ids + self._move_ids, ua.AttributeIds.Value)):
@@ -335,7 +337,8 @@ class ControllerOPCUALink:
         D = ua.VariantType.Double
         dvs = [ua.DataValue(ua.Variant(float(x), D)) for x in msg.u]
         dvs += [ua.DataValue(ua.Variant(int(msg.meas_seq), ua.VariantType.Int64)),
-                ua.DataValue(ua.Variant(bool(msg.fallback), ua.VariantType.Boolean))]
+                ua.DataValue(ua.Variant(bool(msg.fallback), ua.VariantType.Boolean)),
+                ua.DataValue(ua.Variant(msg.tuning or "", ua.VariantType.String))]
         dvs += self._beat_values()
         if await self._write(self._move_ids, dvs):
             self.counters["moves"] += 1

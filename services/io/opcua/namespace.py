@@ -12,11 +12,14 @@
               /AppliedMoves              (Double[nu]: the MVs acting now)
               /AppliedMoveSeq            (Int64: the move they came from, -1: none)
               /Shutdown                  (Boolean: the plant has tripped)
+              /AppliedTuning             (String: the plant loops' tuning set in force, "": none)
               /WatchdogState             (String: "ok" or "shed")
               /ControllerHeartbeat       (UInt32, controller writes)
               /ControllerMode            (String "on" | "warm" | "off", controller writes)
               /AnsweredSample            (Int64: the sample a move answers, controller writes)
               /MoveFallback              (Boolean: the move is a held fallback, controller writes)
+              /Tuning                    (String: the plant loops' tuning set for the move,
+                                          "": the plant's default, controller writes)
 
 Node ids are strings in the ``urn:ssmpc`` namespace: ``<unit>.<Folder>.<name>``
 (``cstr.Measurements.y``), so a client that knows the unit needs no browsing; the
@@ -38,6 +41,8 @@ PLANT_STATUS = (
     ("AppliedMoveSeq", "Int64", "sequence number of the move acting now (-1: initial values)"),
     ("Shutdown", "Boolean", "the plant has tripped (interlocks)"),
     ("Incarnation", "String", "this plant run's id (a new one when the plant restarts)"),
+    ("AppliedTuning", "String", "tuning set of the plant's own loops in force (empty: the "
+     "plant has none)"),
     ("WatchdogState", "String", "controller link: ok, or shed (heartbeat lost: valves held)"),
 )
 #: Status variables the controller writes (with its moves).
@@ -46,6 +51,8 @@ CONTROLLER_STATUS = (
     ("ControllerMode", "String", "controller mode: on, warm or off"),
     ("AnsweredSample", "Int64", "the plant sample the current set points answer"),
     ("MoveFallback", "Boolean", "the current set points are the controller's held fallback"),
+    ("Tuning", "String", "tuning set of the plant's own loops the set points go with "
+     "(empty: the plant's default)"),
 )
 #: The values ``ControllerMode`` may take.
 CONTROLLER_MODES = ("on", "warm", "off")

@@ -11,23 +11,32 @@ An ``asyncua`` server (OPC 10000-4 services, the address space of
   :class:`~services.io.messages.MVMessage` from the plant's expected sender, handed
   to :meth:`PlantNode.submit_mv`: the same validation and the same zero-order hold
   at the sample boundary as a move over Zenoh;
+- ``Status/Tuning`` (String) names the tuning set of the plant's own loops the set
+  points go with (TE: :data:`controller.units.te.loops.LOOP_TUNING_SETS`; empty: the
+  plant's default); it rides in the move, and a name the plant does not know makes
+  the plant refuse the move (``mv_rejected["tuning"]``). ``Status/AppliedTuning`` is
+  the set in force, written with each sample;
 - while shed, ``Setpoints`` track the moves the plant holds (output tracking), so a
   controller that writes only some of them leaves the others where they are;
 - the watchdog: no new ``ControllerHeartbeat`` value for ``watchdog_s`` wall seconds →
   ``WatchdogState`` = ``shed``: no move is taken until a heartbeat comes again, so
   the plant holds its valves while its regulatory layer runs on (ABB 800xA link
-  time-out, DeltaV's handshake). A returning controller takes the held move from
-  ``AppliedMoves`` (the controller node's ``_align``), so its return is bumpless.
+  time-out, DeltaV's handshake), its loops back on their default tuning set, and
+  ``Tuning`` is cleared, so a returning controller names its set again. A returning
+  controller takes the held move from ``AppliedMoves`` (the controller node's
+  ``_align``), so its return is bumpless.
 
 Security (OPC 10000-2, -4 §5.6): only the Basic256Sha256 / SignAndEncrypt endpoint;
 a client's application certificate must be issued by the link's CA
 (:mod:`.certs`); the user is the X.509 identity token's certificate: CN
-``controller`` may write ``Setpoints`` and the controller's ``Status`` variables,
-``operator`` reads; the anonymous token (off unless ``allow_anonymous``) reads.
+``controller`` may write ``Setpoints`` and the controller's ``Status`` variables
+(``Tuning`` among them), ``operator`` reads; the anonymous token (off unless
+``allow_anonymous``) reads.
 Writes are checked per item: unknown node → ``BadNodeIdUnknown``, a non-Double →
-``BadTypeMismatch``, NaN/inf or outside the instrument range → ``BadOutOfRange``,
-a read-only node → ``BadUserAccessDenied``; any Write from another identity is
-refused whole with ``BadUserAccessDenied``.
+``BadTypeMismatch``, NaN/inf or outside the instrument range → ``BadOutOfRange``
+(``Tuning``: a non-String → ``BadTypeMismatch``, longer than 64 characters →
+``BadOutOfRange``), a read-only node → ``BadUserAccessDenied``; any Write from
+another identity is refused whole with ``BadUserAccessDenied``.
 """
 
 from __future__ import annotations
@@ -47,7 +56,7 @@ from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import NameOID
 
-from services.io.messages import MVMessage
+from services.io.messages import TUNING_NAME_MAX, MessageError, MVMessage
 from services.io.opcua.certs import application_uri, ensure_certificates
 from services.io.opcua.namespace import (
     CONTROLLER_MODES,
@@ -151,8 +160,11 @@ class PlantOPCUAServer:
         if loop is None or loop.is_closed():
             return
         stamp = datetime.datetime.now(datetime.UTC)
+        # the loops' tuning set in force, read on the plant's thread with its sample
+        tuning = getattr(getattr(self.node, "runner", None), "tuning", None) or ""
         try:
-            loop.call_soon_threadsafe(lambda: loop.create_task(self._update(msg, stamp)))
+            loop.call_soon_threadsafe(
+                lambda: loop.create_task(self._update(msg, stamp, str(tuning))))
         except RuntimeError:  # closing
             pass
 
@@ -262,6 +274,8 @@ class PlantOPCUAServer:
         self._checks = {nid: self._setpoint_check(i) for i, nid in enumerate(self._setpoint_ids)}
         self._checks[self.nid("Status", "ControllerMode")] = _mode_check
         self._checks[self.nid("Status", "AnsweredSample")] = _sample_check
+        self._tuning_id = self.nid("Status", "Tuning")
+        self._checks[self._tuning_id] = self._tuning_check
         self._beat_id = self.nid("Status", "ControllerHeartbeat")
         self._answered_id = self.nid("Status", "AnsweredSample")
         self._fallback_id = self.nid("Status", "MoveFallback")
@@ -283,8 +297,21 @@ class PlantOPCUAServer:
 
         return check
 
+    def _tuning_check(self, dv) -> int | None:
+        """``Status/Tuning``: a String of at most :data:`TUNING_NAME_MAX` characters
+        (empty: the plant's default; whether the plant knows the set is its check)."""
+        v = dv.Value
+        if v is None or v.VariantType != ua.VariantType.String or not isinstance(
+                v.Value, str | None):
+            self.refused["type"] += 1
+            return ua.StatusCodes.BadTypeMismatch
+        if v.Value is not None and len(v.Value) > TUNING_NAME_MAX:
+            self.refused["range"] += 1
+            return ua.StatusCodes.BadOutOfRange
+        return None
+
     # -- measurements in -------------------------------------------------------------
-    async def _update(self, msg, stamp) -> None:
+    async def _update(self, msg, stamp, tuning: str = "") -> None:
         if self._server is None:
             return
         write = self._server.iserver.aspace.write_attribute_value
@@ -304,6 +331,8 @@ class PlantOPCUAServer:
                     dv(bool(msg.shutdown), ua.VariantType.Boolean))
         await write(self.nid("Status", "Incarnation"), value,
                     dv(str(msg.incarnation), ua.VariantType.String))
+        await write(self.nid("Status", "AppliedTuning"), value,
+                    dv(tuning, ua.VariantType.String))
         if self.state != "ok":  # no controller: the set points track the held moves, so
             # that a controller writing only some of them leaves the others where they are
             for nid, u in zip(self._setpoint_ids, msg.u):
@@ -313,7 +342,8 @@ class PlantOPCUAServer:
     # -- moves out -------------------------------------------------------------------
     def after_write(self, params, results, user) -> None:
         """A controller's Write has been applied item by item: feed the watchdog on a
-        heartbeat; turn written set points into the plant's move."""
+        heartbeat; turn written set points into the plant's move, with the tuning set
+        ``Tuning`` names (empty: none, the plant's default)."""
         good = {wv.NodeId: wv.Value for wv, r in zip(params.NodesToWrite, results)
                 if r.is_good() and wv.AttributeId == ua.AttributeIds.Value}
         beat = self._beat_id in good and good[self._beat_id].Value.Value != self._last_beat_value
@@ -323,6 +353,9 @@ class PlantOPCUAServer:
             if self.state != "ok":
                 log.warning("controller heartbeat of %s back: moves taken again", self.unit)
                 self._set_state("ok")
+                resume = getattr(self.node, "resume_tuning", None)
+                if callable(resume):  # its moves select the loops' tuning set again
+                    resume()
         if self.state != "ok" or not any(nid in good for nid in self._setpoint_ids):
             return
         node = self.node
@@ -333,9 +366,19 @@ class PlantOPCUAServer:
         meas_seq = int(answered.Value.Value) if answered is not None else int(node.k)
         fb = good.get(self._fallback_id)
         fallback = bool(fb.Value.Value) if fb is not None else False
+        # the set written with these set points, else the one written before
+        written = good.get(self._tuning_id)
+        if written is None:
+            written = aspace.read_attribute_value(self._tuning_id, ua.AttributeIds.Value)
+        tuning = (written.Value.Value if written.Value is not None else None) or None
         self._seq = max(self._seq + 1, time.time_ns() // 1000, node.last_mv_seq + 1)
-        msg = MVMessage(unit=self.unit, seq=self._seq, meas_seq=meas_seq, u=u,
-                        sender=node.expected_sender, fallback=fallback)
+        try:
+            msg = MVMessage(unit=self.unit, seq=self._seq, meas_seq=meas_seq, u=u,
+                            sender=node.expected_sender, fallback=fallback, tuning=tuning)
+        except MessageError as exc:  # the checks before the write let none through
+            self.refused["range"] += 1
+            log.warning("controller write on %s not taken as a move: %s", self.unit, exc)
+            return
         node.submit_mv(msg.to_bytes())
         self.moves += 1
 
@@ -360,6 +403,21 @@ class PlantOPCUAServer:
                 log.warning("no controller heartbeat on %s for %.1f s: shed, valves held",
                             self.unit, self.settings.watchdog_s)
                 self._set_state("shed")
+                await self._shed_tuning()
+
+    async def _shed_tuning(self) -> None:
+        """On a shed: the plant's loops back on their default tuning set, ``Tuning``
+        cleared (a returning controller names its set again)."""
+        await self._server.iserver.aspace.write_attribute_value(
+            self._tuning_id, ua.AttributeIds.Value,
+            ua.DataValue(ua.Variant("", ua.VariantType.String)))
+        shed = getattr(self.node, "shed_tuning", None)
+        if callable(shed):
+            try:  # it waits for the plant's lock (an integration step): off this loop
+                await asyncio.to_thread(shed)
+            except Exception:
+                log.exception("%s: the loops could not go back to their default tuning",
+                              self.unit)
 
 
 def _mode_check(dv) -> int | None:
