@@ -26,8 +26,10 @@ A move may name the tuning set of the plant's own loops for its interval (TE:
 does not know is refused whole (``tuning``, with an alarm), one naming none runs the
 default set. The set switches with the move it came with, before the interval is
 integrated; a held sample keeps the set in force. When the controller's liveliness is
-lost the loops shed to their default set (and the last move holds), as a DCS sheds
-its APC. ``status`` reports the set in force (``tuning``).
+lost (over OPC UA: its heartbeat) the loops shed to their default set, as a DCS sheds
+its APC, and the last move holds; moves applied before the controller is back (one
+still on its way included) run the default set. ``status`` reports the set in force
+(``tuning``).
 
 Every measurement carries this run's ``incarnation`` (random at start), so the
 controller can tell a restarted plant from a forged or replayed sample. A controller move computed
