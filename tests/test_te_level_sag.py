@@ -122,11 +122,12 @@ def test_under_idv13_at_mode_2_the_return_does_not_chase_the_level_with_d():
     # above it, the level's loop raised the D feed to 33.5 % with the E valve at 100 %
     # and G's hour mean reached 17.3 mol % (mode 2: 11.7); waiting for the level, 27.0 %
     # and 14.3 (seeds 1-40, 48 h: G's standard deviation 0.679 -> 0.603 mol %,
-    # docs/te_kinetics_drift.md)
+    # docs/te_kinetics_drift.md). With the plant side's steady tuning set (loop_tuning):
+    # G's hour peak 15.55 waiting against 17.77 chasing, the D feed 29.4 against 34.2 %
     kw = dict(noise=True, seed=5, plant_seed=plant_seed_for(5), idv={13: 2.0})
     waits = run_te("ssmpc", TransitionPlan("mode2"), 14.0, **kw)
     chases = run_te("ssmpc", TransitionPlan("mode2"), 14.0,
                     level_sag=LevelSagSettings(return_lead_pct=50.0), **kw)
     assert waits.shutdown is None and chases.shutdown is None
-    assert _g_hour_peak(waits) < 15.5 < 16.5 < _g_hour_peak(chases)
+    assert _g_hour_peak(waits) < 16.0 < 17.0 < _g_hour_peak(chases)
     assert waits.xmv[:, 0].max() < chases.xmv[:, 0].max() - 4.0
