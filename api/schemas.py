@@ -242,7 +242,8 @@ class StatusView(BaseModel):
                                                 "composition core (MPC strategies)")
     tuning: str | None = Field(default=None, description="the plant side's tuning set "
                                "the controller sends with its moves (TE MPC strategies: "
-                               "'steady' or 'grade_change'); null: the plant's default")
+                               "'grade_change', 'steady' or 'steady_e_limited'); null: "
+                               "the plant's default")
     solve_ms: float | None = Field(default=None, description="last controller step, ms")
     controller_status: str | None = None
     deadline_misses: int | None = None

@@ -15,14 +15,12 @@ import asyncio
 import math
 import threading
 import time
-from dataclasses import replace
 
 import pytest
 from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+from test_service_te import SteadyTuning
 
-from controller.units.baselines import HoldController
-from controller.units.config import grade_setpoints
 from services.io.opcua.client import ControllerOPCUALink
 from services.io.opcua.server import PlantOPCUAServer
 from services.io.opcua.settings import NAMESPACE_URI, OPCUASettings
@@ -368,19 +366,7 @@ def test_te_serves_its_valves_and_loop_setpoints(tmp_path):
     assert state == "shed"  # no controller has ever written a heartbeat
 
 
-class SteadyTuning(HoldController):
-    """Holds every MV and selects the plant side's tuning set ``tuning`` ("steady"), as
-    the TE MPC strategies do at a steady grade."""
-
-    def __init__(self, cfg):
-        super().__init__(grade_setpoints(cfg, None)[cfg.initial_grade]["mv"])
-        self.tuning = "steady"
-
-    def step(self, k, t, y, reference):
-        return replace(super().step(k, t, y, reference), extra={"tuning": self.tuning})
-
-
-class TELoop:
+class TELoop(Loop):
     """TE plant node with its OPC UA server, a holding controller node over OPC UA.
 
     Their Zenoh sessions are not connected: the plant knows the controller through the
@@ -406,11 +392,6 @@ class TELoop:
                                    controller=SteadyTuning(self.cfg), plant_link=self.link)
         assert self.link.wait_connected(30), self.link.last_error
 
-    def stop_controller(self):
-        self.ctrl.close()
-        self.store.close()
-        self.ctrl = None
-
     def wait(self, cond, timeout=20.0):
         t_end = time.monotonic() + timeout
         while not cond() and time.monotonic() < t_end:
@@ -427,15 +408,6 @@ class TELoop:
                                             for n in names])
 
         return _run(main())
-
-    def close(self):
-        if self.ctrl is not None:
-            self.stop_controller()
-        self.stop_plant.set()
-        self.plant_thread.join(5)
-        self.plant.close()
-        for s in (self.s_plant, self.s_ctrl):
-            s.close()
 
 
 @pytest.fixture(scope="module")

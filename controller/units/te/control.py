@@ -1814,7 +1814,7 @@ class TEController:
                  "pressure_floats": self.pressure_floats}
         if self.loop_tuning is not None:
             extra["tuning"] = select_tuning(self.loop_tuning, self._since,
-                                            bool(self.outer_held))
+                                            bool(self.outer_held), float(xv[1]))
         if self.composition is not None and self.composition.share is not None:
             comp = self.composition
             extra["composition"] = {"planning": self._comp_share is not None,

@@ -1,6 +1,7 @@
-"""The plant side's tuning set, selected by the supervisory controller: the reactor
-temperature cascade's primary at the published gain at a steady grade, at the grade
-changes' gain otherwise (a guard of the TE cascade's MPC strategies).
+"""The plant side's tuning set, selected by the supervisory controller: at a steady grade
+the reactor temperature cascade's primary at the published gain, and where the grade's E
+feed valve stands near its range the reactor level's loop slower; the grade changes'
+gains otherwise (a guard of the TE cascade's MPC strategies).
 
 The plant side runs the reactor temperature over the coolant outlet temperature
 (:data:`controller.units.te.loops.REACTOR_TEMPERATURE_CASCADE`, as Lyman & Georgakis
@@ -10,21 +11,35 @@ every seed (reactor pressure, 3-4.5 h). At a steady grade the published gain hol
 reactor temperature tighter under a varying heat-transfer coefficient (IDV(17)), and G in
 product follows the reaction, which follows the temperature.
 
+The reactor level runs on the D feed (XMV 1, seed Table 7.10, 4 %/%), and the ratio
+writes the E feed in proportion to D. Where the grade's E valve stands near its range
+(mode 2: 96 %) the E feed cannot follow a rising D, so every move of the level's loop
+moves the reactor feed's D/E, and G with it: at mode 2 the written E valve is at its
+range in 39 % of samples, with or without a disturbance. With the level's loop at an
+eighth of its gain (:data:`controller.units.te.loops.E_LIMITED_LEVEL_GAIN`) the D feed
+moves a fifth as much under IDV(20) and G is steadier (16 h: 0.550 and 0.494 against
+0.606 and 0.622 mol %, seeds 1 and 2, ``tests/test_te_loop_tuning.py``); the level
+stayed within 56-68 % (set point 65) under IDV 1, 8, 13 and 20 at mode 2 (48 h, one seed
+each). At mode 0 (E valve 54 %) half the gain made IDV(20) worse (0.552 -> 0.556).
+
 Method
     A DCS keeps named tuning sets of its loops and switches between them on an order
     (:data:`controller.units.te.loops.LOOP_TUNING_SETS`: ``"grade_change"``, the gains
-    every grade change, guard and model of the cascade was tuned with, and
-    ``"steady"``, the primary at its published gain). The supervisory controller
-    selects one each sample and sends the selection with its moves; the plant side
-    applies it before its next integration step. ``"steady"`` is selected from
-    :attr:`LoopTuningSettings.after_h` after the last grade change (and from the start
-    of a run without one) while nothing holds the outer loops (the operator's warm, or
-    an outer loop's CV off); ``"grade_change"`` otherwise, from the sample a grade
-    change is requested. The loops are velocity-form PI (:mod:`plant_sim.
-    tennessee_eastman.regulatory`), so a switch moves no valve and no set point: the
-    loop acts with the new gain on the error's next changes. The selection is a function
-    of the hours since the grade change and of the hold alone, so a restarted controller
-    selects what it selected before (nothing to checkpoint). A plant side that hears no
+    every grade change, guard and model of the cascade was tuned with; ``"steady"``,
+    the primary at its published gain; ``"steady_e_limited"``, that and the level's
+    loop slower). The supervisory controller selects one each sample and sends the
+    selection with its moves; the plant side applies it before its next integration
+    step. A steady set is selected from :attr:`LoopTuningSettings.after_h` after the
+    last grade change (and from the start of a run without one) while nothing holds the
+    outer loops (the operator's warm, or an outer loop's CV off): ``"steady_e_limited"``
+    where the grade's E valve (the plan's XMV 2) is at
+    :attr:`LoopTuningSettings.e_valve_pct` or more, else ``"steady"``;
+    ``"grade_change"`` otherwise, from the sample a grade change is requested. The
+    loops are velocity-form PI (:mod:`plant_sim.tennessee_eastman.regulatory`), so a
+    switch moves no valve and no set point: the loop acts with the new gain on the
+    error's next changes. The selection is a function of the hours since the grade
+    change, the grade and the hold alone, so a restarted controller selects what it
+    selected before (nothing to checkpoint). A plant side that hears no
     selection (a lost controller, an older one) runs ``"grade_change"``.
 
 Measured (the acceptance matrix, ``docs/campaigns/te_matrix.json``, and the same cases on
@@ -68,17 +83,23 @@ class LoopTuningSettings:
     Parameters
     ----------
     after_h : float
-        Hours after a grade change from which the steady set is selected (>= 0).
+        Hours after a grade change from which a steady set is selected (>= 0).
+    e_valve_pct : float
+        A grade whose E feed valve stands at or above this, %, gets the E-limited steady
+        set (``"steady_e_limited"``; [0, 100]).
     """
 
     after_h: float = 24.0
+    e_valve_pct: float = 80.0
 
     def __post_init__(self) -> None:
         check_finite_fields(self, "loop tuning ")
         check_range(self, "after_h", ">= 0", "h", "loop tuning ")
+        check_range(self, "e_valve_pct", "[0, 100]", "%", "loop tuning ")
 
 
-def select_tuning(settings: LoopTuningSettings, since_h: float, held: bool) -> str:
+def select_tuning(settings: LoopTuningSettings, since_h: float, held: bool,
+                  grade_e_valve: float = 0.0) -> str:
     """The plant side's tuning set for the next interval.
 
     Parameters
@@ -89,12 +110,16 @@ def select_tuning(settings: LoopTuningSettings, since_h: float, held: bool) -> s
         grade change in progress).
     held : bool
         The operator holds the outer loops.
+    grade_e_valve : float
+        The grade's E feed valve (XMV 2, the plan's reference), %; NaN: not near its
+        range.
 
     Returns
     -------
     str
-        ``"steady"`` or ``"grade_change"`` (names of
+        ``"steady_e_limited"``, ``"steady"`` or ``"grade_change"`` (names of
         :data:`controller.units.te.loops.LOOP_TUNING_SETS`).
     """
-    steady = (not held and not math.isnan(since_h) and since_h >= settings.after_h)
-    return "steady" if steady else "grade_change"
+    if held or math.isnan(since_h) or since_h < settings.after_h:
+        return "grade_change"
+    return "steady_e_limited" if grade_e_valve >= settings.e_valve_pct else "steady"
