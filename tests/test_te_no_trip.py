@@ -328,7 +328,8 @@ def test_a_kinetics_drift_at_mode_2_does_not_trip_on_the_a_loops_added_a():
     # The case as it was has the steady grade's pressure lead off
     # (controller/units/te/pressure_gain.py), the adaptive model's gain of then, 10
     # 1/h (TEMPCOptions.nls_gain), and the level's set point returning at its rate
-    # without waiting for the level (controller/units/te/level_sag.py): with any of
+    # without waiting for the level (controller/units/te/level_sag.py), and no tuning set
+    # of the plant side's selected (controller/units/te/loop_tuning.py): with any of
     # them as now the free rise does not trip either (with the lead: peak 2903.5 kPa);
     # the product runs on
     runs = {}
@@ -337,7 +338,8 @@ def test_a_kinetics_drift_at_mode_2_does_not_trip_on_the_a_loops_added_a():
         guards = TransitionGuards(**{**GUARDS_MPC.__dict__, **kw})
         runs[name] = run_te("ssmpc", TransitionPlan("mode2"), 10.0, guards=guards,
                             pressure_gain=False, mpc=TEMPCOptions(nls_gain=10.0),
-                            level_sag=LevelSagSettings(return_lead_pct=50.0), **kw_run)
+                            level_sag=LevelSagSettings(return_lead_pct=50.0),
+                            loop_tuning=False, **kw_run)
     assert runs["free"].shutdown is not None  # the case as it was
     product = run_te("ssmpc", TransitionPlan("mode2"), 10.0, **kw_run)
     assert product.shutdown is None, product.shutdown
@@ -507,7 +509,10 @@ def test_a_leg_requested_while_the_a_feed_is_lost_starts_once_it_is_back():
     assert r.shutdown is None, r.shutdown
     g = r.xmeas[:, 39]
     g1, g2 = grade("mode1").g_mol, grade("mode2").g_mol  # 53.8 and 11.7 mol %
-    assert np.all(np.abs(g[(r.t > 1.5) & (r.t < 4.0)] - g2) < 3.0)  # waited at mode 2
+    # waited at mode 2 (mode 1's G is 42 mol % away): the A feed's loss moves G by
+    # itself, measured at most 4.03 mol % from mode 2's at 1.5-4 h (seeds 2-4: 2.98, 1.89,
+    # 4.66; on the plant side's `steady` set alone 2.44, 3.63, 1.95, 11.58)
+    assert np.all(np.abs(g[(r.t > 1.5) & (r.t < 4.0)] - g2) < 6.0)
     assert abs(float(np.mean(g[r.t > 13.0])) - g1) < 1.5  # then went to mode 1
 
 
