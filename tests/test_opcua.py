@@ -47,6 +47,12 @@ class Loop:
                                       heartbeat_s=0.2)
         self.s_ctrl = open_session(SessionSettings(listen=(self.ep,), lease_ms=1000))
         self.s_plant = open_session(SessionSettings(connect=(self.ep,), lease_ms=1000))
+        self.start_plant()
+        self.ctrl = None
+        self.start_controller()
+
+    def start_plant(self):
+        """The plant node with its OPC UA server, lock-step, on its own thread."""
         self.server = PlantOPCUAServer(self.cfg, self.settings)
         self.plant = PlantNode(self.cfg, self.s_plant, speed=1.0, lockstep=True,
                                lockstep_timeout_s=0.5, link=self.server)
@@ -54,8 +60,6 @@ class Loop:
         self.plant_thread = threading.Thread(target=self.plant.run, args=(self.stop_plant,),
                                              daemon=True)
         self.plant_thread.start()
-        self.ctrl = None
-        self.start_controller()
 
     def start_controller(self):
         self.store = UnitStore(self.tmp / "cstr.sqlite", "cstr")
@@ -379,13 +383,7 @@ class TELoop(Loop):
                                       heartbeat_s=0.2)
         self.s_plant = open_session(SessionSettings(lease_ms=1000))
         self.s_ctrl = open_session(SessionSettings(lease_ms=1000))
-        self.server = PlantOPCUAServer(self.cfg, self.settings)
-        self.plant = PlantNode(self.cfg, self.s_plant, speed=1.0, lockstep=True,
-                               lockstep_timeout_s=0.5, link=self.server)
-        self.stop_plant = threading.Event()
-        self.plant_thread = threading.Thread(target=self.plant.run, args=(self.stop_plant,),
-                                             daemon=True)
-        self.plant_thread.start()
+        self.start_plant()
         self.store = UnitStore(tmp / "te.sqlite", "te")
         self.link = ControllerOPCUALink(self.cfg, self.settings)
         self.ctrl = ControllerNode(self.cfg, self.s_ctrl, self.store, None, speed=1.0,

@@ -2424,8 +2424,9 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         fast changes at a steady grade (:mod:`controller.units.te.feed_balance`): False
         (default, off), True (:data:`FEED_BALANCE_MPC`), or settings.
     loop_tuning : bool or LoopTuningSettings
-        MPC strategies: the plant side's tuning set selected each sample, the reactor
-        temperature's primary at its published gain at a steady grade
+        MPC strategies: the plant side's tuning set selected each sample, at a steady
+        grade the reactor temperature's primary at its published gain and, where the
+        grade's E valve is near its range, the reactor level's loop slower
         (:mod:`controller.units.te.loop_tuning`): True (default, :data:`LOOP_TUNING_MPC`),
         False (the plant side's default set throughout), or settings.
 
