@@ -19,6 +19,7 @@ import time
 import pytest
 from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+from test_plant_guard import _until
 from test_service_te import SteadyTuning
 
 from services.io.opcua.client import ControllerOPCUALink
@@ -391,10 +392,7 @@ class TELoop(Loop):
         assert self.link.wait_connected(30), self.link.last_error
 
     def wait(self, cond, timeout=20.0):
-        t_end = time.monotonic() + timeout
-        while not cond() and time.monotonic() < t_end:
-            time.sleep(0.02)
-        return cond()
+        return _until(cond, timeout)
 
     def read(self, *names, identity="operator"):
         """``Status/<name>`` values, read by a plain asyncua client."""

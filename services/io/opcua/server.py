@@ -161,7 +161,7 @@ class PlantOPCUAServer:
             return
         stamp = datetime.datetime.now(datetime.UTC)
         # the loops' tuning set in force, read on the plant's thread with its sample
-        tuning = getattr(getattr(self.node, "runner", None), "tuning", None) or ""
+        tuning = self.node.runner.tuning or ""
         try:
             loop.call_soon_threadsafe(
                 lambda: loop.create_task(self._update(msg, stamp, str(tuning))))
@@ -353,9 +353,7 @@ class PlantOPCUAServer:
             if self.state != "ok":
                 log.warning("controller heartbeat of %s back: moves taken again", self.unit)
                 self._set_state("ok")
-                resume = getattr(self.node, "resume_tuning", None)
-                if callable(resume):  # its moves select the loops' tuning set again
-                    resume()
+                self.node.resume_tuning()  # its moves select the loops' tuning set again
         if self.state != "ok" or not any(nid in good for nid in self._setpoint_ids):
             return
         node = self.node
@@ -411,13 +409,11 @@ class PlantOPCUAServer:
         await self._server.iserver.aspace.write_attribute_value(
             self._tuning_id, ua.AttributeIds.Value,
             ua.DataValue(ua.Variant("", ua.VariantType.String)))
-        shed = getattr(self.node, "shed_tuning", None)
-        if callable(shed):
-            try:  # it waits for the plant's lock (an integration step): off this loop
-                await asyncio.to_thread(shed)
-            except Exception:
-                log.exception("%s: the loops could not go back to their default tuning",
-                              self.unit)
+        try:  # it waits for the plant's lock (an integration step): off this loop
+            await asyncio.to_thread(self.node.shed_tuning)
+        except Exception:
+            log.exception("%s: the loops could not go back to their default tuning",
+                          self.unit)
 
 
 def _mode_check(dv) -> int | None:
