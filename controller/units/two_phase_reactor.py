@@ -80,7 +80,8 @@ from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
 from controller.units.config import time_scale_s
 from controller.units.mpc_targets import TargetingLaw, TargetSettings
 
-__all__ = ["CV", "CV_UNITS", "MV", "PRODUCT_TARGETS", "P_LIMIT", "SEED_TARGETS", "ReactorCase",
+__all__ = ["CV", "CV_UNITS", "MV", "OFFLINE_BUDGET_MS", "PRODUCT_TARGETS", "P_LIMIT",
+           "REALTIME_BUDGET_MS", "SEED_TARGETS", "ReactorCase",
            "ReactorController", "ReactorRun", "TargetSettings", "build", "reactor_law",
            "reactor_models", "reactor_settings", "run_reactor"]
 
@@ -88,6 +89,8 @@ MV = ("x1", "x2", "x3")
 CV = ("P", "yA3", "F4")
 CV_UNITS = ("kPa", "mol %", "kmol/h")
 P_LIMIT = 2950.0  # kPa, soft limit in the MPC; the check uses the same number
+REALTIME_BUDGET_MS = 50.0  # ms, an MPC step's wall-clock budget in the service's node
+OFFLINE_BUDGET_MS = 1e9    # ms, none in practice: offline runs keep every solved move
 #: The MPC alone on its set points (the seed's path).
 SEED_TARGETS = TargetSettings(enabled=False)
 #: The product's steady-state targets above the MPC: the pressure limit rank 1, the set
@@ -134,6 +137,12 @@ class ReactorCase:
         The steady-state target optimizer above the MPC
         (:mod:`controller.units.mpc_targets`); ``TargetSettings(enabled=False)`` is the
         seed's MPC alone.
+    realtime : bool
+        Hold each MPC step to the wall-clock budget :data:`REALTIME_BUDGET_MS` and move
+        on the previous plan when a step overruns it, as a service node does. Off by
+        default (offline runs in simulated time, the studies): a busy machine then
+        slows the run instead of changing its moves, so the result depends on the
+        case alone.
     """
 
     noise: bool = False
@@ -156,6 +165,7 @@ class ReactorCase:
     dwell: float = 0.5
     setpoint: tuple[float, float, float] | None = None
     targets: TargetSettings = SEED_TARGETS
+    realtime: bool = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.targets, TargetSettings):
@@ -317,7 +327,8 @@ def reactor_settings(case: ReactorCase, y1, y2) -> MPCSettings:
         Lambda=np.full(3, case.move_weight / 100.0 ** 2), u_min=np.zeros(3),
         u_max=np.full(3, 100.0), du_max=np.full(3, case.du_max),
         y_max=[P_LIMIT, np.inf, np.inf], slack_scale=[span[0], 1.0, 1.0], slack_linear=1e3,
-        slack_quadratic=1.0, filter_alpha=0.2 if case.noise else 1.0, budget_ms=50.0,
+        slack_quadratic=1.0, filter_alpha=0.2 if case.noise else 1.0,
+        budget_ms=REALTIME_BUDGET_MS if case.realtime else OFFLINE_BUDGET_MS,
         u_target_weight=np.full(3, case.targets.input_weight if case.targets.enabled else 0.0))
 
 
@@ -455,7 +466,7 @@ def build(cfg, plant, u0, grades, targets: TargetSettings = PRODUCT_TARGETS
         Lambda=np.full(3, case.move_weight / 100.0 ** 2), u_min=np.zeros(3),
         u_max=np.full(3, 100.0), du_max=np.full(3, case.du_max),
         y_max=[P_LIMIT, np.inf, np.inf], slack_scale=[span[0], 1.0, 1.0],
-        slack_linear=1e3, slack_quadratic=1.0, budget_ms=50.0,
+        slack_linear=1e3, slack_quadratic=1.0, budget_ms=REALTIME_BUDGET_MS,
         u_target=np.asarray(u0, float),
         u_target_weight=np.full(3, targets.input_weight if targets.enabled else 0.0))
     law = reactor_law(settings, targets)

@@ -186,7 +186,7 @@ def two_phase_case(samples: int, adapt: bool = True, targets: bool = False) -> d
     )
     from plant_sim.integrate import step as plant_step
 
-    case = ReactorCase(targets=PRODUCT_TARGETS if targets else SEED_TARGETS)
+    case = ReactorCase(targets=PRODUCT_TARGETS if targets else SEED_TARGETS, realtime=True)
     specs, a, plant = reactor_models(case.order)
     specs = list(specs) + [ModelSpec("adaptive", specs[0].theta, specs[0].bias, "adaptive")]
     ssm = StateSharedModel(a, 3, case.dt, specs)
