@@ -24,6 +24,27 @@ def _xmeas(a, c):
     return x
 
 
+def test_an_operator_hold_keeps_the_trim_and_it_goes_on_from_there():
+    # the operator holds the outer loops (warm) while A + C rises by 2 mol %: the trim
+    # stays where it was; after the hold the first trim is that one washed by one sample,
+    # not the stale lag's -gain x 2 mol %
+    s = ReactorFeedBalanceSettings(gain=4.0, washout_h=1.0, after_h=0.0, ramp_h=0.01)
+    a = SAMPLE_H / (1.0 + SAMPLE_H)
+    for release in ("hold", "take_over"):
+        fb = ReactorFeedBalance(s, SAMPLE_H)
+        fb.update(_xmeas(30.0, 10.0), math.inf)
+        before = fb.update(_xmeas(30.5, 10.5), math.inf)
+        assert before == pytest.approx(-4.0 * (1.0 - a), abs=TRIM_ATOL)
+        if release == "hold":
+            held = [fb.update(_xmeas(31.5, 11.5), math.inf, frozen=True) for _ in range(20)]
+            assert held == [before] * 20
+        else:  # off: nothing computed meanwhile, then a take-over of the running plant
+            fb.take_over()
+        first = fb.update(_xmeas(31.5, 11.5), math.inf)
+        assert first == pytest.approx(before * (1.0 - a), abs=TRIM_ATOL)
+        assert abs(first - before) < 0.05
+
+
 def test_a_step_of_a_plus_c_is_met_by_its_washed_out_share_with_the_opposite_sign():
     s = ReactorFeedBalanceSettings(gain=4.0, washout_h=1.0, after_h=0.0, ramp_h=0.01)
     fb = ReactorFeedBalance(s, SAMPLE_H)

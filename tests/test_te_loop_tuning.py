@@ -31,6 +31,13 @@ PUBLISHED_PRIMARY_GAIN = 28.3
 TABLE_7_10_LEVEL_GAIN = 4.0
 
 
+def steady_level_as_table_7_10(monkeypatch) -> None:
+    """The ``steady`` set with the reactor level's loop at Table 7.10's 4 %/%: with
+    ``feed_balance=False`` the steady grade as it was before the slower level loop and
+    the reactor-feed balance (for tests of guards measured on that case)."""
+    monkeypatch.setitem(LOOP_TUNING_SETS["steady"], "reactor level", TABLE_7_10_LEVEL_GAIN)
+
+
 def test_the_sets_are_the_grade_changes_gains_and_the_published_primary():
     base = tuning_gains(INNER_LOOPS, "grade_change")
     steady = tuning_gains(INNER_LOOPS, "steady")

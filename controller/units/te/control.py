@@ -1727,8 +1727,9 @@ class TEController:
             if self.production_loop is not None:
                 target[1] = min(max(target[1] + self._production_step(yl, xm), 0.0), 100.0)
             if self.feed_balance is not None:
-                held = self.feeds.a_lost or self.production.active or bool(self.outer_held)
-                b_trim = self.feed_balance.update(xm, self._since, held=held)
+                b_trim = self.feed_balance.update(
+                    xm, self._since, held=self.feeds.a_lost or self.production.active,
+                    frozen=bool(self.outer_held))
                 target[1] = min(max(target[1] + b_trim, 0.0), 100.0)
             target[1] = self.production.ac_valve(target[1])
             c_trim = self.reactants.step(xm, yl, self._since,
@@ -1855,6 +1856,8 @@ class TEController:
         self.e_g_prev = self._a.e_prev = self._p.e_prev = self._sep.e_prev = None
         self._pc.e_prev = self._cd.e_prev = None
         self._refs_ahead = None
+        if self.feed_balance is not None:
+            self.feed_balance.take_over()
         if core_u is None:
             return None
         core_u = np.array(core_u, dtype=float)

@@ -24,8 +24,12 @@ Method
     level). ``share`` rises from 0 to 1 over ``ramp_h`` from ``after_h`` after the last
     grade change (and in a run without one) and falls the same way while the A feed is
     lost or the production index lowers production (those guards set the A+C feed
-    then) or the operator holds the outer loops, so the trim never steps. A measurement
-    that is not a finite number leaves the lag and the trim where they were.
+    then), so the trim never steps. While the operator holds the outer loops (``warm``,
+    an outer loop's CV off) the trim stays where it is, as the velocity-form trims keep
+    theirs; after the hold, and after a take-over of a running plant (a restart, the
+    operator's ``off``), the lag is placed so that the first sample's trim is the one in
+    force, and the washout takes the offset away. A measurement that is not a finite
+    number leaves the lag and the trim where they were.
 
 Measured with the plant side's steady tuning sets (the acceptance matrix,
 ``docs/campaigns/te_matrix.json``, noise on, seeds 1-3, 48 h, onset 2 h; G std mol % and
@@ -182,8 +186,11 @@ class ReactorFeedBalance:
         self.lag: float | None = None
         #: the trim of the last sample, % of the A+C valve
         self.trim = 0.0
+        #: the next sample goes on from :attr:`trim` (after a freeze or a take-over)
+        self._anchor = False
 
-    def update(self, xmeas, since_h: float, held: bool = False) -> float:
+    def update(self, xmeas, since_h: float, held: bool = False,
+               frozen: bool = False) -> float:
         """Advance one sample; the trim (% of the A+C valve) to add to its target.
 
         Parameters
@@ -195,8 +202,15 @@ class ReactorFeedBalance:
         held : bool
             Another guard sets the A+C feed (the A feed lost, production lowered):
             the trim goes, at the ramp's rate.
+        frozen : bool
+            The operator holds the outer loops (``warm``, an outer loop's CV off): the
+            trim stays where it is, as the velocity-form trims keep theirs, and when
+            the hold ends it goes on from there (:meth:`take_over`).
         """
         s = self.settings
+        if frozen:
+            self._anchor = True
+            return self.trim
         self.share = ramp_share(self.share, since_h >= s.after_h and not held,
                                 self.sample_h, s.ramp_h)
         c = float(xmeas[22]) + float(xmeas[24])
@@ -204,10 +218,21 @@ class ReactorFeedBalance:
             return self.trim if self.share > 0.0 else 0.0
         if self.lag is None:
             self.lag = c
+        if self._anchor:
+            # the lag placed so that this sample's trim is the one in force: the trim
+            # goes on from it and the washout takes the offset away, no step
+            self._anchor = False
+            if self.share > 0.0:
+                self.lag = c + self.trim / (s.gain * self.share)
         self.lag += self.sample_h / (s.washout_h + self.sample_h) * (c - self.lag)
         trim = -s.gain * self.share * (c - self.lag)
         self.trim = min(max(trim, -s.trim_max), s.trim_max)
         return self.trim
+
+    def take_over(self) -> None:
+        """A take-over of a running plant (a restart, the operator's ``off``): the next
+        sample goes on from the trim in force instead of the stale lag's."""
+        self._anchor = True
 
     def checkpoint(self) -> dict[str, Any]:
         return {"share": self.share, "lag": self.lag, "trim": self.trim}
