@@ -17,7 +17,6 @@ from controller.units.te.loops import (
     LOOP_TUNING_SETS,
     PUBLISHED_TEMPERATURE_CASCADE,
     REACTOR_TEMPERATURE_CASCADE,
-    STEADY_LEVEL_GAIN,
     tuning_gains,
 )
 from plant_sim.base import PlantInputError
@@ -29,12 +28,15 @@ STEPS_PER_H = 2000  # the plant's 1.8 s Euler step
 PUBLISHED_PRIMARY_GAIN = 28.3
 # seed Table 7.10: reactor level -> D feed, 4 % of valve per % of level
 TABLE_7_10_LEVEL_GAIN = 4.0
+# the reactor level's loop at a steady grade beside the reactor-feed balance, measured
+# and not taken (controller/units/te/feed_balance.py, "Why off")
+SLOW_STEADY_LEVEL_GAIN = 1.5
 
 
 def steady_level_as_table_7_10(monkeypatch) -> None:
-    """The ``steady`` set with the reactor level's loop at Table 7.10's 4 %/%: with
-    ``feed_balance=False`` the steady grade as it was before the slower level loop and
-    the reactor-feed balance (for tests of guards measured on that case)."""
+    """The ``steady`` set with the reactor level's loop at Table 7.10's 4 %/% (its gain
+    today): with ``feed_balance=False`` the steady grade the tests of other guards were
+    measured on, whatever the product's steady set and feed balance become."""
     monkeypatch.setitem(LOOP_TUNING_SETS["steady"], "reactor level", TABLE_7_10_LEVEL_GAIN)
 
 
@@ -44,9 +46,7 @@ def test_the_sets_are_the_grade_changes_gains_and_the_published_primary():
     assert base == tuple(lp.gain for lp in INNER_LOOPS)
     assert steady[0] == PUBLISHED_PRIMARY_GAIN == PUBLISHED_TEMPERATURE_CASCADE.gain
     assert base[0] == REACTOR_TEMPERATURE_CASCADE.gain < PUBLISHED_PRIMARY_GAIN
-    # the reactor level's loop three eighths as strong; the other levels and the
-    # pressure keep their gains
-    assert steady[1] == STEADY_LEVEL_GAIN == 1.5 and steady[2:] == base[2:]
+    assert steady[1:] == base[1:]  # the levels and the pressure keep their gains
     # where the E valve is near its range, the reactor level's loop an eighth as strong
     limited = tuning_gains(INNER_LOOPS, "steady_e_limited")
     assert limited[0] == PUBLISHED_PRIMARY_GAIN
@@ -186,13 +186,14 @@ def test_where_the_e_valve_is_near_its_range_the_slow_level_loop_holds_g_steadie
         assert d_limited < 0.5 * d_table
 
 
-def test_at_a_steady_grade_the_slower_level_loop_and_the_feed_balance_hold_g_steadier(
+def test_at_a_steady_grade_a_slower_level_loop_and_the_feed_balance_hold_g_steadier(
         monkeypatch):
     # IDV(20) at mode 0 (the reactor effluent's flow coefficient varies), 48 h from 2 h,
     # noise on. Measured, G's standard deviation in product: seed 1 0.535 (the steady
-    # set, the level's loop at 1.5 %/%, and the reactor-feed balance) against 0.573 (the
-    # level's loop at Table 7.10's 4 %/%, no balance), seed 2 0.533 against 0.554; the D
-    # valve's 1.31 / 1.34 % against 2.66 / 2.62
+    # set's level loop at 1.5 %/% and the reactor-feed balance, both off by default:
+    # controller/units/te/feed_balance.py, "Why off") against 0.573 (the product: Table
+    # 7.10's 4 %/%, no balance), seed 2 0.533 against 0.554; the D valve's 1.31 / 1.34 %
+    # against 2.66 / 2.62
     from controller.units.te.control import plant_seed_for, run_te
     from controller.units.te.grades import TransitionPlan
 
@@ -204,9 +205,9 @@ def test_at_a_steady_grade_the_slower_level_loop_and_the_feed_balance_hold_g_ste
         return float(np.std(r.xmeas[w, 39])), float(np.std(r.xmv[w, 0]))
 
     for seed in (1, 2):
-        g_now, d_now = run(seed)
         with monkeypatch.context() as m:
-            m.setitem(LOOP_TUNING_SETS["steady"], "reactor level", TABLE_7_10_LEVEL_GAIN)
-            g_before, d_before = run(seed, feed_balance=False)
-        assert g_now < g_before - 0.015
-        assert d_now < 0.6 * d_before
+            m.setitem(LOOP_TUNING_SETS["steady"], "reactor level", SLOW_STEADY_LEVEL_GAIN)
+            g_slow, d_slow = run(seed, feed_balance=True)
+        g_product, d_product = run(seed)
+        assert g_slow < g_product - 0.015
+        assert d_slow < 0.6 * d_product
