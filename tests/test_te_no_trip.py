@@ -339,7 +339,7 @@ def test_a_kinetics_drift_at_mode_2_does_not_trip_on_the_a_loops_added_a():
         runs[name] = run_te("ssmpc", TransitionPlan("mode2"), 10.0, guards=guards,
                             pressure_gain=False, mpc=TEMPCOptions(nls_gain=10.0),
                             level_sag=LevelSagSettings(return_lead_pct=50.0),
-                            loop_tuning=False, feed_balance=False, **kw_run)
+                            loop_tuning=False, **kw_run)
     assert runs["free"].shutdown is not None  # the case as it was
     product = run_te("ssmpc", TransitionPlan("mode2"), 10.0, **kw_run)
     assert product.shutdown is None, product.shutdown
@@ -460,12 +460,11 @@ def test_idv8_before_a_leg_into_mode_3_the_cut_waits_for_its_settling_hour():
     # out of the purge, the reactor level at 11-19 % at 4.5 h). With the settled excess
     # taken from the first sample a cut of under 0.1 % started at 0.3 h on the
     # analyzer's noise, and the plant tripped at 4.8 h; with the first hour's mean as
-    # the reference the cut waits for that hour. The case as it was has no feed
-    # balance: with it on in the hour before the leg the one-sample cut holds too
+    # the reference the cut waits for that hour
     plan = TransitionPlan("mode1", (Leg(1.0, "mode3"),))
     kw = dict(noise=True, seed=1, plant_seed=plant_seed_for(1), idv={8: 0.5})
     one_sample = run_te("ssmpc", plan, 6.0, reactants=ReactantTrimSettings(settle_window_h=0.0),
-                        feed_balance=False, **kw)
+                        **kw)
     assert any("A+C feed target lowered" in a for a in one_sample.alarms)
     assert one_sample.shutdown is not None
     r = run_te("ssmpc", plan, 6.0, **kw)

@@ -187,13 +187,11 @@ def test_under_idv20_at_mode_0_the_pressure_moves_less():
     # IDV(20): the reactor effluent's flow coefficient, a 2 h sawtooth that moves the
     # pressure. Measured (seeds 1-3, 24 h, hours 4-24): the half-hour means' step
     # 19.1 / 26.5 / 24.8 kPa without the lead, 15.8 / 21.3 / 19.7 with it (the purge
-    # valve's standard deviation 4.9-5.9 % without, 10.2-13.2 % with). The reactor-feed
-    # balance is off in both: with it the pressure moves less without the lead too
-    # (seed 1: 13.8 against 11.8 kPa with the lead)
+    # valve's standard deviation 4.9-5.9 % without, 10.2-13.2 % with).
     moves = {}
     for on in (False, True):
         r = run_te("ssmpc", TransitionPlan("mode0"), 24, noise=True, idv={20: 2.0}, seed=1,
-                   plant_seed=plant_seed_for(1), pressure_gain=on, feed_balance=False)
+                   plant_seed=plant_seed_for(1), pressure_gain=on)
         assert r.shutdown is None
         m = r.t >= 4.0
         p = _half_hour_means(r.t[m], r.xmeas[m, 6])

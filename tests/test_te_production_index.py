@@ -59,12 +59,9 @@ def test_a_high_pressure_with_the_a_feed_lost_lowers_the_feeds_and_they_return_a
 
 @pytest.fixture(scope="module")
 def lost_a_at_mode2():
-    # the cascade without the index tripped on reactor pressure at 13.9 h (seed 1). The
-    # reactor-feed balance is off: it steps aside while the A feed is lost, but in the 2 h
-    # before the onset its trims move the A+C valve by up to 2.6 %, and with it on the
-    # valve's last hour ends 0.02 % above that window's mean (56.11 against 56.09 %)
+    # the cascade without the index tripped on reactor pressure at 13.9 h (seed 1)
     return run_te("ssmpc", TransitionPlan("mode2"), 14.5, noise=True, seed=1,
-                  plant_seed=plant_seed_for(1), idv={6: ONSET_H}, feed_balance=False)
+                  plant_seed=plant_seed_for(1), idv={6: ONSET_H})
 
 
 def test_a_lost_a_feed_lowers_production_within_the_limits_with_one_alarm(lost_a_at_mode2):

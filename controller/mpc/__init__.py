@@ -21,12 +21,12 @@ from controller.mpc.formulation import (
 )
 from controller.mpc.law import MPCLaw, SharedStateSource
 from controller.mpc.qp import DAQPBackend, ProxsuiteBackend, QPResult, QPSolver, make_solver
-from controller.mpc.settings import BACKENDS, MPCSettings, MPCSettingsError
+from controller.mpc.settings import BACKENDS, OFFLINE_BUDGET_MS, MPCSettings, MPCSettingsError
 
 __all__ = [
     "BACKENDS", "DAQPBackend", "DeltaUFormulation", "FirstOrderFilter", "FormulationCache",
     "LinearModelState", "MPCController", "MPCLaw", "SharedStateSource", "MPCSettings",
-    "MPCSettingsError", "ModelView",
+    "MPCSettingsError", "ModelView", "OFFLINE_BUDGET_MS",
     "ProxsuiteBackend", "QPResult", "QPSolver", "QPVectors", "StateSource", "augment",
     "build_formulation", "make_solver", "prediction_matrices",
 ]

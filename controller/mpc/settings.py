@@ -13,10 +13,15 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["MPCSettings", "MPCSettingsError", "BACKENDS"]
+__all__ = ["MPCSettings", "MPCSettingsError", "BACKENDS", "OFFLINE_BUDGET_MS"]
 
 #: Names of the QP backends :mod:`controller.mpc.qp` provides.
 BACKENDS = ("daqp", "proxsuite")
+
+#: ``budget_ms`` of offline runs in simulated time (studies, campaigns), ms: none in
+#: practice, every solved move is kept, so a busy machine slows a run instead of
+#: changing its moves.
+OFFLINE_BUDGET_MS = 1e9
 
 
 class MPCSettingsError(ValueError):

@@ -71,7 +71,7 @@ import numpy as np
 from controller.blas import single_threaded
 from controller.interfaces import ControlDecision
 from controller.linear import balanced_truncation
-from controller.mpc import FirstOrderFilter, MPCSettings
+from controller.mpc import OFFLINE_BUDGET_MS, FirstOrderFilter, MPCSettings
 from controller.mpc.law import MPCLaw
 from controller.multimodel import MultiModelController, MultiModelSettings
 from controller.reference import ReferenceTrajectory, SetpointSchedule
@@ -80,8 +80,8 @@ from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
 from controller.units.config import time_scale_s
 from controller.units.mpc_targets import TargetingLaw, TargetSettings
 
-__all__ = ["CV", "CV_UNITS", "MV", "OFFLINE_BUDGET_MS", "PRODUCT_TARGETS", "P_LIMIT",
-           "REALTIME_BUDGET_MS", "SEED_TARGETS", "ReactorCase",
+__all__ = ["CV", "CV_UNITS", "MV", "PRODUCT_TARGETS", "P_LIMIT", "REALTIME_BUDGET_MS",
+           "SEED_TARGETS", "ReactorCase",
            "ReactorController", "ReactorRun", "TargetSettings", "build", "reactor_law",
            "reactor_models", "reactor_settings", "run_reactor"]
 
@@ -90,7 +90,6 @@ CV = ("P", "yA3", "F4")
 CV_UNITS = ("kPa", "mol %", "kmol/h")
 P_LIMIT = 2950.0  # kPa, soft limit in the MPC; the check uses the same number
 REALTIME_BUDGET_MS = 50.0  # ms, an MPC step's wall-clock budget in the service's node
-OFFLINE_BUDGET_MS = 1e9    # ms, none in practice: offline runs keep every solved move
 #: The MPC alone on its set points (the seed's path).
 SEED_TARGETS = TargetSettings(enabled=False)
 #: The product's steady-state targets above the MPC: the pressure limit rank 1, the set

@@ -26,13 +26,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.linear import balanced_truncation
-from controller.mpc import MPCSettings
+from controller.mpc import OFFLINE_BUDGET_MS, MPCSettings
 from controller.mpc.law import MPCLaw
 from controller.reference import ReferenceTrajectory, SetpointSchedule
 from controller.state_shared import StateSharedModel
 from controller.switching import IndexSettings, ModelSwitcher, PerformanceIndex
 from controller.units.two_phase_reactor import (
-    OFFLINE_BUDGET_MS,
     P_LIMIT,
     PRODUCT_TARGETS,
     ReactorCase,

@@ -312,7 +312,7 @@ class CompositionCore:
     def __init__(self, strategy: str, share0: float, limits: tuple[float, float],
                  settings: CompositionCoreSettings | None = None) -> None:
         from controller.adaptation import NLSSettings
-        from controller.mpc import MPCSettings
+        from controller.mpc import OFFLINE_BUDGET_MS, MPCSettings
         from controller.mpc.law import MPCLaw
         from controller.multimodel import MultiModelController, MultiModelSettings
         from controller.switching import IndexSettings
@@ -325,7 +325,7 @@ class CompositionCore:
         mpc = MPCSettings(nu=1, ny=1, P=st.P, M=st.M, Xi=np.array([st.output_weight]),
                           Lambda=np.array([st.move_weight]),
                           u_min=np.array([self.limits[0]]), u_max=np.array([self.limits[1]]),
-                          du_max=np.array([st.du_max]), budget_ms=1e9,
+                          du_max=np.array([st.du_max]), budget_ms=OFFLINE_BUDGET_MS,
                           filter_alpha=st.filter_alpha)
         law = MPCLaw(mpc)
         law.prepare(ssm)

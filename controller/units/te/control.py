@@ -2283,7 +2283,7 @@ def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | No
     (the runs' step times are still measured and reported).
     """
     from controller.adaptation import NLSSettings
-    from controller.mpc import MPCSettings
+    from controller.mpc import OFFLINE_BUDGET_MS, MPCSettings
     from controller.mpc.law import MPCLaw
     from controller.multimodel import MultiModelController, MultiModelSettings
     from controller.switching import IndexSettings
@@ -2308,7 +2308,7 @@ def make_mpc_core(strategy: str, sample_h: float, u0, options: TEMPCOptions | No
                            slack_scale=scale, slack_linear=opt.pressure_slack_linear,
                            slack_quadratic=opt.pressure_slack_quadratic,
                            output_limit_start=opt.pressure_limit_start,
-                           budget_ms=REALTIME_BUDGET_MS if realtime else 1e9,
+                           budget_ms=REALTIME_BUDGET_MS if realtime else OFFLINE_BUDGET_MS,
                            u_target=u0,
                            u_target_weight=np.broadcast_to(np.asarray(opt.target_weight,
                                                                       dtype=float), (5,)))
