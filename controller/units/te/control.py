@@ -2259,8 +2259,9 @@ PRESSURE_GAIN_MPC = SteadyPressureGainSettings()
 #: (:mod:`controller.units.te.loop_tuning`).
 LOOP_TUNING_MPC = LoopTuningSettings()
 
-#: The settings of the MPC strategies' reactor-feed balance when it is switched on
-#: (:mod:`controller.units.te.feed_balance`; off by default).
+#: The settings of the MPC strategies' reactor-feed balance
+#: (:mod:`controller.units.te.feed_balance`; on by default, with the steady tuning set's
+#: slower reactor-level loop).
 FEED_BALANCE_MPC = ReactorFeedBalanceSettings()
 
 
@@ -2362,7 +2363,7 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
                        composition: CompositionCoreSettings | bool = True,
                        leg_references: LegReferenceSettings | bool = True,
                        pressure_gain: SteadyPressureGainSettings | bool = True,
-                       feed_balance: ReactorFeedBalanceSettings | bool = False,
+                       feed_balance: ReactorFeedBalanceSettings | bool = True,
                        loop_tuning: LoopTuningSettings | bool = True,
                        ) -> tuple[TEController, TEControlSpec]:
     """A TE supervisory controller and what the plant side needs to apply it.
@@ -2424,8 +2425,8 @@ def make_te_controller(strategy: str, plan: TransitionPlan | None = None, *,
         throughout), or settings.
     feed_balance : bool or ReactorFeedBalanceSettings
         MPC strategies: the A+C feed's target trimmed on A + C in the reactor feed's
-        fast changes at a steady grade (:mod:`controller.units.te.feed_balance`): False
-        (default, off), True (:data:`FEED_BALANCE_MPC`), or settings.
+        fast changes at a steady grade (:mod:`controller.units.te.feed_balance`): True
+        (default, :data:`FEED_BALANCE_MPC`), False (off), or settings.
     loop_tuning : bool or LoopTuningSettings
         MPC strategies: the plant side's tuning set selected each sample, at a steady
         grade the reactor temperature's primary at its published gain and, where the

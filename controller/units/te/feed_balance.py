@@ -157,6 +157,13 @@ class ReactorFeedBalanceSettings:
         Hours the trim takes to come in fully, and to go (> 0).
     trim_max : float
         Largest trim either way, % of the valve (> 0).
+    order : int
+        1: the first-order washout; 2: a washout that passes no ramp (the lag tracks
+        A + C's level and its trend, critically damped at ``1 / washout_h``), so a
+        plant still settling after a grade change is not trimmed.
+    filter_h : float
+        Time constant of a first-order filter on A + C before the washout, h (>= 0;
+        0: none): the analyzer's noise is not passed to the valve.
     """
 
     gain: float = 4.0
@@ -164,15 +171,20 @@ class ReactorFeedBalanceSettings:
     after_h: float = 24.0
     ramp_h: float = 0.25
     trim_max: float = 10.0
+    order: int = 2
+    filter_h: float = 0.1
 
     def __post_init__(self) -> None:
         label = "feed balance "
+        if self.order not in (1, 2):
+            raise ValueError(f"error: {label}order must be 1 or 2, got {self.order!r}")
         check_finite_fields(self, label)
         check_range(self, "gain", "> 0", "%/mol%", label)
         check_range(self, "washout_h", "> 0", "h", label)
         check_range(self, "after_h", ">= 0", "h", label)
         check_range(self, "ramp_h", "> 0", "h", label)
         check_range(self, "trim_max", "> 0", "%", label)
+        check_range(self, "filter_h", ">= 0", "h", label)
 
 
 class ReactorFeedBalance:
@@ -193,6 +205,10 @@ class ReactorFeedBalance:
         self.share = 0.0
         #: A + C in the reactor feed through the washout's lag, mol % (None: not started)
         self.lag: float | None = None
+        #: A + C through the measurement filter, mol % (None: not started)
+        self.filtered: float | None = None
+        #: the lag's trend (order 2), mol %/h
+        self.trend = 0.0
         #: the trim of the last sample, % of the A+C valve
         self.trim = 0.0
         #: the next sample goes on from :attr:`trim` (after a freeze or a take-over)
@@ -225,15 +241,32 @@ class ReactorFeedBalance:
         c = float(xmeas[22]) + float(xmeas[24])
         if not math.isfinite(c):
             return self.trim if self.share > 0.0 else 0.0
+        if self._anchor:
+            self.filtered = None  # stale after the hold or the outage
+        if s.filter_h > 0.0:
+            if self.filtered is None:
+                self.filtered = c
+            self.filtered += self.sample_h / (s.filter_h + self.sample_h) * (c - self.filtered)
+            c = self.filtered
         if self.lag is None:
             self.lag = c
         if self._anchor:
             # the lag placed so that this sample's trim is the one in force: the trim
             # goes on from it and the washout takes the offset away, no step
             self._anchor = False
-            if self.share > 0.0:
-                self.lag = c + self.trim / (s.gain * self.share)
-        self.lag += self.sample_h / (s.washout_h + self.sample_h) * (c - self.lag)
+            # (with no share in force the lag starts again on the measurement)
+            self.lag = c + (self.trim / (s.gain * self.share) if self.share > 0.0 else 0.0)
+            self.trend = 0.0
+        if s.order == 1:
+            self.lag += self.sample_h / (s.washout_h + self.sample_h) * (c - self.lag)
+        else:
+            # level and trend, critically damped at w = 1 / washout_h:
+            # lag' = trend + 2 w (c - lag), trend' = w^2 (c - lag)
+            w, dt = 1.0 / s.washout_h, self.sample_h
+            pred = self.lag + self.trend * dt
+            err = c - pred
+            self.lag = pred + 2.0 * w * dt * err
+            self.trend += w * w * dt * err
         trim = -s.gain * self.share * (c - self.lag)
         self.trim = min(max(trim, -s.trim_max), s.trim_max)
         return self.trim
@@ -244,18 +277,23 @@ class ReactorFeedBalance:
         self._anchor = True
 
     def checkpoint(self) -> dict[str, Any]:
-        return {"share": self.share, "lag": self.lag, "trim": self.trim}
+        return {"share": self.share, "lag": self.lag, "trend": self.trend,
+                "filtered": self.filtered, "trim": self.trim}
 
     def restore(self, state: dict[str, Any] | None) -> None:
         """Restore a checkpoint; an absent or damaged field (or a state that is not a
         mapping) starts as new: no trim, the lag formed again from the next sample."""
         st = state if isinstance(state, dict) else {}
         share, lag, trim = st.get("share"), st.get("lag"), st.get("trim")
+        trend, filtered = st.get("trend", 0.0), st.get("filtered")
         ok = (is_finite_number(share) and 0.0 <= share <= 1.0
               and is_finite_number(trim) and abs(trim) <= self.settings.trim_max
-              and (lag is None or is_finite_number(lag)))
+              and all(v is None or is_finite_number(v) for v in (lag, filtered))
+              and is_finite_number(trend))
         if ok:
-            self.share, self.trim = float(share), float(trim)
+            self.share, self.trim, self.trend = float(share), float(trim), float(trend)
             self.lag = None if lag is None else float(lag)
+            self.filtered = None if filtered is None else float(filtered)
         else:
-            self.share, self.lag, self.trim = 0.0, None, 0.0
+            self.share, self.lag, self.trim, self.trend = 0.0, None, 0.0, 0.0
+            self.filtered = None

@@ -16,7 +16,7 @@ from plant_sim.tennessee_eastman.regulatory import TABLE_7_10, PILoop
 
 __all__ = ["DEFAULT_TUNING", "E_LIMITED_LEVEL_GAIN", "INNER_LOOPS", "LOOP_TUNING_SETS",
            "MODEL_LOOPS", "PRESSURE_LOOP", "PUBLISHED_TEMPERATURE_CASCADE",
-           "REACTOR_TEMPERATURE_CASCADE", "tuning_gains"]
+           "REACTOR_TEMPERATURE_CASCADE", "STEADY_LEVEL_GAIN", "tuning_gains"]
 
 #: A fifth inner loop, reactor pressure -> purge (XMV 6), whose set point the core
 #: writes in place of the purge valve (see :mod:`controller.units.te.control`, "Pressure").
@@ -67,6 +67,14 @@ REACTOR_TEMPERATURE_CASCADE = replace(PUBLISHED_TEMPERATURE_CASCADE, gain=10.0)
 #: published tuning), and with them ``fixed`` tripped 0 -> 2 0.7 h after the request.
 INNER_LOOPS = (REACTOR_TEMPERATURE_CASCADE,) + MODEL_LOOPS[1:]
 
+#: The reactor level loop's gain at a steady grade, % of D valve per % of level: three
+#: eighths of Table 7.10's 4, beside the reactor-feed balance on the A+C feed
+#: (:mod:`controller.units.te.feed_balance`), which holds the reactor feed's A + C on
+#: its fast changes while the level's loop moves D less. At 1 %/% the level left its
+#: grade's 1 % band for two hours after a grade change (see
+#: :mod:`controller.units.te.loop_tuning`).
+STEADY_LEVEL_GAIN = 1.5
+
 #: The reactor level loop's gain at a steady grade whose E feed valve stands near its
 #: range (mode 2), % of D valve per % of level: an eighth of Table 7.10's 4 (see
 #: :mod:`controller.units.te.loop_tuning`).
@@ -76,11 +84,13 @@ E_LIMITED_LEVEL_GAIN = 0.5
 #: primary). A loop a set does not name runs its gain of :data:`INNER_LOOPS`. The
 #: supervisory controller selects one each sample (:mod:`controller.units.te.loop_tuning`):
 #: ``"grade_change"``, the gains every grade change was tuned with; ``"steady"``, the
-#: reactor temperature's primary at its published 28.3 degC/degC; ``"steady_e_limited"``,
-#: that and the reactor level's loop at :data:`E_LIMITED_LEVEL_GAIN`.
+#: reactor temperature's primary at its published 28.3 degC/degC and the reactor level's
+#: loop at :data:`STEADY_LEVEL_GAIN`; ``"steady_e_limited"``, the primary as published
+#: and the level's loop at :data:`E_LIMITED_LEVEL_GAIN`.
 LOOP_TUNING_SETS = {
     "grade_change": {},
-    "steady": {REACTOR_TEMPERATURE_CASCADE.name: PUBLISHED_TEMPERATURE_CASCADE.gain},
+    "steady": {REACTOR_TEMPERATURE_CASCADE.name: PUBLISHED_TEMPERATURE_CASCADE.gain,
+               MODEL_LOOPS[1].name: STEADY_LEVEL_GAIN},
     "steady_e_limited": {REACTOR_TEMPERATURE_CASCADE.name: PUBLISHED_TEMPERATURE_CASCADE.gain,
                          MODEL_LOOPS[1].name: E_LIMITED_LEVEL_GAIN},
 }
