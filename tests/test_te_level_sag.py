@@ -7,6 +7,7 @@ import json
 import math
 
 import pytest
+from test_te_loop_tuning import steady_level_as_table_7_10
 
 from controller.units.te.control import plant_seed_for, run_te
 from controller.units.te.grades import TransitionPlan
@@ -117,7 +118,7 @@ def _g_hour_peak(r) -> float:
                for h in range(2, int(r.t[-1])))
 
 
-def test_under_idv13_at_mode_2_the_return_does_not_chase_the_level_with_d():
+def test_under_idv13_at_mode_2_the_return_does_not_chase_the_level_with_d(monkeypatch):
     # the kinetics' drift at mode 2, seed 5: at 8-8.5 h the pressure leaves 2870 kPa
     # while the level still falls; a set point returning at 2 %/h stood up to 3.7 %
     # above it, the level's loop raised the D feed to 33.5 % with the E valve at 100 %
@@ -125,10 +126,12 @@ def test_under_idv13_at_mode_2_the_return_does_not_chase_the_level_with_d():
     # and 14.3 (seeds 1-40, 48 h: G's standard deviation 0.679 -> 0.603 mol %,
     # docs/te_kinetics_drift.md). With the plant side's steady tuning set (loop_tuning):
     # G's hour peak 15.55 waiting against 17.77 chasing, the D feed 29.4 against 34.2 %.
-    # Run on that set: on the E-limited one the MPC selects at mode 2 by default the
+    # Run on that set, the level's loop at Table 7.10's gain and no feed balance (the
+    # case as it was): on the E-limited one the MPC selects at mode 2 by default the
     # level's loop barely moves the D feed (14.42 against 14.74, 18.2 against 18.4 %)
+    steady_level_as_table_7_10(monkeypatch)
     kw = dict(noise=True, seed=5, plant_seed=plant_seed_for(5), idv={13: 2.0},
-              loop_tuning=LoopTuningSettings(e_valve_pct=100.0))
+              feed_balance=False, loop_tuning=LoopTuningSettings(e_valve_pct=100.0))
     waits = run_te("ssmpc", TransitionPlan("mode2"), 14.0, **kw)
     chases = run_te("ssmpc", TransitionPlan("mode2"), 14.0,
                     level_sag=LevelSagSettings(return_lead_pct=50.0), **kw)
