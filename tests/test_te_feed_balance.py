@@ -174,6 +174,15 @@ def test_settings_out_of_range_are_refused_naming_the_field(field, value):
         ReactorFeedBalanceSettings(**{field: value})
 
 
+def test_a_washout_of_under_two_samples_is_refused():
+    # the second-order lag's Euler steps diverge for washout_h under 1.21 samples
+    with pytest.raises(ValueError, match="washout_h"):
+        ReactorFeedBalance(ReactorFeedBalanceSettings(washout_h=0.015), SAMPLE_H)
+    with pytest.raises(ValueError, match="order"):
+        ReactorFeedBalanceSettings(order=True)
+    ReactorFeedBalance(ReactorFeedBalanceSettings(washout_h=0.02), SAMPLE_H)
+
+
 def test_a_restart_goes_on_as_before_and_a_damaged_state_starts_afresh():
     s = ReactorFeedBalanceSettings(after_h=0.0, ramp_h=0.1)
     fb = ReactorFeedBalance(s, SAMPLE_H)

@@ -195,7 +195,7 @@ class ReactorFeedBalanceSettings:
 
     def __post_init__(self) -> None:
         label = "feed balance "
-        if self.order not in (1, 2):
+        if type(self.order) is not int or self.order not in (1, 2):
             raise ValueError(f"error: {label}order must be 1 or 2, got {self.order!r}")
         check_finite_fields(self, label)
         check_range(self, "gain", "> 0", "%/mol%", label)
@@ -220,6 +220,11 @@ class ReactorFeedBalance:
                  sample_h: float = 0.01) -> None:
         self.settings = settings or ReactorFeedBalanceSettings()
         self.sample_h = float(sample_h)
+        if not self.settings.washout_h >= 2.0 * self.sample_h:
+            # the lag's Euler steps are stable only for washout_h above 1.21 samples
+            # (order 2; order 1 for any), and a washout of a sample or two washes nothing
+            raise ValueError(f"error: feed balance washout_h must be at least two samples "
+                             f"({2.0 * self.sample_h:g} h), got {self.settings.washout_h:g}")
         #: share of the trim in force, in [0, 1]
         self.share = 0.0
         #: A + C in the reactor feed through the washout's lag, mol % (None: not started)
