@@ -139,7 +139,12 @@ moves of the A+C feed among them, and lets those through only as its washout let
 An operator's T_r* held 1.5 degC above the base case at mode 0 (``tests/test_te_operator.py``):
 the A+C feed 1.5 h after the command 0.18 % under the run without the hold, 2.5-3 h after
 0.39 % (0.63 and 0.67 without the balance). It sees A + C through the analyzer's 0.1 h
-samples and its 0.1 h filter, so it does not answer faster changes.
+samples and its 0.1 h filter, so it does not answer faster changes. Its band (washouts of
+0.5-2 h: IDV(20) at mode 0 0.525 mol % at 0.5 h) is where G wanders under IDV(8) a day
+after 2 -> 0: on plant seeds 4-9 G's hour mean crossed its band's edge late on three
+seeds (24-46 h; 0.5 h's washout and no balance: none of them), and the median time to
+grade of that leg went 13.5 -> 21.0 h for both MPC strategies
+(``docs/te_matrix_seeds_4_9.md``); seeds 1-3 as before.
 
 Why on: with the steady set's slower reactor-level loop it turns the matrix's last missed
 disturbance case, IDV(20) at mode 0, takes IDV(20) at mode 2 well inside its bound and
