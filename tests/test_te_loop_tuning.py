@@ -172,6 +172,16 @@ def _g_and_d_under_idv20(mode: int, hours: float, seed: int, **kw):
     return float(np.std(r.xmeas[w, 39])), float(np.std(r.xmv[w, 0]))
 
 
+def _product_and_level_as_table_7_10(monkeypatch, mode: int, hours: float, seed: int,
+                                     **before):
+    """:func:`_g_and_d_under_idv20` of the product, and of the steady grade with the
+    reactor level's loop at Table 7.10's gain and the options ``before``."""
+    now = _g_and_d_under_idv20(mode, hours, seed)
+    with monkeypatch.context() as m:
+        steady_level_as_table_7_10(m)
+        return now, _g_and_d_under_idv20(mode, hours, seed, **before)
+
+
 def test_where_the_e_valve_is_near_its_range_the_slow_level_loop_holds_g_steadier(
         monkeypatch):
     # IDV(20) at mode 2 (the E valve at 96 %), 16 h from 2 h, noise on, the reactor-feed
@@ -181,11 +191,8 @@ def test_where_the_e_valve_is_near_its_range_the_slow_level_loop_holds_g_steadie
     # to D and the E valve near its range, a level loop that moves the D feed less moves
     # the reactor feed's D/E less
     for seed in (1, 2):
-        g_limited, d_limited = _g_and_d_under_idv20(2, 16.0, seed)
-        with monkeypatch.context() as m:
-            m.setitem(LOOP_TUNING_SETS["steady"], "reactor level", TABLE_7_10_LEVEL_GAIN)
-            g_steady, d_steady = _g_and_d_under_idv20(
-                2, 16.0, seed, loop_tuning=LoopTuningSettings(e_valve_pct=100.0))
+        (g_limited, d_limited), (g_steady, d_steady) = _product_and_level_as_table_7_10(
+            monkeypatch, 2, 16.0, seed, loop_tuning=LoopTuningSettings(e_valve_pct=100.0))
         assert g_limited < g_steady - 0.04
         assert d_limited < 0.5 * d_steady
 
@@ -198,9 +205,7 @@ def test_at_a_steady_grade_the_slower_level_loop_and_the_feed_balance_hold_g_ste
     # level's loop at Table 7.10's 4 %/%, no balance), seed 2 0.537 against 0.554; the D
     # valve's 1.32 / 1.36 % against 2.66 / 2.61
     for seed in (1, 2):
-        g_now, d_now = _g_and_d_under_idv20(0, 48.0, seed)
-        with monkeypatch.context() as m:
-            m.setitem(LOOP_TUNING_SETS["steady"], "reactor level", TABLE_7_10_LEVEL_GAIN)
-            g_before, d_before = _g_and_d_under_idv20(0, 48.0, seed, feed_balance=False)
+        (g_now, d_now), (g_before, d_before) = _product_and_level_as_table_7_10(
+            monkeypatch, 0, 48.0, seed, feed_balance=False)
         assert g_now < g_before - 0.015
         assert d_now < 0.6 * d_before

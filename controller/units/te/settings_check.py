@@ -50,7 +50,8 @@ def check_finite_fields(settings, label: str = "", optional=(), flags=(),
     for f in fields(settings):
         v = getattr(settings, f.name)
         if choices and f.name in choices:
-            if v not in choices[f.name]:
+            # of the same type too: True is not the choice 1
+            if not any(type(v) is type(c) and v == c for c in choices[f.name]):
                 allowed = ", ".join(repr(c) for c in choices[f.name])
                 raise ValueError(f"{label}{f.name}: must be one of {allowed}, got {v!r}")
             continue
