@@ -159,6 +159,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from controller.lag import lag_step
 from controller.units.te.settings_check import check_finite_fields, check_range, is_finite_number
 from controller.units.te.steady_share import ramp_share
 
@@ -271,7 +272,7 @@ class ReactorFeedBalance:
         if s.filter_h > 0.0:
             if self.filtered is None:
                 self.filtered = c
-            self.filtered += self.sample_h / (s.filter_h + self.sample_h) * (c - self.filtered)
+            self.filtered = lag_step(self.filtered, c, self.sample_h, s.filter_h)
             c = self.filtered
         if self.lag is None:
             self.lag = c
@@ -283,7 +284,7 @@ class ReactorFeedBalance:
             self.lag = c + (self.trim / (s.gain * self.share) if self.share > 0.0 else 0.0)
             self.trend = 0.0
         if s.order == 1:
-            self.lag += self.sample_h / (s.washout_h + self.sample_h) * (c - self.lag)
+            self.lag = lag_step(self.lag, c, self.sample_h, s.washout_h)
         else:
             # level and trend, critically damped at w = 1 / washout_h:
             # lag' = trend + 2 w (c - lag), trend' = w^2 (c - lag)

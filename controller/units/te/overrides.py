@@ -59,6 +59,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from controller.lag import lag_step
 from controller.units.te.settings_check import (
     check_finite_fields,
     check_range,
@@ -148,8 +149,7 @@ class FeedOverrides:
         r = flow / (valve / 100.0 * full)
         if old is None:
             return r
-        a = self.sample_h / (s.filter_h + self.sample_h)
-        return old + a * (r - old)
+        return lag_step(old, r, self.sample_h, s.filter_h)
 
     def observe(self, xmeas) -> None:
         """Update the delivered shares and the feed states from this sample's XMEAS

@@ -132,6 +132,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from controller.lag import lag_step
 from controller.units.te.settings_check import check_finite_fields, check_range, is_finite_number
 from controller.units.te.steady_share import ramp_share
 
@@ -252,8 +253,7 @@ class SteadyPressureGain:
             if math.isfinite(d):
                 if self.error_lag is None or stepped:
                     self.error_lag = d
-                self.error_lag += self.sample_h / (s.washout_h + self.sample_h) \
-                    * (d - self.error_lag)
+                self.error_lag = lag_step(self.error_lag, d, self.sample_h, s.washout_h)
                 if self.share > 0.0:
                     out = setpoint + (s.factor - 1.0) * self.share * (d - self.error_lag)
             out = min(max(out + self.bias, limits[0]), limits[1])

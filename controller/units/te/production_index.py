@@ -59,6 +59,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from controller.lag import lag_step
 from controller.units.te.settings_check import check_finite_fields, check_range
 from controller.units.te.spec import D_FULL_KG_H
 
@@ -165,8 +166,7 @@ class ProductionIndex:
         if not math.isfinite(self.d_f):
             self.d_f = d
         else:
-            a = self.sample_h / (self.settings.filter_h + self.sample_h)
-            self.d_f += a * (d - self.d_f)
+            self.d_f = lag_step(self.d_f, d, self.sample_h, self.settings.filter_h)
 
     def update(self, xmeas, a_lost: bool, u2: float, u4: float,
                u3_lost: float = 0.0, e_ref: float = math.nan) -> None:
