@@ -228,7 +228,8 @@ class TERunner:
         self.t += dt_s
 
     def set_tuning(self, name: str) -> None:
-        """Switch the loops to tuning set ``name`` (one of :attr:`tunings`; bumpless,
+        """Switch the loops to tuning set ``name`` (one of :attr:`tunings`; each retuned
+        loop re-based onto its new gain,
         :meth:`plant_sim.tennessee_eastman.regulatory.RegulatoryLayer.set_gains`)."""
         from controller.units.te.loops import tuning_gains
 

@@ -2648,7 +2648,7 @@ def run_te(strategy: str, plan: TransitionPlan, hours: float, *, noise: bool = F
         sim.set_xmv(xmv)
         reg.set_setpoints(dec.extra["setpoints"])
         tuning_k = dec.extra.get("tuning", DEFAULT_TUNING)
-        if tuning_k != tuning:  # the plant side's set switches with the move (bumpless)
+        if tuning_k != tuning:  # the plant side's set switches with the move (re-based)
             reg.set_gains(tuning_gains(spec.loops, tuning_k))
             tuning = tuning_k
         T[k], X[k], U[k], S[k] = t, xmeas, xmv, dec.extra["setpoints"]

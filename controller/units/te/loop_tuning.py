@@ -41,8 +41,11 @@ Method
     grade's E valve (the plan's XMV 2) is at :attr:`LoopTuningSettings.e_valve_pct` or
     more, else ``"steady"``; ``"grade_change"`` otherwise, from the sample a grade
     change is requested. The loops are velocity-form PI
-    (:mod:`plant_sim.tennessee_eastman.regulatory`), so a switch moves no valve and no
-    set point: the loop acts with the new gain on the error's next changes. The
+    (:mod:`plant_sim.tennessee_eastman.regulatory`); a switch re-bases each retuned
+    loop's output onto its new gain (``(K_new - K_old) e``, the value a PI with the new
+    gain and the same integral gives), so the old gain's answer to the noise of that
+    moment is not left standing as an offset (it had dipped the reactor level 4-6 % a
+    day into 2 -> 5). The
     selection is a function of the hours since the grade change, the grade and the hold
     alone, so a restarted controller selects what it selected before (nothing to
     checkpoint). A plant side that hears no selection (a lost controller, an older one)
