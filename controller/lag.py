@@ -22,8 +22,9 @@ dt / tau    steps   x(tau)
 1           1       0.5
 ==========  ======  ========
 
-The callers keep ``dt / tau`` at or below 0.1 (TE: 0.01 h samples, lags of 0.1 h and
-more) or need only the lag's direction.
+The TE guards' defaults run at ``dt / tau`` of 0.01-0.2 (0.01 h samples; lags of 0.05 h,
+the feed overrides' delivered shares, to 1 h, the washouts); the feed balance refuses a
+washout under two samples (0.5).
 """
 
 from __future__ import annotations
