@@ -162,3 +162,63 @@ def test_sample_times_ring_keeps_the_latest_and_checks_its_query():
     for bad in ("3", [1.5], [-1], [True], list(range(SampleTimes.MAX_LOOKUP + 1))):
         with pytest.raises(ValueError, match="seqs"):
             st.lookup(bad)
+
+
+@pytest.mark.parametrize("io", ["zenoh", "opcua"])
+def test_bench_nodes_started_again_on_fresh_ports_when_one_was_taken(tmp_path, monkeypatch,
+                                                                     capsys, io):
+    # each port the bench picks is free when picked; here something binds the first one
+    # each node is given before the node starts (as an outgoing connection may)
+    import socket
+
+    from services.bench import loop
+
+    # the picks in order: zenoh: controller's listen, plant's listen, api's HTTP port,
+    # api's listen; opcua: plant's OPC UA port, plant's listen, controller's listen
+    take = {"zenoh": {0, 2, 4}, "opcua": {0, 4}}[io]
+    takers, handed = [], []
+    real = loop._free_port
+
+    def taken_first() -> int:
+        if len(handed) in take:
+            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            s.bind(("127.0.0.1", 0))
+            s.listen(1)
+            takers.append(s)
+            handed.append(s.getsockname()[1])
+        else:
+            handed.append(real())
+        return handed[-1]
+
+    monkeypatch.setattr(loop, "_free_port", taken_first)
+    try:
+        nodes = loop._Nodes("cstr", 1.0, lockstep=True, api=(io == "zenoh"),
+                            state_dir=str(tmp_path), io=io)
+        try:
+            assert all(p.poll() is None for p in nodes.procs)
+            assert len(nodes.procs) == (3 if io == "zenoh" else 2)
+            taken = {handed[i] for i in take}
+            assert str(nodes.port) not in map(str, taken)
+            assert not any(ep.endswith(f":{t}") for ep in (nodes.ep_c, nodes.ep_p)
+                           for t in taken)
+        finally:
+            nodes.close()
+    finally:
+        for s in takers:
+            s.close()
+    assert "in use" in capsys.readouterr().err.lower()
+
+
+def test_a_node_that_fails_for_another_reason_is_not_started_again(tmp_path, monkeypatch):
+    from services.bench import loop
+    from services.nodes import supervisor
+    from services.output import CLIError
+
+    started = []
+    real = supervisor._spawn
+    monkeypatch.setattr(supervisor, "_spawn", lambda argv, **kw: started.append(argv[0])
+                        or real(argv, **kw))
+    with pytest.raises(CLIError, match="controller"):
+        loop._Nodes("cstr", 1.0, lockstep=True, api=False, state_dir=str(tmp_path),
+                    unit_config=str(tmp_path / "missing.json"))
+    assert started == ["controller"]

@@ -67,6 +67,7 @@ import time
 from services.bench._common import latency_case
 from services.machine import cpu_idle_settings
 from services.nodes.plant import HELD_CAUSES, held_cause
+from services.output import CLIError
 from services.timing import MISS_CAUSES, miss_cause
 
 NAME = "loop"
@@ -106,16 +107,37 @@ def add_arguments(parser) -> None:
                              "rest")
 
 
+#: Starts of a node whose listen port was taken between picking and binding it.
+PORT_TRIES = 3
+
+
+def port_taken(stderr: str) -> bool:
+    """Whether a node's standard error says its listen address was in use."""
+    return "in use" in stderr.lower()
+
+
+def _free_port() -> int:
+    from services.io.zenoh_session import free_port
+
+    return free_port()
+
+
+def _endpoint() -> str:
+    return f"tcp/127.0.0.1:{_free_port()}"
+
+
 class _Nodes:
-    """Controller, plant and (optionally) api nodes as child processes."""
+    """Controller, plant and (optionally) api nodes as child processes.
+
+    Each node's listen ports are picked (free at that moment) just before it starts.
+    Another process may still bind one first (the nodes' own outgoing connections
+    draw from the same ephemeral range); a node that exits for that reason is
+    started again on fresh ports, up to :data:`PORT_TRIES` times."""
 
     def __init__(self, unit: str, speed: float, lockstep: bool, api: bool, state_dir: str,
                  rt_priority: int | None = None, unit_config: str | None = None,
                  busy_poll: bool = False, telemetry: bool = False,
                  plant_busy_poll: bool = False, io: str = "zenoh", mesh: bool = False):
-        from services.io.zenoh_session import free_port
-        from services.nodes.supervisor import _spawn, _wait_ready
-
         self.procs = []
         self.router = None
         state_dir = tempfile.mkdtemp(dir=state_dir)  # a fresh store: no restored checkpoint
@@ -125,46 +147,71 @@ class _Nodes:
 
             self.router = open_router(state_dir, lease_ms=1000)
             join = node_arguments(self.router.plan)
-        ep_c, ep_p, ep_a = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
-        self.ep_c, self.ep_p = ep_c, ep_p
-        self.port = free_port()
+        self.ep_c = self.ep_p = None
+        self.port = None
         common = ["--unit", unit, "--speed", repr(float(speed)), "--lease-ms", "1000"]
         if rt_priority is not None:
             common += ["--rt-priority", str(rt_priority)]
         if unit_config is not None:
             common += ["--unit-config", unit_config]
         deadline = time.monotonic() + 120
-        ctrl = (["controller", *common, *(join or ["--listen", ep_c]), "--state-dir", state_dir]
-                + ([] if telemetry else ["--no-telemetry"])
-                + (["--busy-poll"] if busy_poll else []))
-        plant = (["plant", *common, *(join or ["--listen", ep_p])]
-                 + (["--lockstep"] if lockstep else [])
-                 + (["--busy-poll"] if plant_busy_poll else []))
+
+        def ctrl(*extra: str) -> list[str]:
+            self.ep_c = _endpoint()
+            return (["controller", *common, *(join or ["--listen", self.ep_c]),
+                     "--state-dir", state_dir, *extra]
+                    + ([] if telemetry else ["--no-telemetry"])
+                    + (["--busy-poll"] if busy_poll else []))
+
+        def plant(role: str = "plant", *extra: str) -> list[str]:
+            self.ep_p = _endpoint()
+            return ([role, *common, *(join or ["--listen", self.ep_p]), *extra]
+                    + (["--lockstep"] if lockstep else [])
+                    + (["--busy-poll"] if plant_busy_poll else []))
+
         try:
             if io == "opcua":  # the plant serves, the controller connects: plant first
-                link = ["--opcua-endpoint", f"opc.tcp://127.0.0.1:{free_port()}/ssmpc",
-                        "--opcua-cert-dir", f"{state_dir}/opcua"]
-                p = _spawn(["opcua", *plant[1:], *link])
-                self.procs.append(p)
-                _wait_ready(p, "plant", deadline)
-                c = _spawn([*ctrl, "--connect", ep_p, "--plant-io", "opcua", *link])
-                self.procs.append(c)
-                _wait_ready(c, "controller", deadline)
+                cert = ["--opcua-cert-dir", f"{state_dir}/opcua"]
+                link = []
+
+                def opcua_plant() -> list[str]:
+                    link[:] = ["--opcua-endpoint",
+                               f"opc.tcp://127.0.0.1:{_free_port()}/ssmpc", *cert]
+                    return plant("opcua", *link)
+
+                self._start("plant", opcua_plant, deadline)
+                self._start("controller", lambda: ctrl("--connect", self.ep_p, "--plant-io",
+                                                       "opcua", *link), deadline)
             else:
-                c = _spawn(ctrl)
-                self.procs.append(c)
-                _wait_ready(c, "controller", deadline)
-                p = _spawn(plant if mesh else [*plant, "--connect", ep_c])
-                self.procs.append(p)
-                _wait_ready(p, "plant", deadline)
+                self._start("controller", ctrl, deadline)
+                self._start("plant", lambda: plant() if mesh
+                            else plant("plant", "--connect", self.ep_c), deadline)
             if api:
-                a = _spawn(["api", "--listen", ep_a, "--connect", ep_c, "--connect", ep_p,
-                            "--port", str(self.port)])
-                self.procs.append(a)
-                _wait_ready(a, "api", deadline)
+                def api_node() -> list[str]:
+                    self.port = _free_port()
+                    return ["api", "--listen", _endpoint(), "--connect", self.ep_c,
+                            "--connect", self.ep_p, "--port", str(self.port)]
+
+                self._start("api", api_node, deadline)
         except BaseException:
             self.close()
             raise
+
+    def _start(self, role: str, argv, deadline: float) -> None:
+        """Start the node ``argv()`` gives (it picks its ports), again with fresh ports
+        when it exits because one was taken; raise :class:`CLIError` otherwise."""
+        from services.nodes.supervisor import _spawn, _wait_ready, stderr_tail
+
+        for attempt in range(1, PORT_TRIES + 1):
+            proc = _spawn(argv(), tee_stderr=True)
+            self.procs.append(proc)
+            try:
+                _wait_ready(proc, role, deadline)
+                return
+            except CLIError:
+                if attempt == PORT_TRIES or not port_taken(stderr_tail(proc)):
+                    raise
+                self.procs.remove(proc)
 
     def close(self) -> None:
         from services.nodes.supervisor import stop_children

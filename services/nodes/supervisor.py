@@ -42,6 +42,7 @@ starts, and the plant starts first (the controller connects to it).
 
 from __future__ import annotations
 
+import collections
 import os
 import queue
 import signal
@@ -109,10 +110,48 @@ def _pdeathsig():  # pragma: no cover - runs in the child
         pass
 
 
-def _spawn(argv: list[str]) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "services.cli", *argv],
-                            stdout=subprocess.PIPE, stderr=None, text=True, bufsize=1,
+#: Lines of a node's standard error kept by :func:`_spawn` with ``tee_stderr``.
+STDERR_TAIL_LINES = 40
+
+
+def _spawn(argv: list[str], tee_stderr: bool = False) -> subprocess.Popen:
+    """Start ``ssmpc <argv>`` as a child node, its stdout piped for :func:`_wait_ready`.
+
+    Its standard error goes to this process's; with ``tee_stderr`` it is also kept
+    (the last :data:`STDERR_TAIL_LINES` lines, :func:`stderr_tail`), so that a caller
+    can tell why a node exited before it was ready."""
+    proc = subprocess.Popen([sys.executable, "-m", "services.cli", *argv],
+                            stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE if tee_stderr else None, text=True,
+                            bufsize=1,
                             preexec_fn=_pdeathsig if sys.platform.startswith("linux") else None)
+    if tee_stderr:
+        tail: collections.deque = collections.deque(maxlen=STDERR_TAIL_LINES)
+
+        def echo() -> None:
+            try:
+                for line in proc.stderr:
+                    tail.append(line)
+                    sys.stderr.write(line)
+            except (OSError, ValueError):
+                pass
+
+        reader = threading.Thread(target=echo, name="ssmpc-node-stderr", daemon=True)
+        reader.start()
+        proc._ssmpc_stderr = (tail, reader)
+    return proc
+
+
+def stderr_tail(proc: subprocess.Popen, wait_s: float = 2.0) -> str:
+    """The kept end of a node's standard error (``""`` unless started with
+    ``tee_stderr``); waits up to ``wait_s`` for an exited node's last lines."""
+    kept = getattr(proc, "_ssmpc_stderr", None)
+    if kept is None:
+        return ""
+    tail, reader = kept
+    if proc.poll() is not None:
+        reader.join(wait_s)
+    return "".join(tail)
 
 
 #: Wall seconds between "still starting" lines while a node gets ready.
