@@ -703,9 +703,12 @@ def test_a_purge_below_its_floor_stops_the_tracking_margin():
     x[9] = 0.3 * ref
     assert ctl._track_pressure_setpoint(ask.copy(), x, ref, x[30])[2] == pytest.approx(2710.0)
     # within a day of a grade change (into mode 3 the plant closes the purge) no floor
+    # (and from 8 h the settling margin of 20 kPa)
     x[9] = 0.1 * ref
-    ctl._since = 23.0
+    ctl._since = 5.0
     assert ctl._track_pressure_setpoint(ask.copy(), x, ref, x[30])[2] == pytest.approx(2710.0)
+    ctl._since = 23.0
+    assert ctl._track_pressure_setpoint(ask.copy(), x, ref, x[30])[2] == pytest.approx(2720.0)
     ctl._since = 24.0
     assert ctl._track_pressure_setpoint(ask.copy(), x, ref, x[30])[2] == pytest.approx(2700.0)
     off, _ = make_te_controller("ssmpc", TransitionPlan("mode2"),
