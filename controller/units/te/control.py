@@ -697,8 +697,9 @@ class TransitionGuards:
         economics' lift and the purge's floor act on it as on ``purge_track_kpa``). After
         a leg the grade is made but the purge stands open: the set point leads the
         pressure by the margin and the pressure loop (-0.15 %/kPa, Ti 0.5 h) closes the
-        purge at 3 %/h at 10 kPa (0 -> 2, seed 1: from 77 to 47 % over the ten hours
-        after 5 h, 264 -> 186 $/h). A wider margin through the whole leg let the pressure
+        purge at 3 %/h at 10 kPa (1 -> 0, seed 1: from 89 % at 4 h to 55 % at 16 h;
+        with 20 kPa from 8 h 55 % at 12 h and 40 % at 16 h, the cost over 9-30 h 163
+        against 192 $/h). A wider margin through the whole leg let the pressure
         overshoot once the purge had closed (20 kPa from the request: 2 -> 0 and 2 -> 1
         5.6 -> 8.1-8.3 h); from 8 h on, most legs are at grade. Measured with 20 kPa
         from 8 to 24 h (``ssmpc``, noise on, 48 h, medians; the runs at a steady grade
