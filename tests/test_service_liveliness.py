@@ -3,9 +3,7 @@ the api answers 503 (never hangs), the plant holds its last move and says so."""
 
 import signal
 import subprocess
-import sys
 import time
-from pathlib import Path
 
 import httpx
 import pytest
@@ -13,43 +11,43 @@ import pytest
 from services.io import keys
 from services.io.messages import Reply, Request
 from services.io.zenoh_session import SessionSettings, free_port, open_session
+from services.nodes.supervisor import start_on_free_ports
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
 
-REPO = Path(__file__).resolve().parents[1]
 LEASE_MS = 1000
 
 
-def _spawn(*argv):
-    return subprocess.Popen([sys.executable, "-m", "services.cli", *argv], cwd=REPO,
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-
-
-def _ready(p):
-    t_end = time.monotonic() + 120
-    while time.monotonic() < t_end:
-        line = p.stdout.readline()
-        assert line, "node exited before it was ready"
-        if line.startswith("ready"):
-            return
-    raise AssertionError("not ready")
-
-
 def test_killed_controller_gives_503_and_plant_holds(tmp_path):
-    ep_c, ep_p, ep_a = (f"tcp/127.0.0.1:{free_port()}" for _ in range(3))
-    port = free_port()
+    # each node's ports are picked as it starts, and picked again if one was taken
+    ep = {}
     common = ["--unit", "cstr", "--speed", "20", "--lease-ms", str(LEASE_MS)]
+
+    def fresh(*names):
+        for name in names:
+            ep[name] = free_port() if name == "http" else f"tcp/127.0.0.1:{free_port()}"
+
+    def controller():
+        fresh("c")
+        return ["controller", *common, "--listen", ep["c"], "--state-dir", str(tmp_path),
+                "--no-telemetry"]
+
+    def plant():
+        fresh("p")
+        return ["plant", *common, "--listen", ep["p"], "--connect", ep["c"]]
+
+    def api():
+        fresh("a", "http")
+        return ["api", "--listen", ep["a"], "--connect", ep["c"], "--connect", ep["p"],
+                "--lease-ms", str(LEASE_MS), "--port", str(ep["http"]),
+                "--query-timeout", "1.0"]
+
     procs = []
     try:
-        procs.append(_spawn("controller", *common, "--listen", ep_c, "--state-dir",
-                            str(tmp_path), "--no-telemetry"))
-        _ready(procs[-1])
-        procs.append(_spawn("plant", *common, "--listen", ep_p, "--connect", ep_c))
-        _ready(procs[-1])
-        procs.append(_spawn("api", "--listen", ep_a, "--connect", ep_c, "--connect", ep_p,
-                            "--lease-ms", str(LEASE_MS), "--port", str(port),
-                            "--query-timeout", "1.0"))
-        _ready(procs[-1])
+        deadline = time.monotonic() + 120
+        for role, argv in (("controller", controller), ("plant", plant), ("api", api)):
+            procs.append(start_on_free_ports(argv, role, deadline))
+        ep_p, port = ep["p"], ep["http"]
         with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as c:
             t_end = time.monotonic() + 10
             while c.get("/api/v1/units/cstr/status").status_code != 200:

@@ -67,7 +67,6 @@ import time
 from services.bench._common import latency_case
 from services.machine import cpu_idle_settings
 from services.nodes.plant import HELD_CAUSES, held_cause
-from services.output import CLIError
 from services.timing import MISS_CAUSES, miss_cause
 
 NAME = "loop"
@@ -107,15 +106,6 @@ def add_arguments(parser) -> None:
                              "rest")
 
 
-#: Starts of a node whose listen port was taken between picking and binding it.
-PORT_TRIES = 3
-
-
-def port_taken(stderr: str) -> bool:
-    """Whether a node's standard error says its listen address was in use."""
-    return "in use" in stderr.lower()
-
-
 def _free_port() -> int:
     from services.io.zenoh_session import free_port
 
@@ -132,7 +122,8 @@ class _Nodes:
     Each node's listen ports are picked (free at that moment) just before it starts.
     Another process may still bind one first (the nodes' own outgoing connections
     draw from the same ephemeral range); a node that exits for that reason is
-    started again on fresh ports, up to :data:`PORT_TRIES` times."""
+    started again on fresh ports
+    (:func:`services.nodes.supervisor.start_on_free_ports`)."""
 
     def __init__(self, unit: str, speed: float, lockstep: bool, api: bool, state_dir: str,
                  rt_priority: int | None = None, unit_config: str | None = None,
@@ -198,20 +189,11 @@ class _Nodes:
             raise
 
     def _start(self, role: str, argv, deadline: float) -> None:
-        """Start the node ``argv()`` gives (it picks its ports), again with fresh ports
-        when it exits because one was taken; raise :class:`CLIError` otherwise."""
-        from services.nodes.supervisor import _spawn, _wait_ready, stderr_tail
+        """Start the node ``argv()`` gives (it picks its ports): see
+        :func:`services.nodes.supervisor.start_on_free_ports`."""
+        from services.nodes.supervisor import start_on_free_ports
 
-        for attempt in range(1, PORT_TRIES + 1):
-            proc = _spawn(argv(), tee_stderr=True)
-            self.procs.append(proc)
-            try:
-                _wait_ready(proc, role, deadline)
-                return
-            except CLIError:
-                if attempt == PORT_TRIES or not port_taken(stderr_tail(proc)):
-                    raise
-                self.procs.remove(proc)
+        self.procs.append(start_on_free_ports(argv, role, deadline))
 
     def close(self) -> None:
         from services.nodes.supervisor import stop_children

@@ -207,6 +207,39 @@ def _wait_ready(proc: subprocess.Popen, role: str, deadline: float,
     raise CLIError(f"{role}: not ready within the timeout")
 
 
+#: Starts of a node whose listen port was taken between picking and binding it.
+PORT_TRIES = 3
+
+
+def port_taken(stderr: str) -> bool:
+    """Whether a node's standard error says its listen address was in use."""
+    return "in use" in stderr.lower()
+
+
+def start_on_free_ports(argv, role: str, deadline: float, tries: int = PORT_TRIES
+                        ) -> subprocess.Popen:
+    """Start the node ``argv()`` gives and wait for its ``ready`` line; ``argv`` picks the
+    node's listen ports (free at that moment) each time it is called.
+
+    Another process may bind a picked port before the node does (outgoing connections
+    draw from the same ephemeral range). A node that exits before it is ready because
+    an address was in use is started again with a fresh ``argv()``, up to ``tries``
+    times; any other failure raises :class:`CLIError` at once, as does the last try.
+    The node's standard error is echoed to this process's as it comes."""
+    for attempt in range(1, tries + 1):
+        proc = _spawn(argv(), tee_stderr=True)
+        try:
+            _wait_ready(proc, role, deadline)
+            return proc
+        except CLIError:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            if attempt == tries or not port_taken(stderr_tail(proc)):
+                raise
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
 def _drain(proc: subprocess.Popen) -> None:
     """Echo the node's output after its ``ready`` line to this process's stdout."""
     lines = _lines(proc)
