@@ -711,12 +711,13 @@ class TransitionGuards:
         ``docs/campaigns/te_idv_through_legs.json``, seeds 1-15, 24 h, 300 runs): no
         trip either way, peaks within 2 kPa, run-mean cost 2.3-10 $/h lower in six of
         the seven IDV(1)/(8) cases and equal in the rest; 2 -> 0 with IDV(8) 5.97 ->
-        5.53 h; 2 -> 1 with IDV(8) 11.8 -> 15.6 h (``fixed`` 8.5 -> 15.5): that case's
-        seeds reach the grade either near 5 h or near 17-20 h (G's hour mean wanders
-        within 1 mol % of the band's edge under the feed's composition swings), and on
-        one seed (3) G's hour mean went 0.08 mol % past the edge at 19.6 h (the purge
-        closed from 38 to 17 % over 12-24 h; G 0.02 mol % lower on the median of the 15
-        seeds over those hours), which moves the median across the two groups.
+        5.53 h; ``fixed``'s 2 -> 3 with IDV(8) 11.4 -> 11.8 h; 2 -> 1 with IDV(8) 11.8 ->
+        15.6 h (``fixed`` 8.5 -> 15.5): that case's seeds reach the grade either near 5 h
+        or near 17-20 h (G's hour mean wanders within 1 mol % of the band's edge under
+        the feed's composition swings), and on one seed (3) G's hour mean went 0.08
+        mol % past the edge at 19.6 h (the purge closed from 38 to 17 % over 12-24 h; G
+        0.02 mol % lower on the median of the 15 seeds over those hours), which moves
+        the median across the two groups.
     purge_track_settle_from_h, purge_track_settle_to_h : float
         See ``purge_track_settle_kpa``, h after a grade change (0 <= from < to).
     pressure_hold_c_fraction : float or None
