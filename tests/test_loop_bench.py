@@ -172,14 +172,15 @@ def test_bench_nodes_started_again_on_fresh_ports_when_one_was_taken(tmp_path, m
     import socket
 
     from services.bench import loop
+    from services.io import zenoh_session
 
     # the picks in order: zenoh: controller's listen, plant's listen, api's HTTP port,
     # api's listen; opcua: plant's OPC UA port, plant's listen, controller's listen
     take = {"zenoh": {0, 2, 4}, "opcua": {0, 4}}[io]
     takers, handed = [], []
-    real = loop._free_port
+    real = zenoh_session.free_port
 
-    def taken_first() -> int:
+    def taken_first(host="127.0.0.1") -> int:
         if len(handed) in take:
             s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             s.bind(("127.0.0.1", 0))
@@ -187,10 +188,10 @@ def test_bench_nodes_started_again_on_fresh_ports_when_one_was_taken(tmp_path, m
             takers.append(s)
             handed.append(s.getsockname()[1])
         else:
-            handed.append(real())
+            handed.append(real(host))
         return handed[-1]
 
-    monkeypatch.setattr(loop, "_free_port", taken_first)
+    monkeypatch.setattr(zenoh_session, "free_port", taken_first)
     try:
         nodes = loop._Nodes("cstr", 1.0, lockstep=True, api=(io == "zenoh"),
                             state_dir=str(tmp_path), io=io)

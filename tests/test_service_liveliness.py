@@ -10,7 +10,12 @@ import pytest
 
 from services.io import keys
 from services.io.messages import Reply, Request
-from services.io.zenoh_session import SessionSettings, free_port, open_session
+from services.io.zenoh_session import (
+    SessionSettings,
+    free_port,
+    free_tcp_endpoint,
+    open_session,
+)
 from services.nodes.supervisor import start_on_free_ports
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(180)]
@@ -25,7 +30,7 @@ def test_killed_controller_gives_503_and_plant_holds(tmp_path):
 
     def fresh(*names):
         for name in names:
-            ep[name] = free_port() if name == "http" else f"tcp/127.0.0.1:{free_port()}"
+            ep[name] = free_port() if name == "http" else free_tcp_endpoint()
 
     def controller():
         fresh("c")

@@ -106,16 +106,6 @@ def add_arguments(parser) -> None:
                              "rest")
 
 
-def _free_port() -> int:
-    from services.io.zenoh_session import free_port
-
-    return free_port()
-
-
-def _endpoint() -> str:
-    return f"tcp/127.0.0.1:{_free_port()}"
-
-
 class _Nodes:
     """Controller, plant and (optionally) api nodes as child processes.
 
@@ -129,6 +119,8 @@ class _Nodes:
                  rt_priority: int | None = None, unit_config: str | None = None,
                  busy_poll: bool = False, telemetry: bool = False,
                  plant_busy_poll: bool = False, io: str = "zenoh", mesh: bool = False):
+        from services.io.zenoh_session import free_port, free_tcp_endpoint
+
         self.procs = []
         self.router = None
         state_dir = tempfile.mkdtemp(dir=state_dir)  # a fresh store: no restored checkpoint
@@ -148,14 +140,14 @@ class _Nodes:
         deadline = time.monotonic() + 120
 
         def ctrl(*extra: str) -> list[str]:
-            self.ep_c = _endpoint()
+            self.ep_c = free_tcp_endpoint()
             return (["controller", *common, *(join or ["--listen", self.ep_c]),
                      "--state-dir", state_dir, *extra]
                     + ([] if telemetry else ["--no-telemetry"])
                     + (["--busy-poll"] if busy_poll else []))
 
         def plant(role: str = "plant", *extra: str) -> list[str]:
-            self.ep_p = _endpoint()
+            self.ep_p = free_tcp_endpoint()
             return ([role, *common, *(join or ["--listen", self.ep_p]), *extra]
                     + (["--lockstep"] if lockstep else [])
                     + (["--busy-poll"] if plant_busy_poll else []))
@@ -167,7 +159,7 @@ class _Nodes:
 
                 def opcua_plant() -> list[str]:
                     link[:] = ["--opcua-endpoint",
-                               f"opc.tcp://127.0.0.1:{_free_port()}/ssmpc", *cert]
+                               f"opc.tcp://127.0.0.1:{free_port()}/ssmpc", *cert]
                     return plant("opcua", *link)
 
                 self._start("plant", opcua_plant, deadline)
@@ -179,8 +171,8 @@ class _Nodes:
                             else plant("plant", "--connect", self.ep_c), deadline)
             if api:
                 def api_node() -> list[str]:
-                    self.port = _free_port()
-                    return ["api", "--listen", _endpoint(), "--connect", self.ep_c,
+                    self.port = free_port()
+                    return ["api", "--listen", free_tcp_endpoint(), "--connect", self.ep_c,
                             "--connect", self.ep_p, "--port", str(self.port)]
 
                 self._start("api", api_node, deadline)

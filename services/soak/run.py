@@ -445,6 +445,7 @@ class Soak:
         """Start the api node on ``port``, or on another free port if that one was
         taken meanwhile; return the port it serves on."""
         from services.io.zenoh_session import free_port
+        from services.nodes.supervisor import port_taken
 
         for attempt in range(1, self.API_PORT_TRIES + 1):
             self.api = _NodeProcess(
@@ -455,7 +456,7 @@ class Soak:
                 break
             except RuntimeError:
                 last_start = (state / "api.log").read_text(errors="replace")
-                if "in use" not in last_start.rsplit("--- start", 1)[-1] \
+                if not port_taken(last_start.rsplit("--- start", 1)[-1]) \
                         or attempt == self.API_PORT_TRIES:
                     raise
                 port = free_port()
