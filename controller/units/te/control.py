@@ -20,6 +20,9 @@ Layers (seed Fig. 7.2)
          MPC strategies move the feedforward along their own, faster path through a
          grade change, with a lead past the new grade's share until G has covered
          30 % of its way, paced by the plant (:mod:`controller.units.te.d_share_path`),
+         or, between modes 0, 1 and 3, planned by the composition core
+         (:mod:`controller.units.te.composition_core`: fixed models of modes 0, 2, 3,
+         and for ``"ssmpc"`` the re-initialized adaptive model),
          and their G loop acts then only within :data:`RATIO_PATH_WINDOW_MOL` of the
          new grade's G; with half the gain and twice the integral time
          (:data:`RATIO_MPC`);
