@@ -92,7 +92,9 @@ leg     seeds 1-40       transition $     seeds faster / slower (0.05 h)
 1 -> 3  8.77 / 7.91      539 / 519        39 / 1 (+0.06 h)
 ======  ===============  ===============  ==============================
 
-Through a disturbance (``te_idv_through_legs.json``, seeds 1-15, 24 h): 0 -> 3 with
+In the acceptance matrix (``docs/te_matrix.md``: seeds 1-3, 48 h) 0 -> 3 6.7 -> 6.0 h
+and 336 -> 316 $, 1 -> 3 9.1 -> 7.3 h and 558 -> 535 $; every other case the same to
+the digit. Through a disturbance (``te_idv_through_legs.json``, seeds 1-15, 24 h): 0 -> 3 with
 IDV(8) 7.45 -> 6.79 h, 1 -> 3 with IDV(8) 9.29 -> 9.08 h, the other eight cases the
 same to the digit, no trip. The projection is what makes it safe: with the box widened
 by its own width (``param_margin`` 1) the model learned gains that cycled the share
