@@ -82,8 +82,8 @@ the way. The adaptive model, started from mode 0's and fitted to the leg as it g
 keeps the smallest errors for most of the plan and the share's lead longer (1 -> 3,
 seed 1: active in 28 of the first 44 samples, the share at 0.905-0.909 while G went
 82 -> 88 mol %, where mode 3's model had brought it back to 0.879). Measured (noise on,
-30 h, change at 1 h; median hours to grade, ``fixed`` / ``ssmpc``; the other ten legs
-are the same to the digit, the adaptive model never leading them):
+30 h, change at 1 h; median hours to grade, ``fixed`` / ``ssmpc``; the other ten legs,
+seeds 1-15, are the same to the digit: the adaptive model changes none of their moves):
 
 ======  ===============  ===============  ==============================
 leg     seeds 1-40       transition $     seeds faster / slower (0.05 h)
