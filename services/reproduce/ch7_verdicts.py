@@ -47,6 +47,8 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from controller.units.te.models import ADAPTIVE_MODEL
+
 __all__ = ["STRATEGIES", "LABEL", "Measure", "MEASURES", "compare", "versus", "Versus",
            "Claim", "Judgement", "judge", "judge_r7_13", "judge_r7_14", "judge_r7_16",
            "COST_BAND", "SHARE_MIN", "ADAPTIVE"]
@@ -56,7 +58,7 @@ STRATEGIES = ("ssmpc", "fixed", "pi", "plan", "decentralized")
 LABEL = {"ssmpc": "SSMPC", "fixed": "fixed-model MPC", "pi": "PI baseline",
          "plan": "plan alone", "decentralized": "decentralized loops"}
 #: Name of the re-initialized adaptive model in the SSMPC's model list.
-ADAPTIVE = "reinit"
+ADAPTIVE = ADAPTIVE_MODEL
 #: Relative band of the seed's "about" cost levels read off its figures (R7.13, R7.14).
 COST_BAND = 0.15
 #: "Almost all the time" (R7.16): the adaptive model's share of samples at least this.

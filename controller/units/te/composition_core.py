@@ -138,6 +138,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.units.te.models import ADAPTIVE_MODEL
 from controller.units.te.settings_check import check_finite_fields, check_range
 from controller.units.te.spec import E_FULL_KG_H
 
@@ -196,7 +197,7 @@ def composition_state_shared_model(dt_h: float, adaptive: bool,
         specs.append(StateSharedModel.model_from_linear(g, r.A, r.B, r.C, u_op, y_op, basis))
     ssm = StateSharedModel(basis, 1, dt_h)
     if adaptive:  # first: it wins a tie of the index right after its re-initialization
-        ssm.add_model(ModelSpec("reinit", specs[0].theta, specs[0].bias, "adaptive"))
+        ssm.add_model(ModelSpec(ADAPTIVE_MODEL, specs[0].theta, specs[0].bias, "adaptive"))
     for spec in specs:
         ssm.add_model(spec)
     return ssm

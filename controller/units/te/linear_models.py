@@ -59,6 +59,7 @@ import numpy as np
 from controller.linear import BalancedTruncation, Realization, balanced_truncation
 from controller.shared_basis import BASES, SharedBasis, roots_from_poles
 from controller.state_shared import ModelSpec, StateSharedModel, designer_polynomial
+from controller.units.te.models import ADAPTIVE_MODEL
 
 __all__ = ["TE_LOOPS", "TE_LOOPS_TIGHT_TR", "TE_INPUTS", "TE_OUTPUTS", "TE_MODES", "TEClosedLoop",
            "te_closed_loop", "te_reduced", "te_state_shared_model", "TE_ORDER",
@@ -202,5 +203,5 @@ def te_state_shared_model(dt: float, order: int = TE_ORDER, roots=None,
         ssm.add_model(StateSharedModel.model_from_linear(mode, r.A, r.B, r.C, cl.u_op,
                                                          cl.y_op, a))
     first = ssm.model(0)
-    ssm.add_model(ModelSpec("reinit", first.theta, first.bias, "adaptive"))
+    ssm.add_model(ModelSpec(ADAPTIVE_MODEL, first.theta, first.bias, "adaptive"))
     return ssm

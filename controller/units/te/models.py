@@ -91,11 +91,14 @@ from controller.linear import Realization, balanced_truncation
 from controller.shared_basis import BASES, SharedBasis, roots_from_poles
 from controller.state_shared import ModelSpec, StateSharedModel, designer_polynomial
 
-__all__ = ["MODEL_GRADES", "ORDER", "MPC_ORDER", "DESIGNER_ROOTS", "CascadeStateSpace",
-           "cascade_state_space", "closed_loop", "reduced",
+__all__ = ["MODEL_GRADES", "ADAPTIVE_MODEL", "ORDER", "MPC_ORDER", "DESIGNER_ROOTS",
+           "CascadeStateSpace", "cascade_state_space", "closed_loop", "reduced",
            "state_shared_model", "PRESSURE_FILTER_H"]
 
 MODEL_GRADES = ("mode0", "mode2", "mode3")
+#: The name of strategy (b)'s re-initialized adaptive model (seed §4, eq. 4.1) beside
+#: the fixed models of :data:`MODEL_GRADES`, as the index and the status report it.
+ADAPTIVE_MODEL = "reinit"
 #: The companion basis's order (the seed's coordinates, :data:`DESIGNER_ROOTS`).
 ORDER = 8
 #: The MPC's order (orthonormal basis; see "The order" above).
@@ -277,7 +280,7 @@ def state_shared_model(dt_h: float, adaptive: bool, order: int = ORDER,
         # adaptive model and its source have the same J) the smallest-J rule picks
         # the lowest index, which must be the adaptive model or it would be
         # re-initialized again at every sample and never adapt.
-        ssm.add_model(ModelSpec("reinit", specs[0].theta, specs[0].bias, "adaptive"))
+        ssm.add_model(ModelSpec(ADAPTIVE_MODEL, specs[0].theta, specs[0].bias, "adaptive"))
     for spec in specs:
         ssm.add_model(spec)
     return ssm
