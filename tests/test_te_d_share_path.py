@@ -70,7 +70,8 @@ def _changed(settings, s_from=0.5, s_to=0.3, g_from=50.0, g_to=10.0,
 
 def test_the_lead_aims_beyond_the_grade_until_g_has_covered_its_share_of_the_way():
     a = 1 - math.exp(-DT / 1.0)  # toward less D share: tau_h
-    p, v = _changed(DSharePathSettings(tau_h=1.0, lead=0.5, lead_until=0.3))
+    p, v = _changed(DSharePathSettings(tau_h=1.0, lead=0.5, lead_until=0.9,
+                                       lead_until_fall=0.3))
     # aim 0.3 + 0.5 (0.3 - 0.5) = 0.2
     assert v == pytest.approx(0.5 + a * (0.2 - 0.5), abs=1e-15)
     # G 29 % of the way from 50 to 10 mol %: the lead goes on
@@ -81,6 +82,20 @@ def test_the_lead_aims_beyond_the_grade_until_g_has_covered_its_share_of_the_way
     assert v3 == pytest.approx(v2 + a * (0.3 - v2), abs=1e-15)
     v4 = p.step(0.3, **FREE, g_mol=50.0, g_grade_mol=10.0)
     assert v4 == pytest.approx(v3 + a * (0.3 - v3), abs=1e-15)
+
+
+@pytest.mark.parametrize("s_to, g_to", [(0.3, 10.0), (0.7, 90.0)])
+def test_the_lead_ends_later_toward_a_lower_d_share(s_to, g_to):
+    # the default ends: 30 % of G's way toward more D share, 50 % toward less
+    st = DSharePathSettings()
+    assert (st.lead_until, st.lead_until_fall) == (0.3, 0.5)
+    falling = s_to < 0.5
+    p, _ = _changed(st, 0.5, s_to, 50.0, g_to)
+    for covered in (0.29, 0.35, 0.45, 0.49):
+        p.step(s_to, **FREE, g_mol=50.0 + covered * (g_to - 50.0), g_grade_mol=g_to)
+        assert (p.lead is not None) == (falling or covered < 0.3), covered
+    p.step(s_to, **FREE, g_mol=50.0 + 0.5 * (g_to - 50.0), g_grade_mol=g_to)
+    assert p.lead is None
 
 
 def test_the_lead_stays_within_the_share_limits_and_ends_at_its_longest():
@@ -127,6 +142,7 @@ def test_a_restored_path_goes_on_with_its_lead():
                                        ({"level_low_pct": -1.0}, "level_low_pct"),
                                        ({"lead": -0.1}, "lead"),
                                        ({"lead_until": 0.0}, "lead_until"),
+                                       ({"lead_until_fall": 1.5}, "lead_until_fall"),
                                        ({"lead_max_h": math.inf}, "lead_max_h")])
 def test_bad_settings_name_their_field(kw, field):
     with pytest.raises(ValueError, match=field):
@@ -218,6 +234,29 @@ def test_the_lead_brings_g_to_the_grade_sooner_leaving_mode_2():
     with_lead, without = hours(0.5), hours(0.0)
     assert with_lead is not None and without is not None
     assert with_lead < without - 1.5
+
+
+def test_the_later_end_of_the_lead_into_mode_2_brings_g_to_the_grade_sooner():
+    # 1 -> 2, noise on, seed 3 (measured: 7.81 h and 1971 $ with the lead ending at half
+    # of G's way, 9.03 h and 2290 $ at 30 %): the share's lead holds the E valve at its
+    # limit until G is half-way down, and G reaches mode 2's band without the tail
+    from controller.units.te.control import plant_seed_for, run_te
+    from services.campaign import metrics
+
+    def leg(until_fall):
+        plan = TransitionPlan("mode1", (Leg(1.0, "mode2"),))
+        r = run_te("ssmpc", plan, 12.0, noise=True, seed=3, plant_seed=plant_seed_for(3),
+                   d_share_path=DSharePathSettings(lead_until_fall=until_fall))
+        assert r.shutdown is None
+        row = metrics.te_metrics(r.t, r.xmeas, r.cost, r.active, r.model_names,
+                                 r.meta["sample_h"], (1.0, "mode2"), None, xmv=r.xmv,
+                                 previous_grade="mode1")
+        return row["time_to_grade_h"], row["transition_cost_usd"]
+
+    (t_half, usd_half), (t_early, usd_early) = leg(0.5), leg(0.3)
+    assert t_half is not None and t_early is not None
+    assert t_half < 8.3 and t_half < t_early - 0.8
+    assert usd_half < 0.9 * usd_early
 
 
 def test_a_new_grade_request_mid_path_goes_on_from_where_the_path_is():

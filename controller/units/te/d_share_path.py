@@ -33,7 +33,8 @@ pace it by the plant:
 The lead (:attr:`DSharePathSettings.lead`): after a grade change the path first
 heads for a share half the change beyond the new grade's, within the ratio's limits,
 and turns to the grade's own share once the product's G has covered 30 % of its way
-(:attr:`DSharePathSettings.lead_until`; the analyzer's 0.5 h of delay and the G
+(half of it toward a lower share, below; :attr:`DSharePathSettings.lead_until`,
+:attr:`~DSharePathSettings.lead_until_fall`; the analyzer's 0.5 h of delay and the G
 loop's window then bring it in without overshoot), at the latest after
 :attr:`DSharePathSettings.lead_max_h`. The G response to the share is slow at the
 start (linearized cascade, mode 0: 37 % of its change after 1 h, 84 % after 2 h; mode
@@ -59,6 +60,28 @@ No trip; the highest pressure 2892 kPa either way. A lead that ends at a fixed t
 instead was fragile: 0.5 for 2 h took 2 -> 0 to 3.9 h, 0.4 for 2.5 h to 8.3 h and 0.3
 for 4 h to 9.8 h; 0.8 ending at 30 % took
 2 -> 0 to 8.1 h, 0.5 ending at 40 % or 50 % made 1 -> 3 or 3 -> 1 slower.
+
+The lead's end into mode 2 (:attr:`DSharePathSettings.lead_until_fall`). Toward mode 2
+the lead's aim is the ratio's lower limit (half the change beyond mode 2's share, 0.084,
+is cut to 0.03), and the path falls toward it at ``tau_h``. Ended at 30 % of G's way,
+as toward a higher share, the lead stopped before the path had passed mode 2's share
+(1 -> 2, seed 3: 0.10 at 3.3 h), the path came to it from above and G crept along its
+tail (at grade after 9.03 h, 2290 $); ended at half the way, the path had gone past it
+(0.054 at 4.5 h), comes back from below, and the grade is made after 7.81 h for
+1971 $. Measured (ssmpc, noise on, seeds 1-15, 30 h, change at 1 h; median hours to
+grade and mean transition cost, the lead ending at 30 % / at 50 % of the way):
+
+======  =============  ===============  ==================================
+leg     hours          transition $     seeds faster (by 0.05 h) / slower
+======  =============  ===============  ==================================
+0 -> 2  6.92 / 6.77    1383 / 1335      15 / 0
+1 -> 2  9.04 / 8.39    2333 / 2204      14 / 0
+3 -> 2  10.88 / 10.75  2894 / 2875      11 / 0
+======  =============  ===============  ==================================
+
+No trip, the same peaks (2843, 2879 and 2880 kPa at the most); the legs toward a higher
+share do not change. Ended at 60 % (``fixed``, seeds 1-15) 1 -> 2 came to 7.94 h but
+one seed of 0 -> 2 took 13.0 h.
 
 Before the lead (the acceptance matrix, ``docs/te_matrix.md``: ssmpc, noise on, seeds
 1-3, 48 h, median hours to grade; with the plan's path and the G loop through the
@@ -120,7 +143,13 @@ class DSharePathSettings:
         covered ``lead_until`` of its way from its value at the change to the new
         grade's G; then for the grade's share.
     lead_until : float
-        The share of G's way at which the lead ends, in (0, 1].
+        The share of G's way at which the lead ends, in (0, 1], toward a higher D
+        share.
+    lead_until_fall : float
+        The same toward a lower D share (into mode 2, whose share sits at the E valve's
+        limit), in (0, 1]. Later than the rise's: ended at 30 % of the way the path had
+        not yet passed mode 2's share, and G crept along its tail for hours (the
+        module's "The lead's end into mode 2").
     lead_max_h : float
         The lead ends at the latest this long after the change, h (> 0): with the
         analyzer out (G not finite) or G held back by a limit, the path still
@@ -133,6 +162,7 @@ class DSharePathSettings:
     level_low_pct: float = 2.0
     lead: float = 0.5
     lead_until: float = 0.3
+    lead_until_fall: float = 0.5
     lead_max_h: float = 6.0
 
     def __post_init__(self) -> None:
@@ -150,8 +180,10 @@ class DSharePathSettings:
         if not (isinstance(self.lead, int | float) and math.isfinite(self.lead)
                 and self.lead >= 0):
             raise ValueError(f"lead: must be finite and >= 0, got {self.lead!r}")
-        if not (isinstance(self.lead_until, int | float) and 0.0 < self.lead_until <= 1.0):
-            raise ValueError(f"lead_until: must be in (0, 1], got {self.lead_until!r}")
+        for name in ("lead_until", "lead_until_fall"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and 0.0 < v <= 1.0):
+                raise ValueError(f"{name}: must be in (0, 1], got {v!r}")
         if not (isinstance(self.lead_max_h, int | float) and math.isfinite(self.lead_max_h)
                 and self.lead_max_h > 0):
             raise ValueError(f"lead_max_h: must be a finite number > 0 h, got "
@@ -241,7 +273,8 @@ class DSharePath:
             target, g_from, age = lead
             covered = (g_mol - g_from) / (g_grade_mol - g_from) \
                 if g_grade_mol != g_from else 1.0
-            if age >= st.lead_max_h or covered >= st.lead_until:  # NaN: goes on
+            until = st.lead_until_fall if target < s_grade else st.lead_until
+            if age >= st.lead_max_h or covered >= until:  # NaN: goes on
                 self.lead = None
             else:
                 aim = target
