@@ -215,48 +215,40 @@ def test_leaving_mode_3_the_mpc_strategies_reach_the_grade_hours_before_the_plan
     assert plan is None or plan > mpc + 3.0
 
 
-def test_the_lead_brings_g_to_the_grade_sooner_leaving_mode_2():
-    # 2 -> 1, noise on, seed 1 (docs/te_matrix.md: 5.8 h with the lead, 8.3 h without,
-    # median of seeds 1-3)
+def _leg(start, to, seed, hours, path):
+    """One ssmpc leg (noise on, the change at 1 h) with the path's settings ``path``:
+    its campaign metrics row; it must not trip."""
     from controller.units.te.control import plant_seed_for, run_te
     from services.campaign import metrics
 
-    def hours(lead):
-        plan = TransitionPlan("mode2", (Leg(1.0, "mode1"),))
-        r = run_te("ssmpc", plan, 14.0, noise=True, seed=1, plant_seed=plant_seed_for(1),
-                   d_share_path=DSharePathSettings(lead=lead))
-        assert r.shutdown is None
-        row = metrics.te_metrics(r.t, r.xmeas, r.cost, r.active, r.model_names,
-                                 r.meta["sample_h"], (1.0, "mode1"), None, xmv=r.xmv,
-                                 previous_grade="mode2")
-        return row["time_to_grade_h"]
+    plan = TransitionPlan(f"mode{start}", (Leg(1.0, f"mode{to}"),))
+    r = run_te("ssmpc", plan, hours, noise=True, seed=seed, plant_seed=plant_seed_for(seed),
+               d_share_path=path)
+    assert r.shutdown is None
+    return metrics.te_metrics(r.t, r.xmeas, r.cost, r.active, r.model_names,
+                              r.meta["sample_h"], (1.0, f"mode{to}"), None, xmv=r.xmv,
+                              previous_grade=f"mode{start}")
 
-    with_lead, without = hours(0.5), hours(0.0)
+
+def test_the_lead_brings_g_to_the_grade_sooner_leaving_mode_2():
+    # 2 -> 1, noise on, seed 1 (docs/te_matrix.md: 5.8 h with the lead, 8.3 h without,
+    # median of seeds 1-3)
+    with_lead, without = (_leg(2, 1, 1, 14.0, DSharePathSettings(lead=lead))["time_to_grade_h"]
+                          for lead in (0.5, 0.0))
     assert with_lead is not None and without is not None
     assert with_lead < without - 1.5
 
 
 def test_the_later_end_of_the_lead_into_mode_2_brings_g_to_the_grade_sooner():
     # 1 -> 2, noise on, seed 3 (measured: 7.81 h and 1971 $ with the lead ending at half
-    # of G's way, 9.03 h and 2290 $ at 30 %): the share's lead holds the E valve at its
-    # limit until G is half-way down, and G reaches mode 2's band without the tail
-    from controller.units.te.control import plant_seed_for, run_te
-    from services.campaign import metrics
-
-    def leg(until_fall):
-        plan = TransitionPlan("mode1", (Leg(1.0, "mode2"),))
-        r = run_te("ssmpc", plan, 12.0, noise=True, seed=3, plant_seed=plant_seed_for(3),
-                   d_share_path=DSharePathSettings(lead_until_fall=until_fall))
-        assert r.shutdown is None
-        row = metrics.te_metrics(r.t, r.xmeas, r.cost, r.active, r.model_names,
-                                 r.meta["sample_h"], (1.0, "mode2"), None, xmv=r.xmv,
-                                 previous_grade="mode1")
-        return row["time_to_grade_h"], row["transition_cost_usd"]
-
-    (t_half, usd_half), (t_early, usd_early) = leg(0.5), leg(0.3)
+    # of G's way, 9.03 h and 2290 $ at 30 %): the path passes mode 2's share before the
+    # lead ends, and G comes into its band without the tail
+    half, early = (_leg(1, 2, 3, 12.0, DSharePathSettings(lead_until_fall=until))
+                   for until in (0.5, 0.3))
+    t_half, t_early = half["time_to_grade_h"], early["time_to_grade_h"]
     assert t_half is not None and t_early is not None
     assert t_half < 8.3 and t_half < t_early - 0.8
-    assert usd_half < 0.9 * usd_early
+    assert half["transition_cost_usd"] < 0.9 * early["transition_cost_usd"]
 
 
 def test_a_new_grade_request_mid_path_goes_on_from_where_the_path_is():
