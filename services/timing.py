@@ -286,7 +286,10 @@ class Watchdog:
 
     One background thread serves all samples. :meth:`arm` sets the deadline
     (absolute, ``time.perf_counter`` seconds) and the action; :meth:`disarm`
-    returns True if the action has already fired (the sample missed).
+    returns True if the deadline has passed (the sample missed): the action has fired,
+    or, where the thread has not got to it yet (a loaded machine's scheduler, the
+    jitter slack below), it runs in the disarming thread then, so a result that comes
+    after its deadline is never taken for one in time.
 
     Parameters
     ----------
@@ -336,11 +339,21 @@ class Watchdog:
                 self._cond.notify()
 
     def disarm(self) -> bool:
+        late = None
         with self._cond:
             fired = self._fired
+            if not fired and self._deadline is not None \
+                    and time.perf_counter() >= self._deadline:
+                late, fired = self._action, True
+                self._fired = True
             self._deadline = None
             self._action = None
-            return fired
+        if late is not None:
+            try:
+                late()
+            except Exception:  # as in the thread: a failing fallback is not the step's
+                pass
+        return fired
 
     def close(self) -> None:
         with self._cond:

@@ -140,6 +140,24 @@ def test_watchdog_fires_at_deadline_and_not_when_disarmed():
     wd.close()
 
 
+def test_watchdog_counts_a_passed_deadline_as_missed_though_its_thread_did_not_run():
+    # a starved watchdog thread: it cannot return from its wait while the test holds its
+    # condition's (re-entrant) lock
+    wd = Watchdog()
+    ran = []
+    with wd._cond:
+        wd.arm(time.perf_counter() - 0.001, lambda: ran.append("fallback"))
+        assert wd.disarm() is True  # the sample missed: the fallback goes out here
+        assert ran == ["fallback"]
+    time.sleep(0.05)
+    assert ran == ["fallback"]  # and only once
+    wd.arm(time.perf_counter() + 0.5, lambda: ran.append("late"))
+    assert wd.disarm() is False  # in time: nothing runs
+    time.sleep(0.6)
+    assert ran == ["fallback"]
+    wd.close()
+
+
 def test_deadline_stats_percentiles_of_kept_samples():
     from services.timing import DeadlineStats
 

@@ -20,8 +20,10 @@ still busy with the previous sample is not in it; the plant counts that sample a
 if its move comes after the next boundary). A :class:`~services.timing.Watchdog`
 publishes the fallback move (the last move, held) at the deadline if the step has
 not returned, so an overrun never stalls the plant; the late result is not published
-and the miss is counted. The controller's own fallback (``ControlDecision.fallback``: next
-move of the previous plan for the MPC) is counted too.
+and the miss is counted (also where the watchdog's thread had not run by the deadline
+on a loaded machine: the step's end then sends the fallback). The controller's own
+fallback (``ControlDecision.fallback``: next move of the previous plan for the MPC) is
+counted too.
 
 Threads: a measurement is processed on the Zenoh thread that delivers it (no
 hand-over to another thread: waking one cost up to milliseconds on a loaded
