@@ -136,13 +136,13 @@ def chaos(tmp_path):
         loop.close()
 
 
-def _assert_move_held_in_window(loop, span=WINDOW):
+def _assert_move_held_in_window(loop):
     """Zero-order hold: every measurement inside the window reports a move the plant
     applied, one that answers a measurement taken before the window, and never an
     older one than the measurement before it. (Answers to the last measurements before
     the window may still land inside it on a loaded machine: they were sent in time by
     a controller that saw those measurements; no move answers one it never saw.)"""
-    inside = [m for m in loop.meas if span[0] + 0.15 < m.t < span[1] - 0.05]
+    inside = [m for m in loop.meas if WINDOW[0] + 0.15 < m.t < WINDOW[1] - 0.05]
     assert len(inside) >= 5
     sent = {mv.seq: mv for mv in loop.mvs}
     taken_at = {m.seq: m.t for m in loop.meas}
@@ -150,12 +150,12 @@ def _assert_move_held_in_window(loop, span=WINDOW):
     assert seqs == sorted(seqs)
     for m in inside:
         mv = sent[m.mv_seq]
-        assert taken_at[mv.meas_seq] < span[0]
+        assert taken_at[mv.meas_seq] < WINDOW[0]
         np.testing.assert_allclose(m.u, mv.u, rtol=0, atol=0)
 
 
-def _window(kind, target, p=1.0, amount=0.0, span=WINDOW):
-    return [FaultWindow(kind, target, span[0], span[1], p, amount)]
+def _window(kind, target, p=1.0, amount=0.0):
+    return [FaultWindow(kind, target, WINDOW[0], WINDOW[1], p, amount)]
 
 
 def test_dropped_moves_leave_the_last_move_applied(chaos):
