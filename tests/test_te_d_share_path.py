@@ -193,48 +193,35 @@ def test_an_aborted_transition_holds_the_d_share_where_it_is():
     assert _run(ctl, t1, 20, x) == [pytest.approx(s, abs=1e-15)] * 20
 
 
-def _hours_to_grade(strategy: str, a: int, b: int, hours: float) -> float | None:
+def _leg(strategy: str, a: int, b: int, hours: float, seed: int = 1, **options) -> dict:
+    """One leg a -> b (noise on, the change at 1 h; ``options`` to ``run_te``): its
+    campaign metrics row; it must not trip."""
     from controller.units.te.control import plant_seed_for, run_te
     from services.campaign import metrics
 
     plan = TransitionPlan(f"mode{a}", (Leg(1.0, f"mode{b}"),))
-    r = run_te(strategy, plan, hours, noise=True, seed=1, plant_seed=plant_seed_for(1))
+    r = run_te(strategy, plan, hours, noise=True, seed=seed, plant_seed=plant_seed_for(seed),
+               **options)
     assert r.shutdown is None
-    row = metrics.te_metrics(r.t, r.xmeas, r.cost, r.active, r.model_names,
-                             r.meta["sample_h"], (1.0, f"mode{b}"), None, xmv=r.xmv,
-                             previous_grade=f"mode{a}")
-    return row["time_to_grade_h"]
+    return metrics.te_metrics(r.t, r.xmeas, r.cost, r.active, r.model_names,
+                              r.meta["sample_h"], (1.0, f"mode{b}"), None, xmv=r.xmv,
+                              previous_grade=f"mode{a}")
 
 
 def test_leaving_mode_3_the_mpc_strategies_reach_the_grade_hours_before_the_plan():
     # 3 -> 1, noise on, seed 1 (docs/campaigns.md: 8.1 h against the plan's 13.8 h);
     # with the plan's path the MPC strategies took 14.0 h
-    mpc = _hours_to_grade("fixed", 3, 1, 18.0)
-    plan = _hours_to_grade("plan", 3, 1, 18.0)
+    mpc = _leg("fixed", 3, 1, 18.0)["time_to_grade_h"]
+    plan = _leg("plan", 3, 1, 18.0)["time_to_grade_h"]
     assert mpc is not None and mpc < 10.0
     assert plan is None or plan > mpc + 3.0
-
-
-def _leg(start, to, seed, hours, path):
-    """One ssmpc leg (noise on, the change at 1 h) with the path's settings ``path``:
-    its campaign metrics row; it must not trip."""
-    from controller.units.te.control import plant_seed_for, run_te
-    from services.campaign import metrics
-
-    plan = TransitionPlan(f"mode{start}", (Leg(1.0, f"mode{to}"),))
-    r = run_te("ssmpc", plan, hours, noise=True, seed=seed, plant_seed=plant_seed_for(seed),
-               d_share_path=path)
-    assert r.shutdown is None
-    return metrics.te_metrics(r.t, r.xmeas, r.cost, r.active, r.model_names,
-                              r.meta["sample_h"], (1.0, f"mode{to}"), None, xmv=r.xmv,
-                              previous_grade=f"mode{start}")
 
 
 def test_the_lead_brings_g_to_the_grade_sooner_leaving_mode_2():
     # 2 -> 1, noise on, seed 1 (docs/te_matrix.md: 5.8 h with the lead, 8.3 h without,
     # median of seeds 1-3)
-    with_lead, without = (_leg(2, 1, 1, 14.0, DSharePathSettings(lead=lead))["time_to_grade_h"]
-                          for lead in (0.5, 0.0))
+    with_lead, without = (_leg("ssmpc", 2, 1, 14.0, d_share_path=DSharePathSettings(lead=lead))
+                          ["time_to_grade_h"] for lead in (0.5, 0.0))
     assert with_lead is not None and without is not None
     assert with_lead < without - 1.5
 
@@ -243,7 +230,8 @@ def test_the_later_end_of_the_lead_into_mode_2_brings_g_to_the_grade_sooner():
     # 1 -> 2, noise on, seed 3 (measured: 7.81 h and 1971 $ with the lead ending at half
     # of G's way, 9.03 h and 2290 $ at 30 %): the path passes mode 2's share before the
     # lead ends, and G comes into its band without the tail
-    half, early = (_leg(1, 2, 3, 12.0, DSharePathSettings(lead_until_fall=until))
+    half, early = (_leg("ssmpc", 1, 2, 12.0, seed=3,
+                        d_share_path=DSharePathSettings(lead_until_fall=until))
                    for until in (0.5, 0.3))
     t_half, t_early = half["time_to_grade_h"], early["time_to_grade_h"]
     assert t_half is not None and t_early is not None
